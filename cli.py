@@ -1,0 +1,190 @@
+"""``penumbra`` command line: the same ``main(argv) -> int`` backs the
+``.venv/bin/penumbra`` console script (PyPI bpy module) and
+``blender --command penumbra ...`` (registered in ``__init__.register``).
+
+Bad input exits 2 with one line on stderr; bpy is imported only once the
+arguments are known to be good.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from typing import List, Optional
+
+MAX_SIDE = 16384
+
+
+class UsageError(Exception):
+    """A one-line message for the user; exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse would print usage + message and exit itself
+        raise UsageError(message)
+
+
+def _resolution(text: str):
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"bad --resolution {text!r}: expected WxH, e.g. 512x512")
+    if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
+        raise UsageError(f"bad --resolution {text!r}: each side must be 1..{MAX_SIDE}")
+    return w, h
+
+
+def _positive(name, lo, hi):
+    def conv(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise UsageError(f"bad {name} {text!r}: expected a whole number")
+        if not lo <= v <= hi:
+            raise UsageError(f"bad {name} {text!r}: must be {lo}..{hi}")
+        return v
+    return conv
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="penumbra", description="Soft-shadow passes for Blender scenes.")
+    sub = p.add_subparsers(dest="command")
+    r = sub.add_parser("render", help="compute shadow passes of one frame into a multilayer EXR + JSON")
+    r.add_argument("scene", help="the .blend file (never modified)")
+    r.add_argument("--out", default="penumbra_out", help="output folder (default: penumbra_out)")
+    r.add_argument("--methods", default="pcf,embree,embree_irr",
+                   help="comma-separated method ids, or 'all'")
+    r.add_argument("--lights", default=None, help="comma-separated light names (default: all)")
+    r.add_argument("--frame", type=_positive("--frame", -1048574, 1048574), default=None)
+    r.add_argument("--resolution", type=_resolution, default=None, help="WxH (default: the scene's)")
+    r.add_argument("--samples", type=_positive("--samples", 1, 65536), default=None,
+                   help="light samples per pixel for sampling methods")
+    r.add_argument("--seed", type=_positive("--seed", 0, 2**31 - 1), default=0)
+    r.add_argument("--map-size", type=_positive("--map-size", 8, MAX_SIDE), default=None,
+                   help="light depth-map resolution (larger side)")
+    r.add_argument("--threads", type=_positive("--threads", 1, 1024), default=None)
+    r.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
+    pl = sub.add_parser("plan", help="print what the scene calls for, and why")
+    pl.add_argument("scene")
+    pl.add_argument("--methods", default="all")
+    pl.add_argument("--lights", default=None)
+    b = sub.add_parser("bench", help="accuracy-versus-time study / per-phase timings")
+    b.add_argument("--out", default=os.path.join("bench", "results"))
+    b.add_argument("--scene", default=None, help="the .blend to time (default: sample grids)")
+    b.add_argument("--repeats", type=_positive("--repeats", 1, 100), default=3)
+    b.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
+    return p
+
+
+def _check_blend(path: str) -> str:
+    if not os.path.exists(path):
+        raise UsageError(f"no such file: {path}")
+    if not os.path.isfile(path):
+        raise UsageError(f"not a file: {path}")
+    if not os.access(path, os.R_OK):
+        raise UsageError(f"cannot read {path}")
+    with open(path, "rb") as f:
+        head = f.read(12)
+    # .blend files start with BLENDER (uncompressed) or a gzip / zstd header
+    if not (head.startswith(b"BLENDER") or head.startswith(b"\x1f\x8b") or head.startswith(b"\x28\xb5\x2f\xfd")):
+        raise UsageError(f"not a .blend file: {path}")
+    return os.path.abspath(path)
+
+
+def load_scene(path: str, frame=None, resolution=None):
+    """Open the .blend (read only: nothing is ever saved) and capture it."""
+    import bpy
+    from .operators.capture import capture_scene
+    try:
+        bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
+    except Exception as exc:  # bpy raises RuntimeError with Blender's report
+        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise UsageError(f"cannot open {path}: {msg}")
+    scene = bpy.context.scene
+    if scene is None:
+        raise UsageError(f"{path} has no scene")
+    try:
+        captured = capture_scene(scene, frame=frame, resolution=resolution)
+    except ValueError as exc:
+        raise UsageError(str(exc))
+    captured.name = os.path.splitext(os.path.basename(path))[0]
+    return captured
+
+
+def _summary(result) -> str:
+    rows = [("light", "method", "V", "time s", "rmse", "reference")]
+    for lr in result.lights:
+        for pid, rec in lr.record.items():
+            err = rec.get("error", {})
+            rows.append((lr.name, pid, rec["visibility"], f"{rec['time_s']['total']:.3f}",
+                         f"{err['rmse']:.4f}" if err else "-", err.get("reference", "-")))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def cmd_render(args) -> int:
+    from .core.planner import PlanError, resolve_passes
+    from .core.frame import render_frame
+    from .core.output import write_frame
+    passes = resolve_passes(args.methods)
+    path = _check_blend(args.scene)
+    out = os.path.abspath(args.out)
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"cannot create output folder {out}: {exc.strerror}")
+    if not os.access(out, os.W_OK):
+        raise UsageError(f"output folder is not writable: {out}")
+    if args.threads:
+        import numba
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    scene = load_scene(path, args.frame, args.resolution)
+    if scene.camera is None:
+        raise UsageError(f"{path}: the scene has no camera")
+    lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
+    overrides = {"seed": args.seed}
+    if args.samples:
+        overrides["samples"] = args.samples
+    result = render_frame(scene, passes, lights, overrides, map_size=args.map_size)
+    for n in result.plan.notes:
+        print(f"penumbra: {n}")
+    paths = write_frame(result, out, previews=not args.no_previews)
+    print(_summary(result))
+    print(f"wrote {paths.get('exr', '(no EXR: no lights)')} and {paths['json']}")
+    return 0
+
+
+def cmd_plan(args) -> int:
+    from .core.planner import make_plan, resolve_passes
+    passes = resolve_passes(args.methods)
+    scene = load_scene(_check_blend(args.scene))
+    lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
+    print(make_plan(scene, passes, lights).describe())
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from .bench import run_bench
+    return run_bench(args)
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        from .core.planner import PlanError
+        args = build_parser().parse_args(argv)
+        if not args.command:
+            raise UsageError("expected a command: render, plan or bench")
+        return {"render": cmd_render, "plan": cmd_plan, "bench": cmd_bench}[args.command](args)
+    except (UsageError, PlanError) as exc:
+        print(f"penumbra: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("penumbra: interrupted", file=sys.stderr)
+        return 130
+
+
+def console_main() -> None:
+    sys.exit(main())

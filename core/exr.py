@@ -1,0 +1,88 @@
+"""Multilayer EXR in/out with the OpenEXR module (DESIGN.md "Contracts").
+
+One layer per light, one single-channel float32 pass per method id: channel
+``<layer>.<method>.V``, which Blender splits as layer / pass / channel, so its
+Image node shows one socket per method. Files are written atomically: to a
+temporary name in the same folder, then renamed.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from typing import Dict, Mapping
+
+import numpy as np
+
+CHANNEL = "V"
+
+
+def _atomic_target(path: str):
+    d = os.path.dirname(os.path.abspath(path)) or "."
+    fd, tmp = tempfile.mkstemp(prefix=".penumbra-", suffix=os.path.splitext(path)[1], dir=d)
+    os.close(fd)
+    return tmp
+
+
+def atomic_write_bytes(path: str, data: bytes) -> None:
+    tmp = _atomic_target(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_multilayer(path: str, layers: Mapping[str, Mapping[str, np.ndarray]],
+                     attributes: Mapping[str, str] | None = None) -> None:
+    """Write ``layers[layer][pass] = float32[H,W]`` as one multilayer EXR."""
+    import OpenEXR
+    channels = {}
+    shape = None
+    for layer, passes in layers.items():
+        for pname, img in passes.items():
+            a = np.ascontiguousarray(img, np.float32)
+            if a.ndim != 2:
+                raise ValueError(f"pass {layer}.{pname} must be 2-D")
+            if shape is None:
+                shape = a.shape
+            elif a.shape != shape:
+                raise ValueError("all passes of one EXR must share a size")
+            if not np.isfinite(a).all():
+                raise ValueError(f"pass {layer}.{pname} holds non-finite values")
+            channels[f"{layer}.{pname}.{CHANNEL}"] = a
+    if not channels:
+        raise ValueError("nothing to write")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for k, v in (attributes or {}).items():
+        header[f"penumbra/{k}"] = str(v)
+    tmp = _atomic_target(path)
+    try:
+        with OpenEXR.File(header, channels) as f:
+            f.write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_multilayer(path: str) -> Dict[str, Dict[str, np.ndarray]]:
+    """Read every part's channels back into ``{layer: {pass: array}}``
+    (channel names ``layer.pass.X``; a name with fewer dots keeps what it has)."""
+    import OpenEXR
+    out: Dict[str, Dict[str, np.ndarray]] = {}
+    with OpenEXR.File(path, separate_channels=True) as f:
+        for part in f.parts:
+            for name, ch in part.channels.items():
+                bits = name.split(".")
+                if len(bits) >= 3:
+                    layer, pname = ".".join(bits[:-2]), bits[-2]
+                elif len(bits) == 2:
+                    layer, pname = bits
+                else:
+                    layer, pname = "", bits[0]
+                out.setdefault(layer, {})[pname] = np.asarray(ch.pixels)
+    return out

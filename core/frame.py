@@ -1,0 +1,131 @@
+"""One frame, end to end in core: plan -> shared buffers -> methods -> errors.
+
+``render_frame`` returns every pass of every planned light plus the JSON
+record DESIGN.md's contract describes; writing files is ``core/output.py``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Dict, List, Mapping, Optional, Sequence
+
+import numpy as np
+
+from . import methods as method_registry
+from .buffers import FrameBuffers
+from .methods.base import AVERAGE, GBUFFER, IRRADIANCE, LIGHT_VIEW, SHADOW_GEOMETRY, params_dict
+from .metrics import errors, reach_mask
+from .planner import Plan, make_plan
+from .scene import Scene
+
+REFERENCE_FOR = {AVERAGE: "embree", IRRADIANCE: "embree_irr"}
+
+
+@dataclass
+class LightResult:
+    name: str
+    layer: str
+    passes: Dict[str, np.ndarray] = field(default_factory=dict)
+    record: Dict[str, dict] = field(default_factory=dict)
+    stats: Dict[str, dict] = field(default_factory=dict)
+
+
+@dataclass
+class FrameResult:
+    scene_name: str
+    frame: int
+    resolution: tuple
+    plan: Plan
+    lights: List[LightResult]
+    buffer_times: Dict[str, float]
+    total_s: float
+
+    def to_json(self) -> dict:
+        return {
+            "scene": self.scene_name,
+            "frame": int(self.frame),
+            "resolution": [int(self.resolution[0]), int(self.resolution[1])],
+            "plan": self.plan.to_json(),
+            "buffers_time_s": {k: round(v, 6) for k, v in self.buffer_times.items()},
+            "total_time_s": round(self.total_s, 6),
+            "lights": [{"name": lr.name, "layer": lr.layer, "methods": lr.record} for lr in self.lights],
+        }
+
+
+def _buffer_phases(buffers: FrameBuffers, needs, light) -> Dict[str, float]:
+    """Build times of the shared buffers a method needs, as phases of its cost."""
+    bt = buffers.build_times
+    out = {}
+    if GBUFFER in needs:
+        out["gbuffer"] = bt.get("gbuffer", 0.0) + bt.get("bvh_camera", 0.0)
+    if SHADOW_GEOMETRY in needs or LIGHT_VIEW in needs:
+        out["bvh"] = bt.get("bvh_shadow", 0.0)
+    if LIGHT_VIEW in needs:
+        out["light_view"] = bt.get(f"light_view:{light.name}", 0.0)
+    return out
+
+
+def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
+                 overrides: Optional[Mapping[str, object]] = None,
+                 method_overrides: Optional[Mapping[str, Mapping[str, object]]] = None,
+                 map_size: Optional[int] = None,
+                 progress: Optional[Callable[[str, float], None]] = None) -> FrameResult:
+    """Compute ``passes`` for every planned light of ``scene``.
+
+    ``overrides`` apply to every method's Params where the field exists
+    (``samples``, ``seed``); ``method_overrides[producer_id]`` to one method.
+    """
+    t0 = time.perf_counter()
+    W, H = scene.resolution
+    plan = make_plan(scene, passes, light_names)
+    buffers = FrameBuffers(scene, W, H, map_size)
+    registry = method_registry.producers()
+    results = []
+    n_lights = max(1, len(plan.lights))
+    for li, lp in enumerate(plan.lights):
+        light = scene.light(lp.name)
+        lr = LightResult(lp.name, lp.layer)
+        if lp.action == "skip":
+            for pid in passes:
+                p = method_registry.producer_of(pid)
+                lr.passes[pid] = np.ones((H, W), np.float32)
+                lr.record[pid] = {"time_s": {"total": 0.0}, "visibility": p.passes[pid],
+                                  "params": {}, "skipped": lp.reason}
+            results.append(lr)
+            continue
+        done = {}
+        for k, prod_id in enumerate(lp.producers):
+            if progress:
+                progress(f"{lp.name}: {prod_id}", (li + k / max(1, len(lp.producers))) / n_lights)
+            m = registry[prod_id]
+            ov = dict(overrides or {})
+            ov.update((method_overrides or {}).get(prod_id, {}))
+            params = m.make_params(ov)
+            res = m.run(buffers, light, params)
+            phases = _buffer_phases(buffers, m.needs, light)
+            phases.update({k2: v for k2, v in res.time_s.items() if k2 != "total"})
+            phases = {k2: round(v, 6) for k2, v in phases.items()}
+            phases["total"] = round(sum(phases.values()), 6)
+            done[prod_id] = (m, params, res, phases)
+        mask = reach_mask(buffers.gbuffer, light) if buffers._gbuffer is not None else None
+        for pid in passes:
+            m = method_registry.producer_of(pid)
+            _, params, res, phases = done[m.id]
+            v = np.nan_to_num(res.passes[pid], nan=1.0, posinf=1.0, neginf=0.0)
+            v = np.clip(v, 0.0, 1.0).astype(np.float32)
+            lr.passes[pid] = v
+            rec = {"time_s": phases, "visibility": m.passes[pid], "params": params_dict(params)}
+            if len(m.passes) > 1:
+                rec["computed_with"] = [q for q in m.passes if q != pid]
+            if res.stats:
+                rec["stats"] = res.stats
+            lr.record[pid] = rec
+        for pid in passes:
+            ref = REFERENCE_FOR[lr.record[pid]["visibility"]]
+            if ref in lr.passes and ref != pid and mask is not None:
+                lr.record[pid]["error"] = {"reference": ref, **errors(lr.passes[pid], lr.passes[ref], mask)}
+        results.append(lr)
+    if progress:
+        progress("done", 1.0)
+    return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
+                       time.perf_counter() - t0)

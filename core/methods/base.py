@@ -1,0 +1,89 @@
+"""What every method declares (in the spirit of Falcor's RenderPass).
+
+A method names the buffers it needs (``needs``), the passes it writes
+(``passes``, each with its kind of V), and its parameters as a dataclass whose
+field names are the paper's. The planner unions the needs of the chosen
+methods and builds each buffer once (``core/buffers.py``).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, fields
+from typing import Dict, FrozenSet, Mapping, Tuple
+
+import numpy as np
+
+# buffer names a method can ask for
+GBUFFER = "gbuffer"                 # camera G-buffer at pixel centres
+LIGHT_VIEW = "light_view"           # depth + object-id map(s) from the light centre
+SHADOW_GEOMETRY = "shadow_geometry" # Embree BVH of the shadow-casting triangles
+LIGHT_SAMPLE_VIEWS = "light_sample_views"  # depth maps from N points on the light
+
+AVERAGE = "average"        # Agrawala et al. equation 2
+IRRADIANCE = "irradiance"  # equation 1 with / without V
+
+
+@dataclass
+class MethodResult:
+    passes: Dict[str, np.ndarray]               # pass id -> float32[H,W] in [0,1]
+    time_s: Dict[str, float] = field(default_factory=dict)   # phase -> seconds
+    stats: Dict[str, object] = field(default_factory=dict)
+
+
+class Method:
+    """Base class; subclasses set the class attributes and implement ``run``."""
+
+    id: str = ""
+    paper: str = ""
+    passes: Mapping[str, str] = {}          # pass id -> AVERAGE | IRRADIANCE
+    needs: FrozenSet[str] = frozenset()
+    Params: type = object
+    physical: bool = False                  # claims to converge to the reference
+
+    def run(self, buffers, light, params) -> MethodResult:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # helpers -------------------------------------------------------------
+    def make_params(self, overrides: Mapping[str, object] | None = None):
+        """Params dataclass with ``overrides`` applied (unknown names ignored
+        so one ``--samples`` can reach every method that samples)."""
+        p = self.Params()
+        for f in fields(p):
+            if overrides and f.name in overrides and overrides[f.name] is not None:
+                setattr(p, f.name, type(getattr(p, f.name))(overrides[f.name])
+                        if getattr(p, f.name) is not None else overrides[f.name])
+        return p
+
+
+def params_dict(params) -> dict:
+    out = {}
+    for k, v in asdict(params).items():
+        if isinstance(v, (np.floating, np.integer)):
+            v = v.item()
+        out[k] = v
+    return out
+
+
+class PhaseTimer:
+    """Accumulates wall time per named phase: ``with timer('sort'): ...``."""
+
+    def __init__(self):
+        self.times: Dict[str, float] = {}
+        self._t0 = time.perf_counter()
+
+    def __call__(self, name: str):
+        timer = self
+
+        class _Ctx:
+            def __enter__(self_inner):
+                self_inner.t = time.perf_counter()
+
+            def __exit__(self_inner, *exc):
+                timer.times[name] = timer.times.get(name, 0.0) + time.perf_counter() - self_inner.t
+                return False
+        return _Ctx()
+
+    def result(self) -> Dict[str, float]:
+        out = dict(self.times)
+        out["total"] = sum(self.times.values())
+        return out

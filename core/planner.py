@@ -1,0 +1,110 @@
+"""What the scene calls for (DESIGN.md ``planner.py``): which lights need
+work, which methods run for each, and which buffers those methods need.
+Every decision carries its reason in words.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from . import methods as method_registry
+from .scene import Light, Scene
+
+
+def layer_name(light_name: str) -> str:
+    """The light's EXR layer name: dots (EXR's layer separator) -> underscores."""
+    return light_name.replace(".", "_") or "_"
+
+
+@dataclass
+class LightPlan:
+    name: str
+    layer: str
+    action: str                    # "compute" | "hard" | "skip"
+    reason: str
+    producers: List[str] = field(default_factory=list)
+    buffers: List[str] = field(default_factory=list)
+
+
+@dataclass
+class Plan:
+    passes: List[str]
+    lights: List[LightPlan]
+    notes: List[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"passes": list(self.passes), "lights": [asdict(lp) for lp in self.lights],
+                "notes": list(self.notes)}
+
+    def describe(self) -> str:
+        lines = [f"passes: {', '.join(self.passes)}"]
+        for lp in self.lights:
+            lines.append(f"light {lp.name!r} -> layer {lp.layer!r}: {lp.action} ({lp.reason})")
+            if lp.producers:
+                lines.append(f"    methods: {', '.join(lp.producers)}; buffers: {', '.join(lp.buffers)}")
+        lines.extend(f"note: {n}" for n in self.notes)
+        return "\n".join(lines)
+
+
+class PlanError(ValueError):
+    """Bad request (unknown method or light): the CLI turns it into exit 2."""
+
+
+def resolve_passes(spec: str | Sequence[str] | None) -> List[str]:
+    known = method_registry.pass_ids()
+    if spec is None or spec == "all" or spec == ["all"]:
+        return known
+    items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec) if s.strip()]
+    if not items:
+        raise PlanError("no methods given")
+    if "all" in items:
+        return known
+    bad = [s for s in items if s not in known]
+    if bad:
+        raise PlanError(f"unknown method {bad[0]!r} (known: {', '.join(known)})")
+    return list(dict.fromkeys(items))
+
+
+def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None) -> Plan:
+    notes = []
+    lights = list(scene.lights)
+    if light_names:
+        names = {lt.name for lt in lights}
+        for n in light_names:
+            if n not in names:
+                raise PlanError(f"unknown light {n!r} (scene has: {', '.join(sorted(names)) or 'none'})")
+        lights = [lt for lt in lights if lt.name in set(light_names)]
+    producers = []
+    for pid in passes:
+        p = method_registry.producer_of(pid)
+        if p.id not in producers:
+            producers.append(p.id)
+    buffers = sorted({b for pid in producers for b in method_registry.producers()[pid].needs})
+    used_layers: Dict[str, int] = {}
+    out = []
+    for lt in lights:
+        layer = layer_name(lt.name)
+        if layer in used_layers:
+            used_layers[layer] += 1
+            layer = f"{layer}_{used_layers[layer]}"
+        used_layers.setdefault(layer, 1)
+        if not lt.casts_shadow:
+            out.append(LightPlan(lt.name, layer, "skip", "the light's shadow is off (use_shadow): V = 1"))
+        elif lt.energy <= 0:
+            out.append(LightPlan(lt.name, layer, "skip", "the light has no energy: V = 1"))
+        elif not scene.tri_casts_shadow.any():
+            out.append(LightPlan(lt.name, layer, "skip", "no object casts shadows: V = 1"))
+        elif lt.is_zero_size:
+            out.append(LightPlan(lt.name, layer, "hard",
+                                 "the light has size zero: hard shadows only, one sample",
+                                 list(producers), buffers))
+        else:
+            out.append(LightPlan(lt.name, layer, "compute", f"{lt.kind} light of size {lt.extent:g}",
+                                 list(producers), buffers))
+    if not out:
+        notes.append("the scene has no lights: nothing to compute")
+    elif all(lp.action == "skip" for lp in out):
+        notes.append("no light casts shadows: every pass is V = 1")
+    return Plan(list(passes), out, notes)

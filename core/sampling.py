@@ -1,0 +1,202 @@
+"""Light-shape sampling, per-pixel decorrelation, seeds, and the ray offset.
+
+All randomness is a counter-based hash of (seed, pixel, sample, dimension)
+(PCG's output permutation over a 32-bit state), so results do not depend on
+how work is split across threads or batches: same seed -> same bits.
+
+Light domains follow DESIGN.md: area lights uniform over their shape in the
+local XY plane, sphere lights uniform over the disk of radius r through the
+centre facing the shaded point, sun directions uniform in the cone of
+half-angle angle/2 around the direction to the sun.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .scene import Light
+
+# packed light layout (float64[24]) for kernels
+L_KIND, L_CX, L_AX, L_AY, L_AZ, L_HX, L_HY, L_SHAPE, L_RADIUS, L_COSMAX, L_SPOTCOS = \
+    0, 1, 4, 7, 10, 13, 14, 15, 16, 17, 18
+KIND_AREA, KIND_SPHERE, KIND_SUN = 0, 1, 2
+
+
+def pack_light(light: Light) -> np.ndarray:
+    """float64[24]: kind, centre(3), local X, Y, Z axes (unit), half sizes,
+    shape (0 rectangle, 1 ellipse), radius, cos of the sun cone half-angle,
+    cos of the spot cone half-angle."""
+    m = light.world_from_light
+    out = np.zeros(24, np.float64)
+    out[L_KIND] = {"area": KIND_AREA, "sphere": KIND_SPHERE, "sun": KIND_SUN}[light.kind]
+    out[L_CX:L_CX + 3] = m[:3, 3]
+    for k, off in enumerate((L_AX, L_AY, L_AZ)):
+        a = m[:3, k]
+        out[off:off + 3] = a / np.linalg.norm(a)
+    out[L_HX] = 0.5 * light.size
+    out[L_HY] = 0.5 * light.size_y
+    out[L_SHAPE] = 1.0 if light.shape in ("DISK", "ELLIPSE") else 0.0
+    out[L_RADIUS] = light.radius
+    out[L_COSMAX] = math.cos(0.5 * min(light.angle, math.pi))
+    out[L_SPOTCOS] = math.cos(0.5 * min(light.spot_size, math.pi))
+    return out
+
+
+def strata(n: int):
+    """(nx, ny) with nx * ny == n and nx as close to sqrt(n) as divides n."""
+    n = max(1, int(n))
+    nx = int(math.isqrt(n))
+    while n % nx:
+        nx -= 1
+    return nx, n // nx
+
+
+# --------------------------------------------------------------------------
+# counter-based random numbers
+@njit(cache=True, inline="always")
+def _pcg(v):
+    v = (v * np.uint32(747796405) + np.uint32(2891336453)) & np.uint32(0xFFFFFFFF)
+    word = (((v >> ((v >> np.uint32(28)) + np.uint32(4))) ^ v) * np.uint32(277803737)) & np.uint32(0xFFFFFFFF)
+    return ((word >> np.uint32(22)) ^ word) & np.uint32(0xFFFFFFFF)
+
+
+@njit(cache=True, inline="always")
+def rand01(seed, pixel, sample, dim):
+    """Uniform in [0, 1) from four counters."""
+    h = _pcg(np.uint32(seed & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel & 0xFFFFFFFF)
+                                                ^ _pcg(np.uint32(pixel >> 32)
+                                                       ^ _pcg(np.uint32(sample) ^ _pcg(np.uint32(dim))))))
+    return np.float64(h >> np.uint32(8)) * (1.0 / 16777216.0)
+
+
+@njit(cache=True, inline="always")
+def concentric_disk(u, v):
+    """Shirley-Chiu concentric map of [0,1)^2 to the unit disk (area-preserving,
+    keeps strata compact)."""
+    a = 2.0 * u - 1.0
+    b = 2.0 * v - 1.0
+    if a == 0.0 and b == 0.0:
+        return 0.0, 0.0
+    if abs(a) > abs(b):
+        r = a
+        phi = (math.pi / 4.0) * (b / a)
+    else:
+        r = b
+        phi = (math.pi / 2.0) - (math.pi / 4.0) * (a / b)
+    return r * math.cos(phi), r * math.sin(phi)
+
+
+@njit(cache=True, inline="always")
+def orthonormal_basis(nx, ny, nz):
+    """Duff et al. 2017 branchless ONB around a unit vector."""
+    s = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (s + nz)
+    b = nx * ny * a
+    return (1.0 + s * nx * nx * a, s * b, -s * nx), (b, s + ny * ny * a, -ny)
+
+
+@njit(cache=True)
+def light_sample(lp, px, py, pz, u, v):
+    """A point on (or direction to) the light for unit-square coordinates (u, v).
+
+    Returns (x, y, z, is_direction, cos_light): a world point on the light, or
+    for a sun a unit direction towards it; ``cos_light`` is the cosine at the
+    light used by the irradiance weight (1 for a sun).
+    """
+    kind = lp[0]
+    cx, cy, cz = lp[1], lp[2], lp[3]
+    if kind == 0.0:  # area
+        if lp[15] == 1.0:
+            dx, dy = concentric_disk(u, v)
+        else:
+            dx, dy = 2.0 * u - 1.0, 2.0 * v - 1.0
+        dx *= lp[13]
+        dy *= lp[14]
+        x = cx + lp[4] * dx + lp[7] * dy
+        y = cy + lp[5] * dx + lp[8] * dy
+        z = cz + lp[6] * dx + lp[9] * dy
+        return x, y, z, False, 0.0
+    if kind == 1.0:  # sphere: disk through the centre facing the point
+        wx, wy, wz = cx - px, cy - py, cz - pz
+        d = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if d == 0.0 or lp[16] == 0.0:
+            return cx, cy, cz, False, 1.0
+        wx /= d
+        wy /= d
+        wz /= d
+        b1, b2 = orthonormal_basis(wx, wy, wz)
+        dx, dy = concentric_disk(u, v)
+        r = lp[16]
+        return (cx + (b1[0] * dx + b2[0] * dy) * r, cy + (b1[1] * dx + b2[1] * dy) * r,
+                cz + (b1[2] * dx + b2[2] * dy) * r, False, 1.0)
+    # sun: uniform over the spherical cap of half-angle a/2 around +Z (towards the sun)
+    dx, dy = concentric_disk(u, v)
+    r2 = dx * dx + dy * dy
+    one_minus_cos = r2 * (1.0 - lp[17])
+    cos_t = 1.0 - one_minus_cos
+    sin_t = math.sqrt(max(0.0, one_minus_cos * (2.0 - one_minus_cos)))
+    if r2 > 0.0:
+        rr = math.sqrt(r2)
+        sx, sy = dx / rr * sin_t, dy / rr * sin_t
+    else:
+        sx, sy = 0.0, 0.0
+    x = lp[4] * sx + lp[7] * sy + lp[10] * cos_t
+    y = lp[5] * sx + lp[8] * sy + lp[11] * cos_t
+    z = lp[6] * sx + lp[9] * sy + lp[12] * cos_t
+    return x, y, z, True, 1.0
+
+
+# --------------------------------------------------------------------------
+# self-intersection offset
+@njit(cache=True, inline="always")
+def _nudge(p, of_i):
+    """Move float32 ``p`` by ``of_i`` units in the last place, away from zero
+    when ``of_i`` has p's sign."""
+    b = np.float32(p).view(np.int32)
+    if p < 0:
+        b = b - of_i
+    else:
+        b = b + of_i
+    return np.float64(np.int32(b).view(np.float32))
+
+
+@njit(cache=True, inline="always")
+def offset_origin(px, py, pz, nx, ny, nz, scale):
+    """Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection"
+    (Ray Tracing Gems, ch. 6): move the hit point off its surface along the
+    normal by 256 float32 ULPs per component, or near the origin (where ULPs
+    vanish) by a fixed ``scale / 65536``. The paper's absolute constants (1/32,
+    1/65536) assume scenes of unit size; here they are multiplied by the scene's
+    extent ``scale`` so the scheme is the same for a 1e-3 and a 1e4 scene."""
+    origin = scale / 32.0
+    fs = scale / 65536.0
+    ix = np.int32(256.0 * nx)
+    iy = np.int32(256.0 * ny)
+    iz = np.int32(256.0 * nz)
+    ox = px + fs * nx if abs(px) < origin else _nudge(px, ix)
+    oy = py + fs * ny if abs(py) < origin else _nudge(py, iy)
+    oz = pz + fs * nz if abs(pz) < origin else _nudge(pz, iz)
+    return ox, oy, oz
+
+
+def scene_scale(lo, hi) -> float:
+    """The extent used by ``offset_origin``: the bounding-box diagonal."""
+    d = float(np.linalg.norm(np.asarray(hi, np.float64) - np.asarray(lo, np.float64)))
+    return d if d > 0 and np.isfinite(d) else 1.0
+
+
+@njit(cache=True)
+def light_sample_set(lp, n, seed):
+    """The same ``n`` stratified jittered unit-square points for every pixel
+    (the layered method's sampling, Agrawala et al. section 3), float64[n, 2]."""
+    nx = int(math.sqrt(n))
+    while n % nx:
+        nx -= 1
+    ny = n // nx
+    out = np.empty((n, 2))
+    for s in range(n):
+        out[s, 0] = ((s % nx) + rand01(seed, 0, s, 0)) / nx
+        out[s, 1] = ((s // nx) + rand01(seed, 0, s, 1)) / ny
+    return out

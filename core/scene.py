@@ -1,0 +1,260 @@
+"""Penumbra's data model: what a captured frame holds (DESIGN.md, "Data model").
+
+Everything here is plain NumPy; the one bpy -> numpy boundary
+(``operators/capture.py``) fills these dataclasses, tests build them by hand.
+
+Conventions
+-----------
+* World space is Blender's (right-handed, Z up), in scene units.
+* Matrices are float64 4x4, column vectors: ``p_world = M @ p_local``.
+* Images are indexed ``[row, column]`` with row 0 at the *top* (EXR order);
+  pixel centres sit at ``(column + 0.5, row + 0.5)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+LIGHT_KINDS = ("area", "sphere", "sun")
+AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
+
+
+@dataclass
+class ObjectInfo:
+    """One renderable object instance; ``id`` is its index in ``Scene.objects``."""
+
+    name: str
+    id: int
+    casts_shadow: bool = True      # Cycles ray visibility `visible_shadow`
+    visible_camera: bool = True    # Cycles ray visibility `visible_camera`
+    pass_index: int = 0
+
+
+@dataclass
+class Camera:
+    """The scene camera, with Blender's own parameters (see ``views.camera_viewplane``)."""
+
+    world_from_camera: np.ndarray          # 4x4; camera looks along its local -Z, +Y up
+    kind: str = "PERSP"                    # PERSP | ORTHO
+    lens: float = 50.0                     # focal length, mm
+    sensor_width: float = 36.0             # mm
+    sensor_height: float = 24.0            # mm
+    sensor_fit: str = "AUTO"               # AUTO | HORIZONTAL | VERTICAL
+    ortho_scale: float = 6.0
+    shift_x: float = 0.0
+    shift_y: float = 0.0
+    clip_start: float = 0.1
+    clip_end: float = 1000.0
+    pixel_aspect_x: float = 1.0
+    pixel_aspect_y: float = 1.0
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.asarray(self.world_from_camera, np.float64)[:3, 3].copy()
+
+    @property
+    def forward(self) -> np.ndarray:
+        m = np.asarray(self.world_from_camera, np.float64)
+        f = -m[:3, 2]
+        return f / np.linalg.norm(f)
+
+
+@dataclass
+class Light:
+    """A light as DESIGN.md's light domains define it.
+
+    ``world_from_light`` is orthonormal (rotation + translation): object scale
+    is folded into ``size``/``size_y`` at capture. The light shines along its
+    local -Z (area, spot, sun).
+
+    kind:
+      * ``area``   - uniform over ``shape`` (SQUARE, RECTANGLE, DISK, ELLIPSE) of
+        ``size`` x ``size_y`` in the local XY plane; one-sided, emits along -Z.
+      * ``sphere`` - point or spot light of ``radius`` (a disk of that radius
+        through the centre, facing the shaded point); radius 0 = hard shadows.
+        ``spot_size`` (full cone angle, radians) < pi makes it a spot.
+      * ``sun``    - directions uniform in the cone of full angle ``angle``
+        around the local -Z.
+    """
+
+    name: str
+    kind: str
+    world_from_light: np.ndarray
+    blender_type: str = ""                 # POINT | SPOT | AREA | SUN
+    shape: str = "SQUARE"
+    size: float = 0.0
+    size_y: float = 0.0
+    radius: float = 0.0
+    spot_size: float = np.pi               # full cone angle; pi = no cone
+    spot_blend: float = 0.0
+    angle: float = 0.0                     # sun angular diameter, radians
+    color: Tuple[float, float, float] = (1.0, 1.0, 1.0)
+    energy: float = 1.0
+    casts_shadow: bool = True
+
+    def __post_init__(self):
+        if self.kind not in LIGHT_KINDS:
+            raise ValueError(f"light {self.name!r}: unknown kind {self.kind!r}")
+        if self.kind == "area" and self.shape not in AREA_SHAPES:
+            raise ValueError(f"light {self.name!r}: unknown area shape {self.shape!r}")
+        if self.kind == "area" and self.shape in ("SQUARE", "DISK"):
+            self.size_y = self.size
+        self.world_from_light = np.asarray(self.world_from_light, np.float64)
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.world_from_light[:3, 3].copy()
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit direction the light shines along (its local -Z)."""
+        d = -self.world_from_light[:3, 2]
+        return d / np.linalg.norm(d)
+
+    @property
+    def is_spot(self) -> bool:
+        return self.kind == "sphere" and self.spot_size < np.pi - 1e-6
+
+    @property
+    def extent(self) -> float:
+        """Characteristic size: the light's diameter (area: its larger side),
+        or for a sun its angular diameter in radians."""
+        if self.kind == "area":
+            return float(max(self.size, self.size_y))
+        if self.kind == "sphere":
+            return 2.0 * float(self.radius)
+        return float(self.angle)
+
+    @property
+    def is_zero_size(self) -> bool:
+        """A light of size zero casts hard shadows only (DESIGN.md)."""
+        return self.extent <= 0.0
+
+
+@dataclass
+class Scene:
+    """One captured frame: triangle soup plus camera and lights."""
+
+    triangles: np.ndarray                  # float32[T,3,3], world space
+    tri_object: np.ndarray                 # int32[T], index into objects
+    objects: List[ObjectInfo]
+    camera: Optional[Camera]
+    lights: List[Light]
+    resolution: Tuple[int, int] = (512, 512)   # (width, height) after percentage
+    frame: int = 1
+    name: str = "scene"
+
+    def __post_init__(self):
+        tris = np.asarray(self.triangles, np.float32).reshape(-1, 3, 3)
+        ids = np.asarray(self.tri_object, np.int32).reshape(-1)
+        if len(ids) != len(tris):
+            raise ValueError("tri_object must have one id per triangle")
+        self.triangles = np.ascontiguousarray(tris)
+        self.tri_object = np.ascontiguousarray(ids)
+
+    # -- derived masks -------------------------------------------------
+    def _object_flag(self, attr: str) -> np.ndarray:
+        flags = np.array([getattr(o, attr) for o in self.objects] or [True], bool)
+        if len(self.tri_object) == 0:
+            return np.zeros(0, bool)
+        return flags[self.tri_object]
+
+    @property
+    def tri_casts_shadow(self) -> np.ndarray:
+        return self._object_flag("casts_shadow")
+
+    @property
+    def tri_visible_camera(self) -> np.ndarray:
+        return self._object_flag("visible_camera")
+
+    def bounds(self) -> Tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds of all triangles (finite ones)."""
+        if len(self.triangles) == 0:
+            return np.zeros(3), np.zeros(3)
+        v = self.triangles.reshape(-1, 3).astype(np.float64)
+        return v.min(axis=0), v.max(axis=0)
+
+    def light(self, name: str) -> Light:
+        for lt in self.lights:
+            if lt.name == name:
+                return lt
+        raise KeyError(name)
+
+
+def finite_triangles(triangles: np.ndarray, tri_object: np.ndarray):
+    """Drop triangles with non-finite vertices; returns (triangles, ids, dropped)."""
+    ok = np.isfinite(triangles.reshape(len(triangles), -1)).all(axis=1)
+    return triangles[ok], tri_object[ok], int((~ok).sum())
+
+
+@dataclass
+class GBuffer:
+    """Camera view at pixel centres (DESIGN.md "GBuffer").
+
+    ``depth`` is the distance along the camera's view axis (Cycles' Depth pass
+    convention), +inf where nothing is hit. ``normal`` is the geometric normal
+    flipped to face the camera (the side that is seen). ``position`` is
+    computed from barycentrics on the float32 triangle, float64.
+    """
+
+    position: np.ndarray      # float64[H,W,3]
+    normal: np.ndarray        # float32[H,W,3], unit, facing the camera
+    depth: np.ndarray         # float32[H,W]
+    object_id: np.ndarray     # int32[H,W], -1 where empty
+    triangle_id: np.ndarray   # int32[H,W], -1 where empty
+    hit: np.ndarray           # bool[H,W]
+
+    @property
+    def shape(self) -> Tuple[int, int]:
+        return self.depth.shape
+
+
+@dataclass
+class ViewFace:
+    """One projection of a light view (perspective, orthographic or a cube face).
+
+    View space looks along -Z. ``bounds`` = (left, right, bottom, top): at unit
+    distance for perspective (tangent space), in scene units for orthographic.
+    Pixel (row, col) covers u in [col, col+1), v in [row, row+1) with
+    u = (x' - left) / (right - left) * width, v = (top - y') / (top - bottom) * height,
+    where x' = x/-z (perspective) or x (orthographic).
+    Depth stored in a map is ``-z`` in view space: the distance along the view
+    axis from the light centre (perspective) or from the view plane through
+    the view origin (orthographic).
+    """
+
+    view_from_world: np.ndarray   # 4x4 float64
+    ortho: bool
+    bounds: Tuple[float, float, float, float]
+    width: int
+    height: int
+    label: str = ""
+
+    def packed(self) -> np.ndarray:
+        """float64[24] for Numba kernels: 16 matrix, ortho, l, r, b, t, w, h, 0."""
+        out = np.zeros(24, np.float64)
+        out[:16] = np.asarray(self.view_from_world, np.float64).reshape(16)
+        out[16] = 1.0 if self.ortho else 0.0
+        out[17:21] = self.bounds
+        out[21] = self.width
+        out[22] = self.height
+        return out
+
+
+@dataclass
+class LightView:
+    """Depth + object-ID maps of one light from one eye point (DESIGN.md "LightView").
+
+    ``faces`` share one resolution so the maps stack: ``depth[f]`` is face f.
+    ``eye`` is where the rays start (light centre, or a light sample).
+    """
+
+    faces: List[ViewFace]
+    depth: np.ndarray            # float32[F,h,w], +inf where empty
+    object_id: np.ndarray        # int32[F,h,w], -1 where empty
+    eye: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def packed_faces(self) -> np.ndarray:
+        return np.stack([f.packed() for f in self.faces]) if self.faces else np.zeros((0, 24))

@@ -1,0 +1,99 @@
+"""EXR/JSON contract, planner decisions and the frame pipeline (no bpy)."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from penumbra.core import exr
+from penumbra.core.frame import render_frame
+from penumbra.core.output import write_frame
+from penumbra.core.planner import PlanError, layer_name, make_plan, resolve_passes
+from synthetic import area_light, half_plane_scene, sphere_light
+
+
+def test_exr_round_trip(tmp_path):
+    rng = np.random.default_rng(0)
+    layers = {"Key_Light": {"pcf": rng.random((7, 5), dtype=np.float32),
+                            "embree": rng.random((7, 5), dtype=np.float32)},
+              "Fill": {"pcf": np.ones((7, 5), np.float32)}}
+    p = str(tmp_path / "x.exr")
+    exr.write_multilayer(p, layers)
+    back = exr.read_multilayer(p)
+    assert set(back) == set(layers)
+    for layer, passes in layers.items():
+        assert set(back[layer]) == set(passes)
+        for k, v in passes.items():
+            np.testing.assert_array_equal(back[layer][k], v)
+
+
+def test_exr_refuses_nan_and_leaves_nothing(tmp_path):
+    p = tmp_path / "bad.exr"
+    img = np.ones((4, 4), np.float32)
+    img[1, 1] = np.nan
+    with pytest.raises(ValueError):
+        exr.write_multilayer(str(p), {"L": {"pcf": img}})
+    assert os.listdir(tmp_path) == []
+
+
+def test_layer_names_are_exr_safe():
+    assert layer_name("Key.Light.001") == "Key_Light_001"
+
+
+def test_resolve_passes():
+    assert resolve_passes("pcf,embree") == ["pcf", "embree"]
+    assert {"pcf", "embree", "embree_irr"} <= set(resolve_passes("all"))
+    with pytest.raises(PlanError, match="unknown method 'nope'"):
+        resolve_passes("pcf,nope")
+
+
+def test_plan_rules():
+    sc = half_plane_scene(area_light(1.0), res=8)
+    off = area_light(1.0, name="Off")
+    off.casts_shadow = False
+    dark = area_light(1.0, name="Dark")
+    dark.energy = 0.0
+    tiny = sphere_light(0.0, name="Tiny.Point")
+    sc.lights += [off, dark, tiny]
+    plan = make_plan(sc, ["pcf", "embree"])
+    by = {lp.name: lp for lp in plan.lights}
+    assert by["Area"].action == "compute"
+    assert by["Off"].action == "skip" and "shadow is off" in by["Off"].reason
+    assert by["Dark"].action == "skip" and "energy" in by["Dark"].reason
+    assert by["Tiny.Point"].action == "hard" and by["Tiny.Point"].layer == "Tiny_Point"
+    assert by["Area"].buffers == ["gbuffer", "light_view", "shadow_geometry"]
+    with pytest.raises(PlanError, match="unknown light"):
+        make_plan(sc, ["pcf"], ["Nope"])
+
+
+def test_frame_json_contract(tmp_path):
+    sc = half_plane_scene(area_light(1.0, name="Key.Light"), res=24)
+    res = render_frame(sc, ["pcf", "embree", "embree_irr"], overrides={"samples": 16})
+    paths = write_frame(res, str(tmp_path))
+    assert os.path.basename(paths["exr"]) == "scene.0001.exr"
+    rec = json.loads(open(paths["json"]).read())
+    assert rec["frame"] == 1 and rec["resolution"] == [24, 24]
+    (light,) = rec["lights"]
+    assert light["name"] == "Key.Light" and light["layer"] == "Key_Light"
+    m = light["methods"]
+    assert set(m) == {"pcf", "embree", "embree_irr"}
+    assert m["pcf"]["visibility"] == "average" and m["embree_irr"]["visibility"] == "irradiance"
+    assert m["pcf"]["error"]["reference"] == "embree"
+    assert "error" not in m["embree"]
+    for k in ("rmse", "max_abs", "mean_signed"):
+        assert np.isfinite(m["pcf"]["error"][k])
+    assert m["pcf"]["params"]["NumSamples"] == 16
+    assert m["embree"]["params"]["samples"] == 16
+    assert m["pcf"]["time_s"]["total"] >= m["pcf"]["time_s"]["filter"] > 0
+    back = exr.read_multilayer(paths["exr"])
+    np.testing.assert_array_equal(back["Key_Light"]["pcf"], res.lights[0].passes["pcf"])
+    assert os.path.exists(tmp_path / "scene.0001.Key_Light.pcf.png")
+    assert not [f for f in os.listdir(tmp_path) if f.startswith(".penumbra-")]
+
+
+def test_scene_without_shadows_writes_ones(tmp_path):
+    sc = half_plane_scene(area_light(1.0), res=8)
+    sc.lights[0].casts_shadow = False
+    res = render_frame(sc, ["pcf", "embree"])
+    assert all((v == 1).all() for v in res.lights[0].passes.values())
+    assert "no light casts shadows" in " ".join(res.plan.notes)

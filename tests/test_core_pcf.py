@@ -1,0 +1,85 @@
+"""Percentage-closer filtering (Reeves et al. 1987) against the hard test and invariants."""
+import numpy as np
+import pytest
+
+from penumbra.core import views
+from penumbra.core.buffers import FrameBuffers
+from penumbra.core.kernels import finite_bbox
+from penumbra.core.methods import producer_of
+from penumbra.core.methods.pcf import hard_shadow_kernel, resolved_bias, scene_extent, sample_shadow
+from synthetic import area_light, half_plane_scene, pixel_world_y, sphere_light, sun_light
+
+
+def run_pcf(scene, **over):
+    m = producer_of("pcf")
+    fb = FrameBuffers(scene, *scene.resolution)
+    return m.run(fb, scene.lights[0], m.make_params(over)), fb
+
+
+def hard(fb, light, bias):
+    g = fb.gbuffer
+    lv = fb.light_view(light)
+    idx = np.flatnonzero(g.hit.reshape(-1))
+    out = np.ones(g.hit.size)
+    vals = np.empty(len(idx))
+    hard_shadow_kernel(np.ascontiguousarray(g.position.reshape(-1, 3)[idx]), lv.packed_faces(), lv.depth, bias, vals)
+    out[idx] = vals
+    return out.reshape(g.shape)
+
+
+@pytest.mark.parametrize("make", [lambda: area_light(1.0), lambda: sphere_light(0.3), lambda: sun_light(0.1)])
+def test_zero_region_equals_hard_shadow_test(make):
+    scene = half_plane_scene(make(), res=48)
+    r, fb = run_pcf(scene, ResFactor=0.0, MinSize=0.0, MinSamples=1, Bias0=0.01, Bias1=0.01)
+    np.testing.assert_array_equal(r.passes["pcf"], hard(fb, scene.lights[0], 0.01))
+    v = r.passes["pcf"]
+    assert (v == 0).any() and (v == 1).any()
+
+
+def test_zero_size_light_gives_hard_shadow():
+    scene = half_plane_scene(area_light(0.0), res=48)
+    r, fb = run_pcf(scene, Bias0=0.02, Bias1=0.02)
+    np.testing.assert_array_equal(r.passes["pcf"], hard(fb, scene.lights[0], 0.02))
+
+
+def test_soft_edge_is_monotone_and_in_range():
+    scene = half_plane_scene(area_light(1.0), res=64)
+    r, _ = run_pcf(scene, ResFactor=4.0, NumSamples=64)
+    v = r.passes["pcf"]
+    assert np.isfinite(v).all() and v.min() >= 0 and v.max() <= 1
+    rm = v.mean(axis=1)[::-1]             # from shadow (y < 0) to light
+    assert rm[0] == 0.0 and rm[-1] == 1.0
+    assert np.all(np.diff(rm) >= -0.05)
+    assert ((v > 0) & (v < 1)).any()      # it filters: some partial values
+
+
+def test_region_outside_map_bbox_is_lit():
+    """sample_shadow returns 0 (not in shadow) when the region misses the map's
+    bounding box of finite depths, and for points behind the light."""
+    depth = np.full((8, 8), np.inf, np.float32)
+    depth[2:4, 2:4] = 1.0
+    bbox = finite_bbox(depth[None])[0]
+    assert list(bbox) == [2, 3, 2, 3]
+    assert sample_shadow(depth, bbox, 6.5, 6.5, 5.0, 0.5, 0.5, 16, 1, 0.0, 0.0, 0, 0) == 0.0
+    assert sample_shadow(depth, bbox, 3.0, 3.0, -1.0, 1.0, 1.0, 16, 1, 0.0, 0.0, 0, 0) == 0.0
+    assert sample_shadow(depth, bbox, 3.0, 3.0, 5.0, 0.9, 0.9, 16, 1, 0.0, 0.0, 0, 0) == 1.0
+
+
+def test_sample_counts_follow_figure_4():
+    """A large region takes about NumSamples samples; a small one at least
+    MinSamples per axis: count the distinct outcomes' denominators."""
+    depth = np.zeros((64, 64), np.float32)
+    bbox = np.array([0, 63, 0, 63])
+    # half the map in shadow: fraction is a multiple of 1/(ns nt)
+    depth[:, 32:] = 10.0
+    f = sample_shadow(depth, bbox, 32.0, 32.0, 5.0, 16.0, 16.0, 16, 2, 0.0, 0.0, 0, 0)
+    assert f == pytest.approx(0.5)
+    f1 = sample_shadow(depth, bbox, 20.0, 20.0, 5.0, 0.0, 0.0, 16, 3, 0.0, 0.0, 0, 0)
+    assert f1 == 1.0
+
+
+def test_bias_scales_with_scene_size():
+    scene = half_plane_scene(area_light(1.0), res=8)
+    p = producer_of("pcf").make_params({})
+    b0, b1 = resolved_bias(p, scene_extent(scene))
+    assert b0 == pytest.approx(0.003 * 20) and b1 == pytest.approx(0.004 * 20)
