@@ -7,7 +7,10 @@ from penumbra.core.buffers import FrameBuffers
 from penumbra.core.kernels import finite_bbox
 from penumbra.core.methods import producer_of
 from penumbra.core.methods.pcf import hard_shadow_kernel, resolved_bias, scene_extent, sample_shadow
+
 from synthetic import area_light, half_plane_scene, pixel_world_y, sphere_light, sun_light
+
+NOPLANE = np.zeros(12)   # figure 4's constant receiver depth
 
 
 def run_pcf(scene, **over):
@@ -60,9 +63,9 @@ def test_region_outside_map_bbox_is_lit():
     depth[2:4, 2:4] = 1.0
     bbox = finite_bbox(depth[None])[0]
     assert list(bbox) == [2, 3, 2, 3]
-    assert sample_shadow(depth, bbox, 6.5, 6.5, 5.0, 0.5, 0.5, 16, 1, 0.0, 0.0, 0, 0) == 0.0
-    assert sample_shadow(depth, bbox, 3.0, 3.0, -1.0, 1.0, 1.0, 16, 1, 0.0, 0.0, 0, 0) == 0.0
-    assert sample_shadow(depth, bbox, 3.0, 3.0, 5.0, 0.9, 0.9, 16, 1, 0.0, 0.0, 0, 0) == 1.0
+    assert sample_shadow(depth, bbox, 6.5, 6.5, 5.0, 0.5, 0.5, 16, 1, 0.0, 0.0, 0, 0, NOPLANE) == 0.0
+    assert sample_shadow(depth, bbox, 3.0, 3.0, -1.0, 1.0, 1.0, 16, 1, 0.0, 0.0, 0, 0, NOPLANE) == 0.0
+    assert sample_shadow(depth, bbox, 3.0, 3.0, 5.0, 0.9, 0.9, 16, 1, 0.0, 0.0, 0, 0, NOPLANE) == 1.0
 
 
 def test_sample_counts_follow_figure_4():
@@ -72,9 +75,9 @@ def test_sample_counts_follow_figure_4():
     bbox = np.array([0, 63, 0, 63])
     # half the map in shadow: fraction is a multiple of 1/(ns nt)
     depth[:, 32:] = 10.0
-    f = sample_shadow(depth, bbox, 32.0, 32.0, 5.0, 16.0, 16.0, 16, 2, 0.0, 0.0, 0, 0)
+    f = sample_shadow(depth, bbox, 32.0, 32.0, 5.0, 16.0, 16.0, 16, 2, 0.0, 0.0, 0, 0, NOPLANE)
     assert f == pytest.approx(0.5)
-    f1 = sample_shadow(depth, bbox, 20.0, 20.0, 5.0, 0.0, 0.0, 16, 3, 0.0, 0.0, 0, 0)
+    f1 = sample_shadow(depth, bbox, 20.0, 20.0, 5.0, 0.0, 0.0, 16, 3, 0.0, 0.0, 0, 0, NOPLANE)
     assert f1 == 1.0
 
 
@@ -83,3 +86,22 @@ def test_bias_scales_with_scene_size():
     p = producer_of("pcf").make_params({})
     b0, b1 = resolved_bias(p, scene_extent(scene))
     assert b0 == pytest.approx(0.003 * 20) and b1 == pytest.approx(0.004 * 20)
+
+
+def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane():
+    """A lone plane tilted 60 degrees to a light above: with the paper's
+    constant z and zero bias the large regions shadow the plane itself
+    (section 4.2's Moire); comparing with the tangent-plane depth per texel
+    leaves it fully lit with zero bias."""
+    import numpy as np
+    from penumbra.core.scene import Scene, ObjectInfo
+    from synthetic import top_ortho_camera
+    c, s = np.cos(np.radians(60)), np.sin(np.radians(60))
+    tris = np.array([[[-5 * c, -5, -5 * s], [5 * c, -5, 5 * s], [5 * c, 5, 5 * s]],
+                     [[-5 * c, -5, -5 * s], [5 * c, 5, 5 * s], [-5 * c, 5, -5 * s]]], np.float32)
+    cam = top_ortho_camera(1.5, height=8.0)
+    sc = Scene(tris, np.zeros(2, np.int32), [ObjectInfo("p", 0)], cam, [area_light(1.0, z=10.0)], (48, 48))
+    on, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0)
+    off, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, receiver_plane=False)
+    assert on.passes["pcf"].min() == 1.0
+    assert off.passes["pcf"].mean() < 0.95

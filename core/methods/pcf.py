@@ -17,6 +17,12 @@ Departures from figure 4, each a fix of the listing rather than a new idea:
   * the listing jitters by ``Rand() * js`` (half a cell, one side), which
     shifts every sample by +ds/4; here each sample is jittered over its whole
     cell, as section 2's method (c) describes.
+Beyond the paper (its 4.2 trades Moire self-shadowing against shifted shadow
+boundaries through Bias): with ``receiver_plane`` each sample compares the map
+with the depth of the receiver's tangent plane along the same light ray
+(through the sample texel's centre, where the map's own ray went), not with the
+region centre's z. A flat receiver then never shadows itself whatever the
+region size or slope; Bias0/Bias1 are left for curvature. Off = figure 4.
 Sizes are in map texels: ``sres`` is half the width of the footprint's box.
 Depth in the map and of the receiver is -z in the light's view space.
 Point lights use cube faces: a region that crosses a face edge samples only
@@ -43,6 +49,10 @@ from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 # values we use are (0.3, 0.4)" -> 0.003 and 0.004 of the scene's size.
 BIAS0_PER_EXTENT = 0.003
 BIAS1_PER_EXTENT = 0.004
+# The map holds float32 depths from Embree (hit error ~1e-7 relative): a
+# receiver counts as behind a texel only beyond this relative margin, so a
+# receiver-plane comparison of a surface with itself is not a coin toss.
+DEPTH_REL_EPS = 1.0 + 1e-5
 
 
 @dataclass
@@ -55,14 +65,18 @@ class PCFParams:
     Bias1: Optional[float] = None # scene units; None = 0.004 x scene extent
     map_size: Optional[int] = None  # depth map's larger side; None = output's larger side
     MaxSize: float = 64.0         # cap on the region's half size (texels), for grazing views
+    receiver_plane: bool = True   # beyond the paper: compare each sample with the receiver's
+                                  # tangent-plane depth at that texel, not the centre's z
     seed: int = 0
 
 
 @njit(cache=True)
 def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
-                  Bias0, Bias1, seed, pixel):
+                  Bias0, Bias1, seed, pixel, plane):
     """Reeves et al. figure 4 ``SampleShadow``: fraction of the region in
-    shadow. ``s, t`` and ``sres, tres`` are already in texels (scaled)."""
+    shadow. ``s, t`` and ``sres, tres`` are already in texels (scaled).
+    ``plane`` (from ``receiver_plane``) gives the receiver's depth at each
+    sample's texel centre; ``plane[0] == 0`` keeps the paper's constant z."""
     if z < 0.0:
         return 0.0
     lu = math.floor(s - sres)
@@ -98,14 +112,57 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
             iu = min(max(iu, 0), depth_f.shape[1] - 1)
             iv = min(max(iv, 0), depth_f.shape[0] - 1)
             if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
-                if z > depth_f[iv, iu] + bias:
+                zs = z
+                if plane[0] != 0.0:
+                    zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
+                if zs > depth_f[iv, iu] * DEPTH_REL_EPS + bias:
                     inshadow += 1
     return inshadow / (ns * nt)
 
 
+@njit(cache=True)
+def receiver_plane(fp, px, py, pz, nx, ny, nz):
+    """The receiver's tangent plane in face ``fp``'s view space, packed for
+    ``plane_depth``: (1, ortho, l, r, b, t, w, h, n.p, nx, ny, nz)."""
+    out = np.zeros(12)
+    vx = fp[0] * px + fp[1] * py + fp[2] * pz + fp[3]
+    vy = fp[4] * px + fp[5] * py + fp[6] * pz + fp[7]
+    vz = fp[8] * px + fp[9] * py + fp[10] * pz + fp[11]
+    mx = fp[0] * nx + fp[1] * ny + fp[2] * nz
+    my = fp[4] * nx + fp[5] * ny + fp[6] * nz
+    mz = fp[8] * nx + fp[9] * ny + fp[10] * nz
+    out[0] = 1.0
+    out[1] = fp[16]
+    out[2:8] = fp[17:23]
+    out[8] = mx * vx + my * vy + mz * vz
+    out[9], out[10], out[11] = mx, my, mz
+    return out
+
+
+@njit(cache=True, inline="always")
+def plane_depth(pl, uc, vc, z):
+    """Depth of the receiver's tangent plane along the ray through texel
+    centre (uc, vc); ``z`` (the point's own depth) where the ray runs along
+    the plane (grazing) or meets it behind the light."""
+    x = pl[2] + uc / pl[6] * (pl[3] - pl[2])
+    y = pl[5] - vc / pl[7] * (pl[5] - pl[4])
+    if pl[1] == 1.0:
+        if abs(pl[11]) < 1e-12:
+            return z
+        d = (pl[9] * x + pl[10] * y - pl[8]) / pl[11]
+    else:
+        den = pl[9] * x + pl[10] * y - pl[11]
+        if abs(den) < 1e-12:
+            return z
+        d = pl[8] / den
+    if not (d > 0.0) or not np.isfinite(d):
+        return z
+    return d
+
+
 @njit(cache=True, parallel=True)
 def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, ResFactor, MinSize, MaxSize,
-               NumSamples, MinSamples, Bias0, Bias1, seed, out):
+               NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, out):
     for i in prange(P.shape[0]):
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         f = pick_face(faces, px, py, pz)
@@ -122,8 +179,12 @@ def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, ResFactor, MinS
         tres = max(ht * ResFactor, MinSize)
         sres = min(sres, MaxSize)
         tres = min(tres, MaxSize)
+        if use_plane:
+            plane = receiver_plane(faces[f], px, py, pz, Nrm[i, 0], Nrm[i, 1], Nrm[i, 2])
+        else:
+            plane = np.zeros(12)
         out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
-                                     MinSamples, Bias0, Bias1, seed, pix[i])
+                                     MinSamples, Bias0, Bias1, seed, pix[i], plane)
 
 
 @njit(cache=True, parallel=True)
@@ -186,7 +247,7 @@ class PercentageCloserFiltering(Method):
                            views.pack_camera(buffers.scene.camera, W, H),
                            lv.packed_faces(), lv.depth, finite_bbox(lv.depth),
                            res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                           b0, b1, int(params.seed), vals)
+                           b0, b1, int(params.seed), bool(params.receiver_plane), vals)
                 out[idx] = np.clip(vals, 0.0, 1.0)
         return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
