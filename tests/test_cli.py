@@ -1,0 +1,116 @@
+"""The ``penumbra`` command line with the bpy module: contract and bad input."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from penumbra.cli import main
+from penumbra.core import exr
+from scenes import sample_path
+
+PENUMBRA = os.path.join(os.path.dirname(sys.executable), "penumbra")
+
+
+def test_render_sphere_plane_contract(tmp_path):
+    blend = sample_path("sphere_plane")
+    before = open(blend, "rb").read()
+    rc = main(["render", blend, "--out", str(tmp_path), "--resolution", "64x48", "--samples", "16",
+               "--methods", "pcf,embree,embree_irr"])
+    assert rc == 0
+    assert open(blend, "rb").read() == before            # the .blend is never written
+    exr_path = tmp_path / "sphere_plane.0001.exr"
+    rec = json.loads((tmp_path / "sphere_plane.0001.json").read_text())
+    layers = exr.read_multilayer(str(exr_path))
+    assert rec["scene"] == "sphere_plane" and rec["frame"] == 1 and rec["resolution"] == [64, 48]
+    for light in rec["lights"]:
+        assert light["layer"] == light["name"].replace(".", "_")
+        passes = layers[light["layer"]]
+        assert set(passes) == {"pcf", "embree", "embree_irr"}
+        for pid, img in passes.items():
+            assert img.shape == (48, 64) and np.isfinite(img).all()
+            assert img.min() >= 0 and img.max() <= 1
+            m = light["methods"][pid]
+            assert m["visibility"] in ("average", "irradiance")
+            assert m["time_s"]["total"] >= 0
+        assert light["methods"]["pcf"]["error"]["reference"] == "embree"
+        # pcf is not physical, but on this scene it must be close to the reference
+        assert light["methods"]["pcf"]["error"]["rmse"] < 0.1
+    assert any(l["name"] == "Key.Light" for l in rec["lights"])
+
+
+def test_render_is_deterministic(tmp_path):
+    blend = sample_path("torus_plane")
+    args = ["--resolution", "48x48", "--samples", "8", "--seed", "7", "--methods", "pcf,embree", "--no-previews"]
+    assert main(["render", blend, "--out", str(tmp_path / "a")] + args) == 0
+    assert main(["render", blend, "--out", str(tmp_path / "b")] + args) == 0
+    a = exr.read_multilayer(str(tmp_path / "a" / "torus_plane.0001.exr"))
+    b = exr.read_multilayer(str(tmp_path / "b" / "torus_plane.0001.exr"))
+    for layer in a:
+        for p in a[layer]:
+            np.testing.assert_array_equal(a[layer][p], b[layer][p])
+
+
+def _make_blend(path, with_camera=True):
+    import bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.mesh.primitive_plane_add(size=4)
+    bpy.ops.object.light_add(type="AREA", location=(0, 0, 3))
+    if with_camera:
+        bpy.ops.object.camera_add(location=(0, 0, 5))
+        bpy.context.scene.camera = bpy.context.object
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["render", "/nonexistent/x.blend"], "no such file"),
+    (["render", "{blend}", "--methods", "pcf,nope"], "unknown method"),
+    (["render", "{blend}", "--lights", "Nope"], "unknown light"),
+    (["render", "{blend}", "--resolution", "0x10"], "bad --resolution"),
+    (["render", "{blend}", "--resolution", "big"], "bad --resolution"),
+    (["render", "{blend}", "--resolution", "100000x100000"], "bad --resolution"),
+    (["render", "{blend}", "--samples", "-3"], "bad --samples"),
+    (["render", "{text}"], "not a .blend"),
+    (["render", "{trunc}"], "cannot open"),
+    (["render", "{nocam}"], "no camera"),
+    (["render", "{blend}", "--out", "{text}/sub"], "cannot create output folder"),
+    (["frobnicate"], "invalid choice"),
+    ([], "expected a command"),
+])
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, message):
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    trunc = tmp_path / "trunc.blend"
+    trunc.write_bytes(open(sample_path("sphere_plane"), "rb").read()[:3000])
+    nocam = tmp_path / "nocam.blend"
+    if "{nocam}" in argv:
+        _make_blend(nocam, with_camera=False)
+    out = tmp_path / "out"
+    argv = [a.format(blend=sample_path("sphere_plane"), text=text, trunc=trunc, nocam=nocam) for a in argv]
+    if argv and argv[0] == "render" and "--out" not in argv:
+        argv += ["--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and err[0].startswith("penumbra: error:")
+    assert not out.exists() or not [f for f in os.listdir(out) if f.endswith((".exr", ".json"))]
+
+
+def test_console_script_exit_code_and_stderr(tmp_path):
+    p = subprocess.run([PENUMBRA, "render", str(tmp_path / "missing.blend")], capture_output=True, text=True)
+    assert p.returncode == 2
+    assert p.stderr.strip().splitlines() == [f"penumbra: error: no such file: {tmp_path / 'missing.blend'}"]
+
+
+def test_scene_with_no_shadow_casting_light_writes_ones(tmp_path):
+    import bpy
+    blend = tmp_path / "noshadow.blend"
+    _make_blend(blend)
+    for lt in bpy.data.lights:
+        lt.use_shadow = False
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    assert main(["render", str(blend), "--out", str(tmp_path / "o"), "--resolution", "16x16"]) == 0
+    layers = exr.read_multilayer(str(tmp_path / "o" / "noshadow.0001.exr"))
+    assert layers and all((img == 1).all() for passes in layers.values() for img in passes.values())
