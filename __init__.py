@@ -13,14 +13,14 @@ _cli_handle = None
 def _set_numba_cache():
     """Numba's cache goes to the extension's user folder inside Blender, never
     into the extension's own (possibly read-only) folder."""
-    if "NUMBA_CACHE_DIR" in os.environ:
+    if "PENUMBRA_NUMBA_CACHE_ROOT" in os.environ:
         return
     try:
         import bpy
         path = bpy.utils.extension_path_user(__package__, path="numba", create=True)
     except (ValueError, AttributeError, ImportError):
         return  # imported as a plain package: core/__init__ picks a user cache folder
-    os.environ["NUMBA_CACHE_DIR"] = path
+    os.environ["PENUMBRA_NUMBA_CACHE_ROOT"] = path
 
 
 def _cli_execute(argv):

@@ -110,7 +110,7 @@ def bench_startup():
     """Cold (empty Numba cache) and warm (second process) start-up of a tiny render."""
     code = _STARTUP.format(tests=os.path.join(ROOT, "tests"))
     with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=cache)
         out = []
         for label in ("cold", "warm"):
             p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
