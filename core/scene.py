@@ -185,7 +185,8 @@ class Scene:
 
 def finite_triangles(triangles: np.ndarray, tri_object: np.ndarray):
     """Drop triangles with non-finite vertices; returns (triangles, ids, dropped)."""
-    ok = np.isfinite(triangles.reshape(len(triangles), -1)).all(axis=1)
+    triangles = np.asarray(triangles).reshape(-1, 3, 3)
+    ok = np.isfinite(triangles.reshape(len(triangles), 9)).all(axis=1)
     return triangles[ok], tri_object[ok], int((~ok).sum())
 
 

@@ -1,0 +1,453 @@
+"""Scene capture: the one bpy -> numpy boundary (DESIGN.md, "Data model").
+
+``capture_scene`` turns a Blender scene at one frame into a
+:class:`penumbra.core.scene.Scene`: the evaluated triangles in world space
+(modifiers, instances and parenting applied), one object id per triangle,
+the camera with Blender's own parameters, and the lights.
+
+Which geometry is "the scene" depends on the depsgraph it is read from:
+
+* a **render** depsgraph is what Cycles renders: render subdivision levels,
+  modifiers enabled for render, objects hidden in the viewport but not for
+  render included, objects and collections hidden for render left out;
+* a **viewport** depsgraph (``bpy.context.evaluated_depsgraph_get()``) is what
+  the viewport shows. Capture filters it for render visibility (object
+  ``hide_render``, collections excluded or hidden for render), but it cannot
+  bring back objects the viewport does not evaluate (hidden in the viewport)
+  and uses viewport modifier settings.
+
+Blender has no Python constructor for a render depsgraph. ``mode="RENDER"``
+gets one the way a render does: a tiny private render engine is registered for
+the duration of one ``bpy.ops.render.render()`` call, reads the depsgraph it is
+handed and draws nothing (about a millisecond, independent of resolution).
+It runs the render handlers and leaves an empty "Render Result" behind, so
+``mode="AUTO"`` uses it only in background mode (CLI, tests) and the viewport
+depsgraph in an interactive session. Render handlers can recognise it with
+:func:`is_capturing` (or ``scene.render.engine == CAPTURE_ENGINE_ID``).
+
+Inside a render (a ``frame_change_post`` handler during rendering gets the
+render depsgraph as its second argument) pass that depsgraph in.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+import bpy
+
+from ..core.scene import Camera, Light, ObjectInfo, Scene, finite_triangles
+
+log = logging.getLogger(__name__)
+
+#: Object types turned into triangles (via ``to_mesh()``).
+MESH_TYPES = frozenset({"MESH", "CURVE", "SURFACE", "FONT", "META"})
+#: bl_idname of the private render engine used for ``mode="RENDER"``.
+CAPTURE_ENGINE_ID = "PENUMBRA_CAPTURE"
+MODES = ("AUTO", "RENDER", "VIEWPORT")
+
+# persistent_id entries past the instance's depth are padded with INT_MAX.
+_PID_PAD = 2147483647
+
+_job: Optional[dict] = None
+
+
+# --------------------------------------------------------------------------
+# public API
+def capture_scene(scene=None, depsgraph=None, frame=None, resolution=None, *,
+                  mode: str = "AUTO") -> Scene:
+    """Capture ``scene`` (default: the context scene) as a Penumbra Scene.
+
+    ``depsgraph``: an evaluated depsgraph to read (e.g. the render depsgraph
+    a render handler receives); when given, ``mode`` is ignored and its own
+    mode decides whether render-visibility filtering is applied.
+    ``frame``: ``scene.frame_set(frame)`` first (do not pass it with a
+    depsgraph that belongs to a running render).
+    ``resolution``: ``(width, height)`` to use instead of the scene's render
+    resolution (resolution_x/y * resolution_percentage / 100, as Blender
+    rounds it).
+    ``mode``: where the depsgraph comes from when none is given: "RENDER"
+    (exactly what a render evaluates), "VIEWPORT" (the view layer's viewport
+    depsgraph, filtered for render visibility) or "AUTO" (RENDER in
+    background mode when no render job is running, else VIEWPORT).
+
+    Raises ValueError for a panoramic camera, an unknown mode or a bad
+    resolution. A scene without a camera gives ``Scene.camera = None``.
+    """
+    if mode not in MODES:
+        raise ValueError(f"capture mode must be one of {', '.join(MODES)}, not {mode!r}")
+    scene = scene if scene is not None else bpy.context.scene
+    if resolution is not None:
+        resolution = _check_resolution(resolution)
+    if frame is not None:
+        scene.frame_set(int(frame))
+    if depsgraph is not None:
+        return _capture_from_depsgraph(depsgraph, scene, resolution)
+    if mode == "AUTO":
+        mode = "RENDER" if (bpy.app.background and not _render_job_running()) else "VIEWPORT"
+    view_layer = _view_layer_of(scene)
+    if mode == "RENDER":
+        return _capture_with_render_depsgraph(scene, view_layer, resolution)
+    if scene == bpy.context.scene and view_layer == bpy.context.view_layer:
+        dg = bpy.context.evaluated_depsgraph_get()
+    else:
+        dg = view_layer.depsgraph
+        dg.update()
+    return _capture_from_depsgraph(dg, scene, resolution)
+
+
+def render_resolution(scene) -> Tuple[int, int]:
+    """The render size Blender uses: ``resolution * percentage // 100``
+    (integer division, checked against a render in bpy 5.0.1), at least 1."""
+    r = scene.render
+    pct = int(r.resolution_percentage)
+    return (max(1, int(r.resolution_x) * pct // 100),
+            max(1, int(r.resolution_y) * pct // 100))
+
+
+def is_capturing() -> bool:
+    """True while ``capture_scene`` runs its private capture render (render
+    handlers should then do nothing)."""
+    return _job is not None
+
+
+def blend_stem(scene=None) -> str:
+    """The .blend file's stem, or the scene's name for an unsaved file."""
+    path = bpy.data.filepath
+    if path:
+        return os.path.splitext(os.path.basename(path))[0]
+    scene = scene if scene is not None else bpy.context.scene
+    return scene.name
+
+
+# --------------------------------------------------------------------------
+# depsgraph sources
+def _check_resolution(resolution) -> Tuple[int, int]:
+    try:
+        w, h = (int(v) for v in resolution)
+    except (TypeError, ValueError):
+        raise ValueError(f"resolution must be (width, height), got {resolution!r}") from None
+    if w < 1 or h < 1:
+        raise ValueError(f"resolution must be positive, got {w}x{h}")
+    return w, h
+
+
+def _render_job_running() -> bool:
+    try:
+        return bool(bpy.app.is_job_running("RENDER"))
+    except Exception:           # pragma: no cover - older API
+        return False
+
+
+def _view_layer_of(scene):
+    ctx_vl = getattr(bpy.context, "view_layer", None)
+    if scene == bpy.context.scene and ctx_vl is not None:
+        return ctx_vl
+    for vl in scene.view_layers:
+        if vl.use:
+            return vl
+    return scene.view_layers[0]
+
+
+class PENUMBRA_RE_capture(bpy.types.RenderEngine):
+    """Private engine: captures the render depsgraph it is handed, draws nothing."""
+
+    bl_idname = CAPTURE_ENGINE_ID
+    bl_label = "Penumbra Capture"
+    bl_use_postprocess = False      # no compositor / sequencer pass after it
+    bl_use_preview = False
+
+    def render(self, depsgraph):
+        job = _job
+        if job is None or "result" in job or "error" in job:
+            return
+        try:
+            job["result"] = _capture_from_depsgraph(depsgraph, job["scene"], job["resolution"])
+        except BaseException as exc:    # re-raised by the caller
+            job["error"] = exc
+
+
+def _capture_with_render_depsgraph(scene, view_layer, resolution) -> Scene:
+    global _job
+    if _job is not None:
+        raise RuntimeError("capture_scene: a capture render is already running")
+    if _render_job_running():
+        raise RuntimeError("capture_scene: cannot capture a render depsgraph while a "
+                           "render is running; pass the render's depsgraph instead")
+    registered = bool(getattr(PENUMBRA_RE_capture, "is_registered", False))
+    if not registered:
+        bpy.utils.register_class(PENUMBRA_RE_capture)
+    old_engine = scene.render.engine
+    _job = {"scene": scene, "resolution": resolution}
+    job = _job
+    try:
+        scene.render.engine = CAPTURE_ENGINE_ID
+        bpy.ops.render.render(write_still=False, scene=scene.name, layer=view_layer.name)
+    finally:
+        _job = None
+        scene.render.engine = old_engine
+        if not registered:
+            bpy.utils.unregister_class(PENUMBRA_RE_capture)
+    if "error" in job:
+        raise job["error"]
+    if "result" not in job:
+        raise RuntimeError(f"capture_scene: the capture render of scene {scene.name!r} "
+                           f"(view layer {view_layer.name!r}) did not run")
+    return job["result"]
+
+
+# --------------------------------------------------------------------------
+# render visibility (viewport depsgraphs only)
+def _render_visible_objects(view_layer) -> set:
+    """Pointers of original objects a render of ``view_layer`` includes:
+    in a collection that is neither excluded nor hidden for render (nor any
+    of its parents), and not ``hide_render`` themselves."""
+    visible = set()
+
+    def walk(lc):
+        if lc.exclude or lc.collection.hide_render:
+            return
+        for ob in lc.collection.objects:
+            if not ob.hide_render:
+                visible.add(ob.as_pointer())
+        for child in lc.children:
+            walk(child)
+
+    walk(view_layer.layer_collection)
+    return visible
+
+
+def _instance_render_visible(inst, visible: set) -> bool:
+    """Viewport-depsgraph filter for one instance: its instancer must render,
+    and objects instanced from a collection respect their ``hide_render``
+    (object instances made by geometry nodes do not: checked in 5.0)."""
+    parent = inst.parent
+    if parent is None:
+        return True
+    porig = parent.original
+    if porig.as_pointer() not in visible:
+        return False
+    if porig.instance_type == "COLLECTION" and inst.object.original.hide_render:
+        return False
+    return True
+
+
+# --------------------------------------------------------------------------
+# geometry
+def _matrix(m) -> np.ndarray:
+    return np.array(m, dtype=np.float64).reshape(4, 4)
+
+
+def _orthonormal(m: np.ndarray, what: str = "object") -> Tuple[np.ndarray, np.ndarray]:
+    """(rotation + translation 4x4, per-axis scale) of a 4x4 affine matrix.
+
+    Local -Z (the view / emission direction) is kept exactly, Y is made
+    orthogonal to it, X completes a right-handed frame (mirroring and shear
+    are dropped)."""
+    a = np.asarray(m, np.float64)[:3, :3]
+    scale = np.linalg.norm(a, axis=0)
+    z = a[:, 2] / (scale[2] if scale[2] > 0 else 1.0)
+    y = a[:, 1] - np.dot(a[:, 1], z) * z
+    ny = np.linalg.norm(y)
+    if not np.isfinite(ny) or ny < 1e-12 or not np.isfinite(z).all() or np.linalg.norm(z) < 0.5:
+        raise ValueError(f"{what}: degenerate transform (zero scale along local Y or Z)")
+    y /= ny
+    x = np.cross(y, z)
+    out = np.eye(4)
+    out[:3, 0], out[:3, 1], out[:3, 2] = x, y, z
+    out[:3, 3] = np.asarray(m, np.float64)[:3, 3]
+    return out, scale
+
+
+def _mesh_arrays(mesh) -> Tuple[np.ndarray, np.ndarray]:
+    """(vertices float64[V,3], triangle vertex indices int32[T,3]) of a Mesh."""
+    nv = len(mesh.vertices)
+    co = np.empty(nv * 3, np.float32)
+    if nv:
+        mesh.vertices.foreach_get("co", co)
+    nt = len(mesh.loop_triangles)
+    idx = np.empty(nt * 3, np.int32)
+    if nt:
+        mesh.loop_triangles.foreach_get("vertices", idx)
+    return co.reshape(-1, 3).astype(np.float64), idx.reshape(-1, 3)
+
+
+def _object_mesh_arrays(ob) -> Tuple[np.ndarray, np.ndarray]:
+    """Triangulated evaluated geometry of an evaluated object (local space)."""
+    try:
+        mesh = ob.to_mesh()
+    except RuntimeError:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    try:
+        if mesh is None:
+            return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+        return _mesh_arrays(mesh)
+    finally:
+        ob.to_mesh_clear()
+
+
+def _instance_name(inst) -> str:
+    ob = inst.object
+    if not inst.is_instance:
+        return ob.name_full
+    pid = [int(v) for v in inst.persistent_id]
+    while pid and pid[-1] == _PID_PAD:
+        pid.pop()
+    parent = inst.parent.name_full if inst.parent is not None else ""
+    return f"{parent}/{ob.name_full}#{'.'.join(str(v) for v in pid)}"
+
+
+def _geometry_cache_key(ob):
+    data = ob.data
+    if data is None:
+        return None
+    if ob.type == "MESH":
+        return ("MESH", data.as_pointer())
+    return (ob.type, ob.original.as_pointer(), data.as_pointer())
+
+
+# --------------------------------------------------------------------------
+# camera and lights
+def _capture_camera(scene, depsgraph) -> Optional[Camera]:
+    cam_ob = scene.camera
+    if cam_ob is None:
+        return None
+    try:
+        cam_ev = cam_ob.evaluated_get(depsgraph)
+    except Exception:               # not in this depsgraph (hidden in viewport)
+        cam_ev = cam_ob
+    data = cam_ev.data
+    if cam_ob.type != "CAMERA" or data is None:
+        raise ValueError(f"scene camera {cam_ob.name!r} is a {cam_ob.type}, not a camera")
+    kind = data.type
+    if kind not in ("PERSP", "ORTHO"):
+        raise ValueError(f"camera {cam_ob.name!r} is {kind} (panoramic); Penumbra supports "
+                         "perspective and orthographic cameras only")
+    world, _ = _orthonormal(_matrix(cam_ev.matrix_world), f"camera {cam_ob.name!r}")
+    r = scene.render
+    return Camera(
+        world_from_camera=world, kind=kind, lens=float(data.lens),
+        sensor_width=float(data.sensor_width), sensor_height=float(data.sensor_height),
+        sensor_fit=str(data.sensor_fit), ortho_scale=float(data.ortho_scale),
+        shift_x=float(data.shift_x), shift_y=float(data.shift_y),
+        clip_start=float(data.clip_start), clip_end=float(data.clip_end),
+        pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y))
+
+
+def _capture_light(name: str, light, matrix_world) -> Light:
+    world, scale = _orthonormal(_matrix(matrix_world), f"light {name!r}")
+    t = light.type
+    common = dict(name=name, world_from_light=world, blender_type=t,
+                  color=tuple(float(c) for c in light.color), energy=float(light.energy),
+                  casts_shadow=bool(light.use_shadow))
+    if t == "AREA":
+        shape = str(light.shape)
+        sx, sy = float(scale[0]), float(scale[1])
+        size = float(light.size) * sx
+        size_y = float(light.size_y if shape in ("RECTANGLE", "ELLIPSE") else light.size) * sy
+        # non-uniform object scale stretches a square / disk (Cycles scales the axes)
+        if shape == "SQUARE" and not np.isclose(size, size_y, rtol=1e-6, atol=0.0):
+            shape = "RECTANGLE"
+        elif shape == "DISK" and not np.isclose(size, size_y, rtol=1e-6, atol=0.0):
+            shape = "ELLIPSE"
+        return Light(kind="area", shape=shape, size=size, size_y=size_y, **common)
+    if t == "POINT":
+        return Light(kind="sphere", radius=float(light.shadow_soft_size), spot_size=float(np.pi),
+                     **common)
+    if t == "SPOT":
+        return Light(kind="sphere", radius=float(light.shadow_soft_size),
+                     spot_size=float(light.spot_size), spot_blend=float(light.spot_blend),
+                     **common)
+    if t == "SUN":
+        return Light(kind="sun", angle=float(light.angle), **common)
+    raise ValueError(f"light {name!r}: unsupported light type {t!r}")
+
+
+# --------------------------------------------------------------------------
+# the capture proper
+def _capture_from_depsgraph(depsgraph, scene, resolution) -> Scene:
+    filter_render = depsgraph.mode != "RENDER"
+    visible = _render_visible_objects(depsgraph.view_layer) if filter_render else None
+
+    cache: Dict[tuple, Tuple[np.ndarray, np.ndarray]] = {}
+    pieces: List[Tuple[str, np.ndarray]] = []       # (object name, world tris)
+    infos: Dict[str, dict] = {}
+    lights: List[Light] = []
+
+    with np.errstate(invalid="ignore", over="ignore"):     # non-finite input is dropped below
+        for inst in depsgraph.object_instances:
+            _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights)
+    return _assemble(scene, depsgraph, resolution, pieces, infos, lights)
+
+
+def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights):
+    """Add one depsgraph object instance to the capture lists."""
+    ob = inst.object
+    otype = ob.type
+    if otype not in MESH_TYPES and otype != "LIGHT":
+        return
+    if filter_render:
+        if inst.is_instance:
+            if not _instance_render_visible(inst, visible):
+                return
+        elif ob.original.as_pointer() not in visible:
+            return
+    name = _instance_name(inst)
+    if otype == "LIGHT":
+        lights.append(_capture_light(name, ob.data, inst.matrix_world))
+        return
+    if not inst.show_self:
+        return                      # an instancer that does not render itself
+    key = _geometry_cache_key(ob) if inst.is_instance else None
+    arrays = cache.get(key) if key is not None else None
+    if arrays is None:
+        arrays = _object_mesh_arrays(ob)
+        if key is not None:
+            cache[key] = arrays
+    co, idx = arrays
+    if len(idx) == 0:
+        return                      # no surface (an instancer, an empty curve): no object id
+    m = _matrix(inst.matrix_world)
+    world_co = (co @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+    tris = world_co[idx]
+    casts = bool(ob.visible_shadow)
+    cam_vis = bool(ob.visible_camera)
+    if inst.is_instance and inst.parent is not None:
+        # Cycles ANDs an instance's ray visibility with its instancer's
+        casts = casts and bool(inst.parent.visible_shadow)
+        cam_vis = cam_vis and bool(inst.parent.visible_camera)
+    if name in infos:               # same name twice: merge (deterministic order)
+        infos[name]["casts_shadow"] &= casts
+    else:
+        infos[name] = dict(casts_shadow=casts, visible_camera=cam_vis,
+                           pass_index=int(ob.pass_index))
+    pieces.append((name, tris))
+
+
+def _assemble(scene, depsgraph, resolution, pieces, infos, lights) -> Scene:
+    names = sorted(infos)
+    ids = {n: i for i, n in enumerate(names)}
+    objects = [ObjectInfo(name=n, id=ids[n], **infos[n]) for n in names]
+    # order triangles by object id (stable within an object) so the soup
+    # itself is deterministic too
+    pieces.sort(key=lambda p: ids[p[0]])
+    if pieces:
+        triangles = np.concatenate([p[1] for p in pieces], axis=0)
+        tri_object = np.concatenate([np.full(len(p[1]), ids[p[0]], np.int32) for p in pieces])
+    else:
+        triangles = np.zeros((0, 3, 3), np.float32)
+        tri_object = np.zeros(0, np.int32)
+    dropped = 0
+    if len(triangles):              # finite_triangles cannot reshape an empty array
+        triangles, tri_object, dropped = finite_triangles(triangles, tri_object)
+    if dropped:
+        log.warning("capture: dropped %d triangle(s) with non-finite vertices", dropped)
+    lights.sort(key=lambda lt: lt.name)
+
+    return Scene(
+        triangles=triangles, tri_object=tri_object, objects=objects,
+        camera=_capture_camera(scene, depsgraph), lights=lights,
+        resolution=resolution if resolution is not None else render_resolution(scene),
+        frame=int(scene.frame_current), name=blend_stem(scene))
