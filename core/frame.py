@@ -69,11 +69,14 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                  overrides: Optional[Mapping[str, object]] = None,
                  method_overrides: Optional[Mapping[str, Mapping[str, object]]] = None,
                  map_size: Optional[int] = None,
-                 progress: Optional[Callable[[str, float], None]] = None) -> FrameResult:
+                 progress: Optional[Callable[[str, float], None]] = None,
+                 external: Optional[Mapping[str, Callable]] = None) -> FrameResult:
     """Compute ``passes`` for every planned light of ``scene``.
 
     ``overrides`` apply to every method's Params where the field exists
     (``samples``, ``seed``); ``method_overrides[producer_id]`` to one method.
+    ``external[pass_id](light) -> MethodResult`` produces passes core cannot
+    (``cycles``); its ``params`` field is recorded as the method's params.
     """
     t0 = time.perf_counter()
     W, H = scene.resolution
@@ -87,9 +90,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         lr = LightResult(lp.name, lp.layer)
         if lp.action == "skip":
             for pid in passes:
-                p = method_registry.producer_of(pid)
                 lr.passes[pid] = np.ones((H, W), np.float32)
-                lr.record[pid] = {"time_s": {"total": 0.0}, "visibility": p.passes[pid],
+                lr.record[pid] = {"time_s": {"total": 0.0}, "visibility": method_registry.visibility_of(pid),
                                   "params": {}, "skipped": lp.reason}
             results.append(lr)
             continue
@@ -97,6 +99,14 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         for k, prod_id in enumerate(lp.producers):
             if progress:
                 progress(f"{lp.name}: {prod_id}", (li + k / max(1, len(lp.producers))) / n_lights)
+            if method_registry.is_external(prod_id):
+                if not external or prod_id not in external:
+                    raise ValueError(f"no producer given for external pass {prod_id!r}")
+                res = external[prod_id](light)
+                phases = {k2: round(v, 6) for k2, v in res.time_s.items() if k2 != "total"}
+                phases["total"] = round(sum(phases.values()), 6)
+                done[prod_id] = (None, res.params or {}, res, phases)
+                continue
             m = registry[prod_id]
             ov = dict(overrides or {})
             ov.update((method_overrides or {}).get(prod_id, {}))
@@ -109,13 +119,14 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
             done[prod_id] = (m, params, res, phases)
         mask = reach_mask(buffers.gbuffer, light) if buffers._gbuffer is not None else None
         for pid in passes:
-            m = method_registry.producer_of(pid)
-            _, params, res, phases = done[m.id]
+            ext = method_registry.is_external(pid)
+            m, params, res, phases = done[pid if ext else method_registry.producer_of(pid).id]
             v = np.nan_to_num(res.passes[pid], nan=1.0, posinf=1.0, neginf=0.0)
             v = np.clip(v, 0.0, 1.0).astype(np.float32)
             lr.passes[pid] = v
-            rec = {"time_s": phases, "visibility": m.passes[pid], "params": params_dict(params)}
-            if len(m.passes) > 1:
+            rec = {"time_s": phases, "visibility": method_registry.visibility_of(pid),
+                   "params": dict(params) if ext else params_dict(params)}
+            if m is not None and len(m.passes) > 1:
                 rec["computed_with"] = [q for q in m.passes if q != pid]
             if res.stats:
                 rec["stats"] = res.stats

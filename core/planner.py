@@ -52,8 +52,12 @@ class PlanError(ValueError):
     """Bad request (unknown method or light): the CLI turns it into exit 2."""
 
 
-def resolve_passes(spec: str | Sequence[str] | None) -> List[str]:
-    known = method_registry.pass_ids()
+def resolve_passes(spec: str | Sequence[str] | None, external: Sequence[str] = ()) -> List[str]:
+    """Method ids from ``spec`` ("all" or a comma list). ``external`` names the
+    external passes the caller can produce (``cycles`` needs Blender): "all"
+    includes those, and asking for one the caller cannot produce is an error."""
+    known = method_registry.pass_ids(external=False) + [e for e in method_registry.EXTERNAL_PASSES
+                                                        if e in external]
     if spec is None or spec == "all" or spec == ["all"]:
         return known
     items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec) if s.strip()]
@@ -61,6 +65,9 @@ def resolve_passes(spec: str | Sequence[str] | None) -> List[str]:
         raise PlanError("no methods given")
     if "all" in items:
         return known
+    for s in items:
+        if method_registry.is_external(s) and s not in external:
+            raise PlanError(f"method {s!r} needs Blender (the bpy module) and cannot run here")
     bad = [s for s in items if s not in known]
     if bad:
         raise PlanError(f"unknown method {bad[0]!r} (known: {', '.join(known)})")
@@ -78,10 +85,15 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
         lights = [lt for lt in lights if lt.name in set(light_names)]
     producers = []
     for pid in passes:
+        if method_registry.is_external(pid):
+            if pid not in producers:
+                producers.append(pid)
+            continue
         p = method_registry.producer_of(pid)
         if p.id not in producers:
             producers.append(p.id)
-    buffers = sorted({b for pid in producers for b in method_registry.producers()[pid].needs})
+    registry = method_registry.producers()
+    buffers = sorted({b for pid in producers if pid in registry for b in registry[pid].needs})
     used_layers: Dict[str, int] = {}
     out = []
     for lt in lights:

@@ -97,3 +97,26 @@ def test_scene_without_shadows_writes_ones(tmp_path):
     res = render_frame(sc, ["pcf", "embree"])
     assert all((v == 1).all() for v in res.lights[0].passes.values())
     assert "no light casts shadows" in " ".join(res.plan.notes)
+
+
+def test_external_pass_hook():
+    """``cycles`` comes from a producer outside core; it is an irradiance
+    ratio compared with ``embree_irr``, and refused where none is given."""
+    from penumbra.core.methods.base import MethodResult
+    sc = half_plane_scene(area_light(1.0), res=16)
+    with pytest.raises(PlanError, match="needs Blender"):
+        resolve_passes("embree,cycles")
+    passes = resolve_passes("embree,embree_irr,cycles", external=["cycles"])
+    assert "cycles" in resolve_passes("all", external=["cycles"]) and "cycles" not in resolve_passes("all")
+    calls = []
+
+    def fake(light):
+        calls.append(light.name)
+        return MethodResult({"cycles": np.full((16, 16), 0.5, np.float32)}, {"render": 0.25},
+                            params={"samples": 4})
+    res = render_frame(sc, passes, overrides={"samples": 8}, external={"cycles": fake})
+    rec = res.lights[0].record["cycles"]
+    assert calls == ["Area"]
+    assert rec["visibility"] == "irradiance" and rec["params"] == {"samples": 4}
+    assert rec["time_s"] == {"render": 0.25, "total": 0.25}
+    assert rec["error"]["reference"] == "embree_irr"

@@ -7,7 +7,13 @@ from __future__ import annotations
 
 from typing import Dict, List
 
-from .base import Method
+from .base import IRRADIANCE, Method
+
+# Passes produced outside core (they need Blender): id -> (V definition, what).
+# The caller hands ``core.frame.render_frame`` a producer for each it wants.
+EXTERNAL_PASSES = {
+    "cycles": (IRRADIANCE, "Cycles render with / without the light's shadow"),
+}
 
 _PRODUCERS: Dict[str, Method] = {}     # producer id -> instance
 _PASS_TO_PRODUCER: Dict[str, str] = {} # pass id -> producer id
@@ -32,10 +38,20 @@ def _load():
                 raise
 
 
-def pass_ids() -> List[str]:
-    """Every pass id a registered method writes (``--methods all``)."""
+def pass_ids(external: bool = True) -> List[str]:
+    """Every pass id a registered method writes, then the external ones."""
     _load()
-    return list(_PASS_TO_PRODUCER)
+    return list(_PASS_TO_PRODUCER) + (list(EXTERNAL_PASSES) if external else [])
+
+
+def is_external(pass_id: str) -> bool:
+    return pass_id in EXTERNAL_PASSES
+
+
+def visibility_of(pass_id: str) -> str:
+    if pass_id in EXTERNAL_PASSES:
+        return EXTERNAL_PASSES[pass_id][0]
+    return producer_of(pass_id).passes[pass_id]
 
 
 def producer_of(pass_id: str) -> Method:

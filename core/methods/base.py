@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, field, fields
-from typing import Dict, FrozenSet, Mapping, Tuple
+from typing import Dict, FrozenSet, Mapping, Optional, Tuple
 
 import numpy as np
 
@@ -28,6 +28,7 @@ class MethodResult:
     passes: Dict[str, np.ndarray]               # pass id -> float32[H,W] in [0,1]
     time_s: Dict[str, float] = field(default_factory=dict)   # phase -> seconds
     stats: Dict[str, object] = field(default_factory=dict)
+    params: Optional[Dict[str, object]] = None   # external producers report theirs here
 
 
 class Method:
