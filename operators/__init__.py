@@ -1,10 +1,24 @@
 """bpy Operators; thin: capture -> core -> write back. ``capture.py`` is the
-one bpy -> numpy boundary. Nothing here imports bpy until ``register()``."""
+one bpy -> numpy boundary. Nothing here imports bpy until ``register()``.
+
+Each operator module exposes ``classes``; they register in this order.
+"""
+import importlib
+
+MODULES = ("compute", "preview", "cycles_reference", "compositor_ops", "clear")
 
 
 def _classes():
-    from . import compute
-    return compute.classes
+    out = []
+    for name in MODULES:
+        try:
+            mod = importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            continue
+        out.extend(getattr(mod, "classes", ()))
+    return out
 
 
 def register():
