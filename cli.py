@@ -34,6 +34,33 @@ def _resolution(text: str):
     return w, h
 
 
+def _frame_list(text: str):
+    """'1-250', '1-250:5', '3', '1,4,9-12' -> sorted unique frame numbers."""
+    frames = set()
+    try:
+        for part in text.split(","):
+            part = part.strip()
+            step = 1
+            if ":" in part:
+                part, st = part.split(":")
+                step = int(st)
+                if step < 1:
+                    raise ValueError
+            if "-" in part[1:]:
+                i = part.index("-", 1)
+                a, b = int(part[:i]), int(part[i + 1:])
+                if b < a:
+                    raise ValueError
+                frames.update(range(a, b + 1, step))
+            else:
+                frames.add(int(part))
+    except ValueError:
+        raise UsageError(f"bad --frames {text!r}: expected e.g. 1-250, 1-250:5 or 1,5,9")
+    if len(frames) > 1_000_000:
+        raise UsageError(f"bad --frames {text!r}: too many frames")
+    return sorted(frames)
+
+
 def _positive(name, lo, hi):
     def conv(text):
         try:
@@ -55,7 +82,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--methods", default="pcf,embree,embree_irr",
                    help="comma-separated method ids, or 'all'")
     r.add_argument("--lights", default=None, help="comma-separated light names (default: all)")
-    r.add_argument("--frame", type=_positive("--frame", -1048574, 1048574), default=None)
+    fr = r.add_mutually_exclusive_group()
+    fr.add_argument("--frame", type=_positive("--frame", -1048574, 1048574), default=None,
+                    help="the frame to compute (default: the scene's current frame)")
+    fr.add_argument("--frames", type=_frame_list, default=None,
+                    help="frames, e.g. 1-250, 1-250:5 or 1,5,9; frames already written are skipped")
+    r.add_argument("--force", action="store_true", help="recompute frames whose files already exist")
     r.add_argument("--resolution", type=_resolution, default=None, help="WxH (default: the scene's)")
     r.add_argument("--samples", type=_positive("--samples", 1, 65536), default=None,
                    help="light samples per pixel for sampling methods")
@@ -91,10 +123,10 @@ def _check_blend(path: str) -> str:
     return os.path.abspath(path)
 
 
-def load_scene(path: str, frame=None, resolution=None):
-    """Open the .blend (read only: nothing is ever saved) and capture it."""
+def open_blend(path: str):
+    """Open the .blend in this Blender session (read only: nothing is ever
+    saved); returns its scene."""
     import bpy
-    from .operators.capture import capture_scene
     try:
         bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
     except Exception as exc:  # bpy raises RuntimeError with Blender's report
@@ -103,12 +135,59 @@ def load_scene(path: str, frame=None, resolution=None):
     scene = bpy.context.scene
     if scene is None:
         raise UsageError(f"{path} has no scene")
+    return scene
+
+
+def capture(bpy_scene, path: str, frame=None, resolution=None):
+    from .operators.capture import capture_scene
     try:
-        captured = capture_scene(scene, frame=frame, resolution=resolution)
+        captured = capture_scene(bpy_scene, frame=frame, resolution=resolution)
     except ValueError as exc:
         raise UsageError(str(exc))
     captured.name = os.path.splitext(os.path.basename(path))[0]
     return captured
+
+
+def load_scene(path: str, frame=None, resolution=None):
+    """Open the .blend and capture it."""
+    return capture(open_blend(path), path, frame, resolution)
+
+
+def _external_producers(passes, bpy_scene, resolution, samples, seed):
+    """Producers for passes that need Blender (``cycles``)."""
+    ext = {}
+    if "cycles" in passes:
+        from .operators.cycles_reference import make_cycles_producer
+        ext["cycles"] = make_cycles_producer(bpy_scene, resolution, samples=samples or 64, seed=seed)
+    return ext
+
+
+def _available_external():
+    import importlib
+    try:
+        importlib.import_module(f"{__package__}.operators.cycles_reference")
+    except ModuleNotFoundError as exc:
+        if exc.name != f"{__package__}.operators.cycles_reference":
+            raise
+        return []
+    return ["cycles"]
+
+
+class _ProgressBar:
+    """A one-line progress bar on stderr when it is a terminal; silent otherwise."""
+
+    def __init__(self, label=""):
+        self.tty = sys.stderr.isatty()
+        self.label = label
+
+    def __call__(self, message, fraction):
+        if not self.tty:
+            return
+        n = int(round(30 * max(0.0, min(1.0, fraction))))
+        sys.stderr.write(f"\r{self.label}[{'#' * n}{'.' * (30 - n)}] {100 * fraction:5.1f}% {message[:40]:40s}")
+        if fraction >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
 
 
 def _summary(result) -> str:
@@ -128,7 +207,7 @@ def cmd_render(args) -> int:
     from .core.planner import PlanError, resolve_passes
     from .core.frame import render_frame
     from .core.output import write_frame
-    passes = resolve_passes(args.methods)
+    passes = resolve_passes(args.methods, _available_external())
     path = _check_blend(args.scene)
     out = os.path.abspath(args.out)
     try:
@@ -140,25 +219,39 @@ def cmd_render(args) -> int:
     if args.threads:
         import numba
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    scene = load_scene(path, args.frame, args.resolution)
-    if scene.camera is None:
+    from .core.output import output_paths
+    bpy_scene = open_blend(path)
+    if bpy_scene.camera is None:
         raise UsageError(f"{path}: the scene has no camera")
+    stem = os.path.splitext(os.path.basename(path))[0]
+    frames = args.frames or [args.frame if args.frame is not None else bpy_scene.frame_current]
     lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
     overrides = {"seed": args.seed}
     if args.samples:
         overrides["samples"] = args.samples
-    result = render_frame(scene, passes, lights, overrides, map_size=args.map_size)
-    for n in result.plan.notes:
-        print(f"penumbra: {n}")
-    paths = write_frame(result, out, previews=not args.no_previews)
-    print(_summary(result))
-    print(f"wrote {paths.get('exr', '(no EXR: no lights)')} and {paths['json']}")
+    for k, frame in enumerate(frames):
+        done = output_paths(out, stem, frame)["json"]
+        if os.path.exists(done) and not args.force:
+            print(f"frame {frame}: already written ({os.path.basename(done)}), skipped; --force recomputes it")
+            continue
+        scene = capture(bpy_scene, path, frame, args.resolution)
+        if scene.camera is None:
+            raise UsageError(f"{path}: the scene has no camera at frame {frame}")
+        ext = _external_producers(passes, bpy_scene, scene.resolution, args.samples, args.seed)
+        label = f"frame {frame} ({k + 1}/{len(frames)}) " if len(frames) > 1 else ""
+        result = render_frame(scene, passes, lights, overrides, map_size=args.map_size,
+                              progress=_ProgressBar(label), external=ext)
+        for n in result.plan.notes:
+            print(f"penumbra: {n}")
+        paths = write_frame(result, out, previews=not args.no_previews)
+        print(_summary(result))
+        print(f"wrote {paths.get('exr', '(no EXR: no lights)')} and {paths['json']}")
     return 0
 
 
 def cmd_plan(args) -> int:
     from .core.planner import make_plan, resolve_passes
-    passes = resolve_passes(args.methods)
+    passes = resolve_passes(args.methods, _available_external())
     scene = load_scene(_check_blend(args.scene))
     lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
     print(make_plan(scene, passes, lights).describe())

@@ -114,3 +114,27 @@ def test_scene_with_no_shadow_casting_light_writes_ones(tmp_path):
     assert main(["render", str(blend), "--out", str(tmp_path / "o"), "--resolution", "16x16"]) == 0
     layers = exr.read_multilayer(str(tmp_path / "o" / "noshadow.0001.exr"))
     assert layers and all((img == 1).all() for passes in layers.values() for img in passes.values())
+
+
+def test_frame_ranges_resume_and_force(tmp_path, capsys):
+    blend = sample_path("torus_plane")
+    args = ["render", blend, "--out", str(tmp_path), "--resolution", "24x24", "--samples", "4",
+            "--methods", "pcf,embree", "--no-previews"]
+    assert main(args + ["--frames", "1-3:2"]) == 0
+    names = sorted(f for f in os.listdir(tmp_path) if f.endswith((".exr", ".json")))
+    assert names == ["torus_plane.0001.exr", "torus_plane.0001.json", "torus_plane.0003.exr", "torus_plane.0003.json"]
+    stamp = os.stat(tmp_path / "torus_plane.0001.exr").st_mtime_ns
+    capsys.readouterr()
+    assert main(args + ["--frames", "1,2,3"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("skipped") == 2 and "torus_plane.0002.exr" in out
+    assert os.stat(tmp_path / "torus_plane.0001.exr").st_mtime_ns == stamp
+    assert main(args + ["--frames", "1", "--force"]) == 0
+    assert os.stat(tmp_path / "torus_plane.0001.exr").st_mtime_ns != stamp
+    assert not [f for f in os.listdir(tmp_path) if f.startswith(".penumbra-")]
+
+
+@pytest.mark.parametrize("frames", ["5-1", "a-b", "1-3:0", ""])
+def test_bad_frame_ranges(tmp_path, capsys, frames):
+    assert main(["render", sample_path("torus_plane"), "--out", str(tmp_path), "--frames", frames]) == 2
+    assert "bad --frames" in capsys.readouterr().err
