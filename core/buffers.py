@@ -16,6 +16,8 @@ from .sampling import scene_scale
 
 # at most this many receiver points are used to fit light frusta
 _FIT_POINTS = 1 << 16
+# a per-light culled BVH is built only when culling drops this share of casters
+CULL_MIN_FRACTION = 0.1
 
 
 class FrameBuffers:
@@ -29,6 +31,8 @@ class FrameBuffers:
         self._shadow: Optional[raycast.TriangleScene] = None
         self._camera_scene: Optional[raycast.TriangleScene] = None
         self._views: Dict[Tuple[str, int], LightView] = {}
+        self._culled: Dict[str, raycast.TriangleScene] = {}
+        self.culling: Dict[str, Dict[str, int]] = {}
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
@@ -75,6 +79,53 @@ class FrameBuffers:
             pts = np.concatenate([pts[::step], pts[[0, -1]]])
         return pts
 
+    def occluder_mask(self, light: Light) -> np.ndarray:
+        """bool[T]: shadow-casting triangles that can lie between ``light`` and
+        a visible receiver. A shadow ray runs from a receiver (inside the
+        receivers' box) to a point of the light (inside the light's box), so
+        it stays inside the box around both; a triangle whose box misses that
+        box can shadow nothing the camera sees. For a sun the receivers' box
+        is swept towards the sun across the scene, widened by the cone."""
+        tris = self.scene.triangles
+        casts = self.scene.tri_casts_shadow
+        g = self.gbuffer
+        if len(tris) == 0 or not g.hit.any():
+            return np.zeros(len(tris), bool)
+        pts = g.position[g.hit]
+        lo, hi = pts.min(0), pts.max(0)
+        pad = 1e-4 * self.scale
+        if light.kind == "sun":
+            to_sun = -light.direction
+            reach = 2.0 * self.scale
+            spread = np.tan(0.5 * min(light.angle, np.radians(179.0))) * reach
+            far_lo, far_hi = lo + to_sun * reach - spread, hi + to_sun * reach + spread
+            lo, hi = np.minimum(lo, far_lo), np.maximum(hi, far_hi)
+        else:
+            r = 0.5 * np.hypot(light.size, light.size_y) if light.kind == "area" else light.radius
+            c = light.position
+            lo, hi = np.minimum(lo, c - r), np.maximum(hi, c + r)
+        lo, hi = lo - pad, hi + pad
+        tlo = tris.min(axis=1)
+        thi = tris.max(axis=1)
+        inside = np.all((thi >= lo) & (tlo <= hi), axis=1)
+        return inside & casts
+
+    def shadow_scene_for(self, light: Light) -> raycast.TriangleScene:
+        """The shadow BVH for ``light``: only ``occluder_mask``'s triangles when
+        that drops at least CULL_MIN_FRACTION of the casters, else the shared one.
+        Either gives the same answer for every shadow ray of a visible receiver."""
+        if light.name not in self._culled:
+            mask = self.occluder_mask(light)
+            casts = int(self.scene.tri_casts_shadow.sum())
+            kept = int(mask.sum())
+            self.culling[light.name] = {"casters": casts, "kept": kept}
+            if casts and kept <= (1.0 - CULL_MIN_FRACTION) * casts:
+                self._culled[light.name] = self._timed(
+                    f"bvh_culled:{light.name}", lambda: raycast.TriangleScene.from_scene(self.scene, mask))
+            else:
+                self._culled[light.name] = self.shadow_scene
+        return self._culled[light.name]
+
     # -- light views -------------------------------------------------------
     def light_view(self, light: Light, map_size: Optional[int] = None,
                    eye: Optional[np.ndarray] = None, key: str = "centre") -> LightView:
@@ -86,10 +137,8 @@ class FrameBuffers:
             def build():
                 faces = views.light_view_faces(light, self.receivers(), self.scene.bounds(), ms, eye)
                 e = light.position if eye is None else eye
-                return raycast.render_light_view(faces, self.shadow_scene, self.scene.tri_object, e)
-            rec = self.receivers()  # build the G-buffer outside this phase's timer
-            del rec
-            sc = self.shadow_scene
-            del sc
+                return raycast.render_light_view(faces, occ, self.scene.tri_object, e)
+            self.receivers()              # build the G-buffer outside this phase's timer
+            occ = self.shadow_scene_for(light)
             self._views[k] = self._timed(f"light_view:{light.name}", build)
         return self._views[k]

@@ -15,7 +15,7 @@ from . import methods as method_registry
 from .buffers import FrameBuffers
 from .methods.base import AVERAGE, GBUFFER, IRRADIANCE, LIGHT_VIEW, SHADOW_GEOMETRY, params_dict
 from .metrics import errors, reach_mask
-from .planner import Plan, make_plan
+from .planner import Plan, make_plan, refine_with_receivers
 from .scene import Scene
 
 REFERENCE_FOR = {AVERAGE: "embree", IRRADIANCE: "embree_irr"}
@@ -83,6 +83,11 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     plan = make_plan(scene, passes, light_names)
     buffers = FrameBuffers(scene, W, H, map_size)
     registry = method_registry.producers()
+    reach = {}
+    if any(lp.action != "skip" for lp in plan.lights):
+        g = buffers.gbuffer
+        reach = {lp.name: reach_mask(g, scene.light(lp.name)) for lp in plan.lights if lp.action != "skip"}
+        refine_with_receivers(plan, scene, reach)
     results = []
     n_lights = max(1, len(plan.lights))
     for li, lp in enumerate(plan.lights):
@@ -117,12 +122,20 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
             phases = {k2: round(v, 6) for k2, v in phases.items()}
             phases["total"] = round(sum(phases.values()), 6)
             done[prod_id] = (m, params, res, phases)
-        mask = reach_mask(buffers.gbuffer, light) if buffers._gbuffer is not None else None
+        mask = reach[lp.name]
+        if light.name in buffers.culling:
+            c = buffers.culling[light.name]
+            lp.decisions.append(f"occluders: {c['kept']} of {c['casters']} shadow-casting triangles can lie "
+                                f"between the light and a visible receiver")
+        lp.decisions.append(f"{int(mask.sum())} of {int(buffers.gbuffer.hit.sum())} visible pixels can be "
+                            f"lit by this light; the others get V = 1")
+        unreached = ~mask
         for pid in passes:
             ext = method_registry.is_external(pid)
             m, params, res, phases = done[pid if ext else method_registry.producer_of(pid).id]
             v = np.nan_to_num(res.passes[pid], nan=1.0, posinf=1.0, neginf=0.0)
             v = np.clip(v, 0.0, 1.0).astype(np.float32)
+            v[unreached] = 1.0   # no light there, so no shadow: the same as skipping the light
             lr.passes[pid] = v
             rec = {"time_s": phases, "visibility": method_registry.visibility_of(pid),
                    "params": dict(params) if ext else params_dict(params)}
@@ -133,7 +146,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
             lr.record[pid] = rec
         for pid in passes:
             ref = REFERENCE_FOR[lr.record[pid]["visibility"]]
-            if ref in lr.passes and ref != pid and mask is not None:
+            if ref in lr.passes and ref != pid:
                 lr.record[pid]["error"] = {"reference": ref, **errors(lr.passes[pid], lr.passes[ref], mask)}
         results.append(lr)
     if progress:

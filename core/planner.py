@@ -26,6 +26,7 @@ class LightPlan:
     reason: str
     producers: List[str] = field(default_factory=list)
     buffers: List[str] = field(default_factory=list)
+    decisions: List[str] = field(default_factory=list)   # further choices, with reasons
 
 
 @dataclass
@@ -43,7 +44,8 @@ class Plan:
         for lp in self.lights:
             lines.append(f"light {lp.name!r} -> layer {lp.layer!r}: {lp.action} ({lp.reason})")
             if lp.producers:
-                lines.append(f"    methods: {', '.join(lp.producers)}; buffers: {', '.join(lp.buffers)}")
+                lines.append(f"    methods: {', '.join(lp.producers)}; buffers: {', '.join(lp.buffers) or 'none'}")
+            lines.extend(f"    {d}" for d in lp.decisions)
         lines.extend(f"note: {n}" for n in self.notes)
         return "\n".join(lines)
 
@@ -120,3 +122,17 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
     elif all(lp.action == "skip" for lp in out):
         notes.append("no light casts shadows: every pass is V = 1")
     return Plan(list(passes), out, notes)
+
+
+def refine_with_receivers(plan: Plan, scene: Scene, reach: Dict[str, np.ndarray]) -> None:
+    """Second stage, once the camera G-buffer exists: a light that reaches no
+    visible receiver (every visible point outside its spot cone, behind it,
+    or facing away) is skipped. ``reach[name]`` is ``metrics.reach_mask``."""
+    for lp in plan.lights:
+        if lp.action in ("compute", "hard") and lp.name in reach and not reach[lp.name].any():
+            lp.action = "skip"
+            lp.reason = ("the light reaches no visible receiver (outside its cone, behind it "
+                         "or facing away): V = 1")
+            lp.producers, lp.buffers = [], []
+    if plan.lights and all(lp.action == "skip" for lp in plan.lights) and not plan.notes:
+        plan.notes.append("no light casts a shadow on what the camera sees: every pass is V = 1")

@@ -173,7 +173,7 @@ class EmbreeReference(Method):
             Nrm = g.normal.reshape(-1, 3)[idx].astype(np.float64)
         ns = 1 if light.is_zero_size else max(1, int(params.samples))
         with timer("trace"):
-            va, vi, rays = trace_visibility(buffers.shadow_scene, P, Nrm, idx, light, ns,
+            va, vi, rays = trace_visibility(buffers.shadow_scene_for(light), P, Nrm, idx, light, ns,
                                             int(params.seed), buffers.scale)
         out_a = np.ones(H * W, np.float32)
         out_i = np.ones(H * W, np.float32)
