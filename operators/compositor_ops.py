@@ -1,0 +1,169 @@
+"""Set up compositor: the "Penumbra" node group in the scene's compositing
+node group (``addon/compositor.py`` builds it), fed by the stored pass
+images or by a multilayer EXR written by ``penumbra render``."""
+from __future__ import annotations
+
+import os
+from typing import Dict, List, Optional, Tuple
+
+import bpy
+
+from ..addon import compositor
+
+AUTO_FALLBACK = "pcf"       # what a light's "auto" method resolves to (as Compute Passes)
+
+
+def exr_layers(path: str) -> Dict[str, List[str]]:
+    """layer -> pass ids of a multilayer EXR written by ``penumbra render``
+    (channel names ``layer.pass.V``); reads every part's header."""
+    import OpenEXR
+    out: Dict[str, List[str]] = {}
+    with OpenEXR.File(path, header_only=True) as f:
+        for part in f.parts:
+            names = part.header.get("channels")
+            names = [c.name for c in names] if names is not None else list(part.channels)
+            for name in names:
+                bits = name.split(".")
+                if len(bits) >= 3:
+                    out.setdefault(".".join(bits[:-2]), []).append(bits[-2])
+    return out
+
+
+def scene_lights(scene) -> List[Tuple[str, str]]:
+    """(light object name, EXR layer) of the scene's rendered lights, in the
+    planner's layer naming (dots -> underscores, repeats numbered)."""
+    from ..core.planner import layer_name
+    used: Dict[str, int] = {}
+    out = []
+    for ob in sorted((o for o in scene.objects if o.type == "LIGHT" and not o.hide_render),
+                     key=lambda o: o.name):
+        layer = layer_name(ob.name)
+        if layer in used:
+            used[layer] += 1
+            layer = f"{layer}_{used[layer]}"
+        used.setdefault(layer, 1)
+        out.append((ob.name, layer))
+    return out
+
+
+def light_method(light_name: str, requested: str = "") -> str:
+    """The pass shown as "the method" for a light: ``requested``, else the
+    light's Penumbra method (``auto`` -> pcf)."""
+    if requested:
+        return requested
+    ob = bpy.data.objects.get(light_name)
+    s = getattr(ob.data, "penumbra", None) if ob is not None and ob.type == "LIGHT" else None
+    m = getattr(s, "method", "") or ""
+    if not m or m.lower() == "auto":
+        return AUTO_FALLBACK
+    return m
+
+
+def _fallback_method(method: str, available: List[str]) -> str:
+    """``method`` when it has a pass, else the first non-reference pass."""
+    if method in available or not available:
+        return method
+    refs = {"embree", "embree_irr", "cycles"}
+    return next((p for p in available if p not in refs), method)
+
+
+def default_exr_path(scene) -> Optional[str]:
+    """``<output folder>/<stem>.<frame:04d>.exr`` (DESIGN.md naming) when the
+    scene has a Penumbra output folder."""
+    from ..core.output import output_paths
+    from .capture import blend_stem
+    ss = getattr(scene, "penumbra", None)
+    folder = getattr(ss, "output_folder", "") if ss is not None else ""
+    if not folder:
+        return None
+    return output_paths(bpy.path.abspath(folder), blend_stem(scene), scene.frame_current)["exr"]
+
+
+def plan_lights(scene, source: str, exr_path: Optional[str] = None,
+                method: str = "") -> List[Tuple[str, str, str]]:
+    """[(light name, layer, method)] for ``setup_compositor``. IMAGES: the
+    scene's lights that have stored pass images; EXR: the EXR's layers."""
+    from ..core import methods as registry
+    known = registry.pass_ids()
+    lights = []
+    if source == "EXR":
+        names = {layer: name for name, layer in scene_lights(scene)}
+        for layer, passes in exr_layers(exr_path).items():
+            name = names.get(layer, layer)
+            lights.append((name, layer, _fallback_method(light_method(name, method), passes)))
+        return lights
+    for name, layer in scene_lights(scene):
+        have = [p for p in known if bpy.data.images.get(compositor.pass_image_name(layer, p))]
+        if have:
+            lights.append((name, layer, _fallback_method(light_method(name, method), have)))
+    return lights
+
+
+class PENUMBRA_OT_setup_compositor(bpy.types.Operator):
+    """Add the "Penumbra" node group to the compositor: per light, the method's
+    shadow pass, the embree and cycles references and a false-colour error
+    image, side by side. Rebuilding replaces only Penumbra's own nodes"""
+
+    bl_idname = "penumbra.setup_compositor"
+    bl_label = "Set up compositor"
+    bl_options = {"REGISTER", "UNDO"}
+
+    source: bpy.props.EnumProperty(
+        name="Source", default="IMAGES",
+        items=[("IMAGES", "Stored Images", "The pass images of Compute Passes / Render Cycles "
+                                           "reference (\"Penumbra <layer> <pass>\")"),
+               ("EXR", "EXR File", "A multilayer EXR written by penumbra render (one layer per light)")],
+        description="Where the passes come from")
+    filepath: bpy.props.StringProperty(
+        name="EXR", subtype="FILE_PATH", default="",
+        description="Multilayer EXR for the EXR source (empty: this frame's file in the scene's "
+                    "Penumbra output folder)")
+    method: bpy.props.StringProperty(
+        name="Method", default="",
+        description="Pass id shown as the method for every light (empty: each light's own method)")
+    error_scale: bpy.props.FloatProperty(
+        name="Error Scale", default=compositor.ERROR_SCALE, min=1e-4, max=1.0,
+        description="Absolute error shown at full colour in the error image: smaller shows "
+                    "smaller errors, larger ones saturate")
+
+    def execute(self, context):
+        scene = context.scene
+        exr_path = None
+        if self.source == "EXR":
+            exr_path = bpy.path.abspath(self.filepath) if self.filepath else default_exr_path(scene)
+            if not exr_path:
+                self.report({"ERROR"}, "Penumbra: choose an EXR file (or set the scene's output folder)")
+                return {"CANCELLED"}
+            if not os.path.isfile(exr_path):
+                self.report({"ERROR"}, f"Penumbra: no such EXR: {exr_path}")
+                return {"CANCELLED"}
+        if self.method:
+            from ..core import methods as registry
+            if self.method not in registry.pass_ids():
+                self.report({"ERROR"}, f"Penumbra: unknown method {self.method!r}")
+                return {"CANCELLED"}
+        try:
+            lights = plan_lights(scene, self.source, exr_path, self.method)
+        except Exception as exc:          # unreadable EXR
+            self.report({"ERROR"}, f"Penumbra: cannot read {exr_path}: {exc}")
+            return {"CANCELLED"}
+        if not lights:
+            self.report({"ERROR"}, "Penumbra: no passes to show: run Compute Passes (or Render "
+                                   "Cycles reference) first, or choose an EXR written by penumbra render"
+                         if self.source == "IMAGES" else f"Penumbra: {exr_path} has no Penumbra layers")
+            return {"CANCELLED"}
+        vl = context.view_layer.name if context.view_layer is not None else None
+        try:
+            res = compositor.setup_compositor(scene, lights, exr_path, vl, self.error_scale)
+        except (RuntimeError, ValueError) as exc:
+            self.report({"ERROR"}, f"Penumbra: {exc}")
+            return {"CANCELLED"}
+        if res.missing:
+            self.report({"WARNING"}, "Penumbra: no source for " + ", ".join(res.missing)
+                        + " (compute it first; its outputs stay empty)")
+        self.report({"INFO"}, f"Penumbra: compositor set up for {len(lights)} light(s): "
+                              + ", ".join(f"{n} ({m})" for n, _l, m in lights))
+        return {"FINISHED"}
+
+
+classes = (PENUMBRA_OT_setup_compositor,)

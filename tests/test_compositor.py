@@ -1,0 +1,275 @@
+"""The "Penumbra" compositor node group (addon/compositor.py) and the Set up
+compositor operator (operators/compositor_ops.py).
+
+The compositor evaluates headless: a render with ``write_still`` writes the
+compositing node group's output (checked in bpy 5.0.1; the Viewer node's image
+has no pixels in background mode), so the images the group makes are checked
+on a tiny one-sample Cycles render of an empty scene.
+"""
+import os
+
+import bpy
+import numpy as np
+import OpenEXR
+import pytest
+
+import penumbra
+from penumbra.addon import compositor as C
+from penumbra.core import exr
+
+W, H = 16, 8
+
+
+def _scene():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 1
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x, scene.render.resolution_y = W, H
+    scene.render.resolution_percentage = 100
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    for name in ("Key.Light", "Fill"):
+        ob = bpy.data.objects.new(name, bpy.data.lights.new(name, "AREA"))
+        scene.collection.objects.link(ob)
+    return scene
+
+
+def _gradient():
+    return np.tile(np.linspace(0.0, 1.0, W, dtype=np.float32), (H, 1))
+
+
+def _user_tree(scene):
+    """The user's compositor: Render Layers -> their Blur -> Group Output."""
+    tree = C.compositor_tree(scene)
+    rl = next(n for n in tree.nodes if n.bl_idname == "CompositorNodeRLayers")
+    out = next(n for n in tree.nodes if n.bl_idname == "NodeGroupOutput")
+    blur = tree.nodes.new("CompositorNodeBlur")
+    blur.name = "My Blur"
+    blur.location = (123.0, 45.0)
+    tree.links.new(rl.outputs["Image"], blur.inputs["Image"])
+    tree.links.new(blur.outputs["Image"], out.inputs["Image"])
+    return tree, blur
+
+
+def _links(tree):
+    return sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
+                  for l in tree.links)
+
+
+def _user_state(tree):
+    ours = [n for n in tree.nodes if n.name.startswith(C.PREFIX) or n.name in (C.FRAME_NAME, C.SETUP_FRAME)]
+    users = sorted((n.name, n.bl_idname, tuple(n.location), n.parent.name if n.parent else None)
+                   for n in tree.nodes if n not in ours)
+    links = [l for l in _links(tree) if not (l[0].startswith(C.PREFIX) or l[2].startswith(C.PREFIX))]
+    return users, links
+
+
+def _composite(scene, socket, path):
+    """Render once with ``socket`` wired to the compositor's output; the
+    written EXR's RGB (row 0 at the top)."""
+    tree = scene.compositing_node_group
+    out = next(n for n in tree.nodes if n.bl_idname == "NodeGroupOutput")
+    tree.links.new(socket, out.inputs["Image"])
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.parts[0].channels
+        return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], -1)
+
+
+def _store(layer, method_v, embree_v, cycles_v):
+    C.store_pass_image(layer, "pcf", method_v)
+    C.store_pass_image(layer, "embree", embree_v)
+    C.store_pass_image(layer, "cycles", cycles_v)
+
+
+LIGHTS = [("Key.Light", "Key_Light", "pcf"), ("Fill", "Fill", "pcf")]
+
+
+# --------------------------------------------------------------------------
+def test_builds_twice_without_duplicates_and_leaves_user_nodes_alone():
+    scene = _scene()
+    tree, blur = _user_tree(scene)
+    before = _user_state(tree)
+    g = _gradient()
+    _store("Key_Light", g, g, 0.5 * g)
+    _store("Fill", 1 - g, g, g)
+    r1 = C.setup_compositor(scene, LIGHTS)
+    state1 = (len(tree.nodes), sorted(n.name for n in tree.nodes), len(r1.group.nodes),
+              sorted(n.name for n in r1.group.nodes), len(r1.group.links), _links(r1.group))
+    ids1 = {s.name: s.identifier for s in r1.node.outputs}
+    r2 = C.setup_compositor(scene, LIGHTS)
+    state2 = (len(tree.nodes), sorted(n.name for n in tree.nodes), len(r2.group.nodes),
+              sorted(n.name for n in r2.group.nodes), len(r2.group.links), _links(r2.group))
+    assert state1 == state2
+    assert r1.group == r2.group
+    assert [g_ for g_ in bpy.data.node_groups if g_.name.startswith(C.GROUP_NAME)] == [r2.group]
+    # exactly one group node, one Render Layers, one Viewer and the frame of ours in the scene tree
+    ours = sorted(n.name for n in tree.nodes if n.name.startswith(C.SETUP_PREFIX))
+    assert ours == [f"{C.SETUP_PREFIX}Penumbra", f"{C.SETUP_PREFIX}Render Layers", f"{C.SETUP_PREFIX}Viewer"]
+    assert r2.node.bl_idname == "CompositorNodeGroup" and r2.node.node_tree == r2.group
+    assert r2.node.parent.name == C.SETUP_FRAME
+    # the user's node: same name, place, links; their output still fed by their blur
+    assert _user_state(tree) == before
+    assert tree.nodes["My Blur"].location[:] == (123.0, 45.0)
+    # per light: the method, embree, cycles, error and side-by-side sockets
+    for _name, layer, method in LIGHTS:
+        for what in (method, "embree", "cycles", "error", "side by side"):
+            s = r2.node.outputs.get(C.socket_name(layer, what))
+            assert s is not None, what
+            assert r2.group.nodes[f"{C.PREFIX}Group Output"].inputs[C.socket_name(layer, what)].is_linked
+    assert r2.missing == [] and r2.error_refs == {"Key_Light": "embree", "Fill": "embree"}
+    # socket identifiers survive the rebuild (links from the user's own group nodes stay)
+    assert {s.name: s.identifier for s in r2.node.outputs} == ids1
+    # the viewer shows the first light's side by side
+    viewer = tree.nodes[f"{C.SETUP_PREFIX}Viewer"]
+    assert viewer.inputs["Image"].links[0].from_socket.name == C.socket_name("Key_Light", "side by side")
+
+
+def test_rebuild_keeps_links_of_a_users_group_node_and_drops_stale_lights():
+    scene = _scene()
+    tree, _blur = _user_tree(scene)
+    g = _gradient()
+    _store("Key_Light", g, g, g)
+    _store("Fill", g, g, g)
+    res = C.setup_compositor(scene, LIGHTS)
+    # the user adds their own instance of the group and uses one of its outputs
+    mine = tree.nodes.new("CompositorNodeGroup")
+    mine.name = "My Penumbra"
+    mine.node_tree = res.group
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.name = "My Mix"
+    tree.links.new(mine.outputs[C.socket_name("Key_Light", "cycles")], mix.inputs["Factor"])
+    res = C.setup_compositor(scene, LIGHTS[:1])          # the Fill light is gone
+    assert tree.nodes["My Penumbra"].outputs[C.socket_name("Key_Light", "cycles")].is_linked
+    assert mix.inputs["Factor"].links[0].from_node.name == "My Penumbra"
+    names = [s.name for s in res.node.outputs]
+    assert not any(n.startswith("Fill:") for n in names)
+    assert [i.name for i in res.group.interface.items_tree if i.item_type == "PANEL"] == ["Key_Light"]
+    # a node the user put inside Penumbra's group stays too
+    user_inner = res.group.nodes.new("CompositorNodeInvert")
+    user_inner.name = "My Invert"
+    C.setup_compositor(scene, LIGHTS[:1])
+    assert "My Invert" in res.group.nodes
+
+
+def test_error_of_identical_passes_is_black_and_side_by_side(tmp_path):
+    scene = _scene()
+    _user_tree(scene)
+    g = _gradient()
+    _store("Key_Light", g, g, 0.5 * g)            # pcf == embree: no error
+    _store("Fill", np.zeros_like(g), np.ones_like(g), g)   # pcf off by 1 everywhere
+    res = C.setup_compositor(scene, LIGHTS)
+    node = res.node
+    err = _composite(scene, node.outputs[C.socket_name("Key_Light", "error")], tmp_path / "err.exr")
+    assert err.shape == (H, W, 3)
+    assert np.abs(err).max() < 1e-6                          # black
+    cyc = _composite(scene, node.outputs[C.socket_name("Key_Light", "cycles")], tmp_path / "cyc.exr")
+    np.testing.assert_allclose(cyc[..., 0], 0.5 * g, atol=1e-5)
+    # an error of 1 >= Error Scale saturates the ramp at its last colour
+    err_fill = _composite(scene, node.outputs[C.socket_name("Fill", "error")], tmp_path / "err2.exr")
+    np.testing.assert_allclose(err_fill.reshape(-1, 3).mean(0), C.ERROR_RAMP[-1][1][:3], atol=1e-4)
+    # Error Scale on the group node: an error of 1 at scale 1 is the ramp's top too, 0.5 at scale 1
+    # sits between the 0.3 and 0.65 stops: not black, not saturated
+    _store("Fill", np.full_like(g, 0.5), np.ones_like(g), g)
+    node.inputs["Error Scale"].default_value = 1.0
+    half = _composite(scene, node.outputs[C.socket_name("Fill", "error")], tmp_path / "err3.exr")
+    assert 0.05 < half.max() < 0.99
+    # side by side: method top-left, embree top-right, cycles bottom-left, error bottom-right
+    sbs = _composite(scene, node.outputs[C.socket_name("Key_Light", "side by side")], tmp_path / "sbs.exr")
+    top, bottom = sbs[: H // 2, :, 0], sbs[H // 2:, :, 0]
+    half_g = 0.5 * (g[: H // 2, 0::2] + g[: H // 2, 1::2])    # bilinear at half size
+    np.testing.assert_allclose(top[:, : W // 2], half_g, atol=2e-3)
+    np.testing.assert_allclose(top[:, W // 2:], half_g, atol=2e-3)
+    np.testing.assert_allclose(bottom[:, : W // 2], 0.5 * half_g, atol=2e-3)
+    assert np.abs(sbs[H // 2:, W // 2:]).max() < 1e-6
+
+
+def test_exr_source(tmp_path):
+    scene = _scene()
+    g = _gradient()
+    path = str(tmp_path / "shot.0001.exr")
+    exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "embree_irr": g, "cycles": 1 - g},
+                                "Fill": {"single_sample": g, "embree": 0.25 * g}})
+    res = C.setup_compositor(scene, [("Key.Light", "Key_Light", "pcf"), ("Fill", "Fill", "single_sample")],
+                             exr_path=path)
+    src = res.group.nodes[f"{C.PREFIX}Key_Light:exr"]
+    assert src.bl_idname == "CompositorNodeImage" and src.layer == "Key_Light"
+    assert os.path.samefile(bpy.path.abspath(src.image.filepath), path)
+    assert res.group.nodes[f"{C.PREFIX}Fill:exr"].layer == "Fill"
+    assert res.missing == ["Fill: cycles"]                  # that EXR has no cycles pass for Fill
+    assert res.error_refs == {"Key_Light": "embree", "Fill": "embree"}
+    err = _composite(scene, res.node.outputs[C.socket_name("Key_Light", "error")], tmp_path / "e.exr")
+    assert np.abs(err).max() < 1e-6
+    cyc = _composite(scene, res.node.outputs[C.socket_name("Key_Light", "cycles")], tmp_path / "c.exr")
+    np.testing.assert_allclose(cyc[..., 0], 1 - g, atol=1e-5)
+    emb = _composite(scene, res.node.outputs[C.socket_name("Fill", "embree")], tmp_path / "f.exr")
+    np.testing.assert_allclose(emb[..., 0], 0.25 * g, atol=1e-5)
+
+
+def test_side_by_side_nodes_and_setup_coexist():
+    scene = _scene()
+    tree, _ = _user_tree(scene)
+    g = _gradient()
+    _store("Key_Light", g, g, g)
+    C.setup_compositor(scene, LIGHTS[:1])
+    C.build_side_by_side(scene, {"Key.Light": "Key_Light"}, ["pcf", "embree"])
+    assert f"{C.SETUP_PREFIX}Penumbra" in tree.nodes          # Compute Passes keeps the setup
+    assert f"{C.PREFIX}Key_Light:pcf" in tree.nodes
+    C.setup_compositor(scene, LIGHTS[:1])
+    assert f"{C.PREFIX}Key_Light:pcf" in tree.nodes          # and the setup keeps those
+    assert C.clear_nodes(tree) == 3 + 1 + 2 + 1              # setup (3 + frame), side by side (2 + frame)
+    assert "My Blur" in tree.nodes and not any(n.name.startswith(C.PREFIX) for n in tree.nodes)
+
+
+# --------------------------------------------------------------------------
+# the operator
+@pytest.fixture
+def registered():
+    penumbra.register()
+    yield
+    penumbra.unregister()
+
+
+def test_setup_operator_from_images(registered):
+    scene = _scene()
+    tree, _ = _user_tree(scene)
+    before = _user_state(tree)
+    g = _gradient()
+    _store("Key_Light", g, g, g)
+    scene.objects["Key.Light"].data.penumbra.method = "pcf"
+    assert bpy.ops.penumbra.setup_compositor() == {"FINISHED"}
+    assert bpy.ops.penumbra.setup_compositor() == {"FINISHED"}
+    node = tree.nodes[f"{C.SETUP_PREFIX}Penumbra"]
+    names = [s.name for s in node.outputs]
+    # the Fill light has no stored passes: it is not shown
+    assert "Key_Light: pcf" in names and not any(n.startswith("Fill") for n in names)
+    assert _user_state(tree) == before
+    assert len([n for n in tree.nodes if n.name.startswith(C.SETUP_PREFIX)]) == 3
+
+
+def test_setup_operator_from_exr_and_bad_input(registered, tmp_path):
+    scene = _scene()
+    g = _gradient()
+    path = str(tmp_path / "shot.0001.exr")
+    exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "cycles": g}})
+    assert bpy.ops.penumbra.setup_compositor(source="EXR", filepath=path) == {"FINISHED"}
+    node = scene.compositing_node_group.nodes[f"{C.SETUP_PREFIX}Penumbra"]
+    assert [s.name for s in node.outputs][:4] == ["Image", "Key_Light: pcf", "Key_Light: embree",
+                                                   "Key_Light: cycles"]
+    with pytest.raises(RuntimeError, match="no such EXR"):
+        bpy.ops.penumbra.setup_compositor(source="EXR", filepath=str(tmp_path / "none.exr"))
+    bad = tmp_path / "bad.exr"
+    bad.write_bytes(b"not an exr")
+    with pytest.raises(RuntimeError, match="cannot read"):
+        bpy.ops.penumbra.setup_compositor(source="EXR", filepath=str(bad))
+    with pytest.raises(RuntimeError, match="unknown method"):
+        bpy.ops.penumbra.setup_compositor(method="nope")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    with pytest.raises(RuntimeError, match="no passes to show"):
+        bpy.ops.penumbra.setup_compositor()

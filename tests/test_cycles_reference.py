@@ -1,0 +1,319 @@
+"""The ``cycles`` reference (operators/cycles_reference.py) against
+``embree_irr``, and that it leaves the scene exactly as it found it.
+
+Noise bound used below. Per pixel both references estimate the same ratio
+V = sum_i w_i v_i / sum_i w_i over light samples (v_i = 0 or 1). With N
+independent samples the standard deviation of such an estimate is at most
+about sqrt(V(1-V)/N) (equal weights; Cycles uses the same seed for its two
+renders, so numerator and denominator share their samples as embree_irr's
+do). Cycles' Sobol sequence and embree_irr's jittered strata can only lower
+that. The two references are independent, so the expected RMSE between them
+over a set of pixels is at most
+
+    sigma_MC = sqrt(mean(V(1-V)) * (1/N_cycles + 1/N_embree))
+
+with V taken from embree_irr. That is the bound asserted, on pixels that see
+the whole light above their tangent plane (at the terminator Cycles shades
+with the smooth-shading normal and Penumbra with the geometric one: a
+different, legitimate answer, counted separately and allowed to be rare).
+A one-pixel misalignment would add the image gradient: several times sigma_MC
+on these scenes, which the shifted comparisons check.
+"""
+import glob
+import math
+import os
+import tempfile
+
+import bpy
+import numpy as np
+import pytest
+
+import penumbra
+from penumbra.core.buffers import FrameBuffers
+from penumbra.core.frame import render_frame
+from penumbra.core.metrics import reach_mask
+from penumbra.core.scene import Light
+from penumbra.operators import cycles_reference as cr
+from penumbra.operators.capture import capture_scene
+from scenes import sample_path
+
+RES = (64, 64)
+CYCLES_SAMPLES = 128
+EMBREE_SAMPLES = 1024
+
+
+# --------------------------------------------------------------------------
+# helpers
+def snapshot(scene) -> dict:
+    """Everything the reference render touches, as plain values."""
+    r, c = scene.render, scene.cycles
+    snap = {
+        "engine": r.engine, "res": (r.resolution_x, r.resolution_y, r.resolution_percentage),
+        "filepath": r.filepath, "file_format": r.image_settings.file_format,
+        "media_type": r.image_settings.media_type, "color_depth": r.image_settings.color_depth,
+        "use_compositing": r.use_compositing, "use_sequencer": r.use_sequencer,
+        "use_border": r.use_border, "world": scene.world.name if scene.world else None,
+        "camera_dof": scene.camera.data.dof.use_dof if scene.camera else None,
+        "materials": sorted(m.name for m in bpy.data.materials),
+        "compositing_node_group": getattr(scene.compositing_node_group, "name", None),
+        "penumbra.render_passes": getattr(getattr(scene, "penumbra", None), "render_passes", None),
+    }
+    for k in ("samples", "seed", "use_animated_seed", "use_adaptive_sampling", "use_denoising",
+              "pixel_filter_type", "filter_width", "max_bounces", "diffuse_bounces",
+              "glossy_bounces", "transmission_bounces", "transparent_max_bounces",
+              "direct_light_sampling_type", "light_sampling_threshold", "use_layer_samples"):
+        v = getattr(c, k)
+        snap[f"cycles.{k}"] = round(v, 6) if isinstance(v, float) else v
+    for vl in scene.view_layers:
+        snap[f"vl.{vl.name}"] = (getattr(vl.material_override, "name", None),
+                                 vl.use_pass_diffuse_direct, vl.samples)
+    for ob in scene.objects:
+        if ob.type == "LIGHT":
+            snap[f"light.{ob.name}"] = (ob.data.use_shadow, ob.hide_render, round(ob.data.energy, 6))
+    return snap
+
+
+def fully_facing(g, light: Light) -> np.ndarray:
+    """Pixels that see the whole light above their (geometric) tangent plane."""
+    P, n = g.position, g.normal.astype(np.float64)
+    ok = g.hit.copy()
+    if light.kind == "sphere":
+        d = light.position - P
+        dist = np.linalg.norm(d, axis=-1)
+        sin_half = np.minimum(light.radius / dist, 1.0)
+        return ok & (np.einsum("...i,...i->...", n, d) / dist > sin_half + 0.02)
+    m = light.world_from_light
+    c, ax, ay = light.position, m[:3, 0], m[:3, 1]
+    hx, hy = 0.5 * light.size, 0.5 * light.size_y
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            q = c + ax * sx * hx + ay * sy * hy
+            dq = q - P
+            ok &= np.einsum("...i,...i->...", n, dq) / np.linalg.norm(dq, axis=-1) > 0.02
+    return ok
+
+
+def rmse(a, b, m):
+    d = (np.asarray(a, np.float64) - b)[m]
+    return float(np.sqrt(np.mean(d * d)))
+
+
+def open_sample(name):
+    bpy.ops.wm.open_mainfile(filepath=sample_path(name), load_ui=False)
+    return bpy.context.scene
+
+
+# --------------------------------------------------------------------------
+# the ratio itself
+def test_shadow_ratio_is_finite_and_clamped():
+    sh = np.array([[[0.2, 0.2, 0.2], [0.0, 0.0, 0.0], [np.nan, 0, 0], [2.0, 2.0, 2.0], [0.0, 0.3, 0.0]]])
+    un = np.array([[[0.4, 0.4, 0.4], [0.0, 0.0, 0.0], [1.0, 1, 1], [1.0, 1.0, 1.0], [0.0, 0.6, 0.0]]])
+    v = cr.shadow_ratio(sh, un)
+    assert v.dtype == np.float32 and v.shape == (1, 5)
+    assert np.isfinite(v).all()
+    # half; 0/0 -> 0; NaN -> 0; above 1 -> 1; a green light: ratio of the channel sums
+    np.testing.assert_allclose(v[0], [0.5, 0.0, 0.0, 1.0, 0.5], atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["sphere_plane", "torus_plane"])
+def test_cycles_reference_matches_embree_irr(name):
+    scene = open_sample(name)
+    blend_mtime = os.path.getmtime(sample_path(name))
+    captured = capture_scene(scene, resolution=RES)
+    before = snapshot(scene)
+    tmp_before = set(glob.glob(os.path.join(tempfile.gettempdir(), "penumbra_cycles_*")))
+    producer = cr.make_cycles_producer(scene, RES, samples=CYCLES_SAMPLES, seed=0)
+    result = render_frame(captured, ["embree", "embree_irr", "cycles"],
+                          overrides={"samples": EMBREE_SAMPLES, "seed": 1},
+                          external={"cycles": producer})
+    # the scene is exactly as it was, the file untouched, no temporary files left
+    assert snapshot(scene) == before
+    assert os.path.getmtime(sample_path(name)) == blend_mtime
+    assert set(glob.glob(os.path.join(tempfile.gettempdir(), "penumbra_cycles_*"))) == tmp_before
+    assert not cr.is_rendering()
+
+    lr = result.lights[0]
+    rec = lr.record["cycles"]
+    assert rec["visibility"] == "irradiance"
+    assert set(rec["time_s"]) == {"render_shadowed", "render_unshadowed", "total"}
+    assert all(t > 0 for t in rec["time_s"].values())
+    assert rec["params"]["samples"] == CYCLES_SAMPLES and rec["params"]["seed"] == 0
+    assert rec["params"]["filter"] == {"type": "GAUSSIAN", "width_px": 0.01}
+    assert rec["error"]["reference"] == "embree_irr"
+
+    c, e = lr.passes["cycles"], lr.passes["embree_irr"]
+    assert c.shape == (RES[1], RES[0]) and c.dtype == np.float32
+    assert np.isfinite(c).all() and c.min() >= 0.0 and c.max() <= 1.0
+    light = captured.lights[0]
+    g = FrameBuffers(captured, *RES, None).gbuffer
+    reach = reach_mask(g, light)
+    core = reach & fully_facing(g, light)
+    assert core.sum() > 0.5 * reach.sum()
+    penumbra_px = core & (e > 0.02) & (e < 0.98)
+    assert penumbra_px.sum() >= 20, "the scene must have a penumbra to compare"
+    assert (e[core] < 0.5).sum() >= 20, "and a shadow"
+
+    V = e[core].astype(np.float64)
+    sigma_mc = math.sqrt(np.mean(V * (1 - V)) * (1.0 / CYCLES_SAMPLES + 1.0 / EMBREE_SAMPLES))
+    err_core = rmse(c, e, core)
+    mean_signed = float(np.mean((c - e.astype(np.float64))[core]))
+    big = reach & (np.abs(c - e) > 0.25)
+    print(f"\n{name}: Cycles {CYCLES_SAMPLES} spp renders {rec['time_s']['render_shadowed']:.2f} s + "
+          f"{rec['time_s']['render_unshadowed']:.2f} s; RMSE vs embree_irr ({EMBREE_SAMPLES} spp): "
+          f"{err_core:.4f} on {core.sum()} fully lit-facing px (MC bound {sigma_mc:.4f}), "
+          f"{rec['error']['rmse']:.4f} on all {reach.sum()} reachable px; penumbra RMSE "
+          f"{rmse(c, e, penumbra_px):.4f} on {penumbra_px.sum()} px; mean signed {mean_signed:+.5f}; "
+          f"|diff| > 0.25 on {big.sum()} px")
+    assert err_core <= sigma_mc
+    # no systematic offset: the mean of the per-pixel noise has std sigma_mc / sqrt(n)
+    assert abs(mean_signed) <= 4.0 * sigma_mc / math.sqrt(core.sum()) + 1e-4
+    # terminator / silhouette disagreements are rare
+    assert big.sum() <= max(2, 0.002 * reach.sum())
+    # aligned with pixel centres: any one-pixel shift of the reference is clearly worse
+    inner = np.zeros_like(core)
+    inner[1:-1, 1:-1] = True
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        shifted = np.roll(e, (dy, dx), axis=(0, 1))
+        m = core & np.roll(core, (dy, dx), axis=(0, 1)) & inner
+        assert rmse(c, shifted, m) > 2.0 * rmse(c, e, m), (dy, dx)
+
+
+# --------------------------------------------------------------------------
+# one light at a time, no world, restored settings, on a scene built for it
+def _mesh(scene, name, verts, faces):
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(verts, [], faces)
+    ob = bpy.data.objects.new(name, me)
+    scene.collection.objects.link(ob)
+    return ob
+
+
+def _box_scene():
+    """A ground, a floating square occluder (not seen by the camera), area
+    light A straight above it,
+    light B low at the side (lights A's umbra), a bright world, a hidden
+    light, a user material override and unusual render settings."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.render.resolution_x, scene.render.resolution_y = 48, 48
+    scene.cycles.samples = 7
+    scene.cycles.pixel_filter_type = "BOX"
+    scene.cycles.max_bounces = 5
+    _mesh(scene, "Ground", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)])
+    occ = _mesh(scene, "Occluder", [(-1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1)], [(0, 1, 2, 3)])
+    occ.visible_camera = False          # the camera sees the ground under it
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    cam.location = (0, 0, 12)
+    scene.camera = cam
+    a = bpy.data.objects.new("A", bpy.data.lights.new("A", "AREA"))
+    a.data.size, a.data.energy = 0.2, 500.0
+    a.location = (0, 0, 4)
+    b = bpy.data.objects.new("B", bpy.data.lights.new("B", "POINT"))
+    b.data.energy, b.data.use_shadow = 2000.0, False
+    b.location = (5, 0, 0.5)
+    hidden = bpy.data.objects.new("Hidden", bpy.data.lights.new("Hidden", "POINT"))
+    hidden.hide_render = True
+    for ob in (a, b, hidden):
+        scene.collection.objects.link(ob)
+    world = bpy.data.worlds.new("Bright")
+    bg = world.node_tree.nodes.get("Background")
+    bg.inputs["Strength"].default_value = 5.0
+    scene.world = world
+    user_mat = bpy.data.materials.new("UserOverride")
+    scene.view_layers[0].material_override = user_mat
+    return scene
+
+
+def test_one_light_at_a_time_without_the_world():
+    scene = _box_scene()
+    before = snapshot(scene)
+    res = (24, 24)
+    v_a, times = cr.render_light_reference(scene, "A", res, samples=16, seed=3)
+    assert snapshot(scene) == before
+    assert set(times) == {"render_shadowed", "render_unshadowed"}
+    # the camera looks straight down: the centre is A's umbra under the
+    # occluder, the corners are open ground. B and the world light the umbra
+    # too, so only with them off is it 0.
+    assert v_a.shape == (24, 24)
+    assert v_a[10:14, 10:14].max() == 0.0
+    assert v_a[:3, :3].min() > 0.99 and v_a[-3:, -3:].min() > 0.99
+    # B's own shadow is off in the file: its reference renders it on, then restores it
+    v_b, _ = cr.render_light_reference(scene, "B", res, samples=16, seed=3)
+    assert snapshot(scene) == before and not scene.objects["B"].data.use_shadow
+    assert np.isfinite(v_b).all() and 0.0 <= v_b.min() and v_b.max() <= 1.0
+    # the same seed gives the same image
+    v_a2, _ = cr.render_light_reference(scene, "A", res, samples=16, seed=3)
+    np.testing.assert_array_equal(v_a, v_a2)
+
+
+def test_scene_restored_when_the_render_fails(monkeypatch):
+    scene = _box_scene()
+    before = snapshot(scene)
+    calls = []
+    real = cr._render_once
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("Error: simulated render failure")
+        return real(*args)
+
+    monkeypatch.setattr(cr, "_render_once", failing)
+    with pytest.raises(RuntimeError, match="simulated"):
+        cr.render_light_reference(scene, "A", (8, 8), samples=1)
+    assert len(calls) == 2
+    assert snapshot(scene) == before
+    assert cr.WHITE_MATERIAL not in bpy.data.materials
+    assert not cr.is_rendering()
+
+
+def test_bad_input_is_a_clear_error():
+    scene = _box_scene()
+    with pytest.raises(cr.CyclesReferenceError, match="no light object"):
+        cr.render_light_reference(scene, "Nope", (8, 8))
+    with pytest.raises(cr.CyclesReferenceError, match="instance"):
+        cr.render_light_reference(scene, "Empty/Lamp#1", (8, 8))
+    with pytest.raises(cr.CyclesReferenceError, match="not a light"):
+        cr.render_light_reference(scene, "Ground", (8, 8))
+    scene.camera = None
+    with pytest.raises(cr.CyclesReferenceError, match="no camera"):
+        cr.render_light_reference(scene, "A", (8, 8))
+
+
+# --------------------------------------------------------------------------
+# the operator
+@pytest.fixture
+def registered():
+    penumbra.register()
+    yield
+    penumbra.unregister()
+
+
+def test_operator_stores_reference_images(registered):
+    from penumbra.addon import compositor
+    scene = open_sample("sphere_plane")
+    scene.render.resolution_x, scene.render.resolution_y = 40, 30
+    scene.penumbra.render_passes = True       # switched off for the reference renders, then back
+    before = snapshot(scene)
+    assert before["penumbra.render_passes"] is True
+    assert bpy.ops.penumbra.render_cycles_reference(samples=16, seed=2) == {"FINISHED"}
+    assert snapshot(scene) == before
+    img = bpy.data.images[compositor.pass_image_name("Key_Light", "cycles")]
+    assert tuple(img.size) == (40, 30)
+    px = np.empty(40 * 30 * 4, np.float32)
+    img.pixels.foreach_get(px)
+    v = px.reshape(30, 40, 4)[..., 0]
+    assert np.isfinite(v).all() and v.min() == 0.0 and v.max() > 0.99
+    # a resolution scale renders smaller
+    assert bpy.ops.penumbra.render_cycles_reference(samples=4, resolution_scale=0.5) == {"FINISHED"}
+    img = bpy.data.images[compositor.pass_image_name("Key_Light", "cycles")]   # remade at the new size
+    assert tuple(img.size) == (20, 15)
+
+
+def test_operator_reports_missing_camera(registered):
+    scene = _box_scene()
+    scene.camera = None
+    with pytest.raises(RuntimeError, match="no camera"):
+        bpy.ops.penumbra.render_cycles_reference(samples=1)
