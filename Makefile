@@ -6,7 +6,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench setup clean samples
+.PHONY: demo test bench setup clean samples wheels extension
 .DEFAULT_GOAL := demo
 
 setup: $(STAMP)
@@ -31,6 +31,14 @@ bench: $(STAMP)
 
 samples: $(STAMP)
 	$(PY) sample_blends/make_samples.py
+
+# The Blender extension: PyPI wheels for every platform in blender_manifest.toml
+# into ./wheels/, then one zip per platform into dist/ (scripts/build_extension.py).
+wheels: $(STAMP)
+	$(PY) scripts/build_extension.py wheels
+
+extension: $(STAMP)
+	$(PY) scripts/build_extension.py build --out dist
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache

@@ -1,0 +1,364 @@
+"""The Blender extension: the manifest against the extension schema's rules,
+the per-platform zip ``make extension`` builds, and that zip installed by
+Blender's own extensions API into a fresh bpy session (in subprocesses whose
+HOME and BLENDER_USER_RESOURCES are temporary folders, so the real user folder
+is never touched).
+
+The linux-x64 wheels are downloaded from PyPI into ./wheels on the first run
+and reused after that.
+"""
+from __future__ import annotations
+
+import copy
+import glob
+import hashlib
+import importlib.util
+import json
+import os
+import re
+import subprocess
+import sys
+import tomllib
+import zipfile
+
+import pytest
+
+from scenes import sample_path
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PLATFORM = "linux-x64"
+
+
+def _load(name, path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+build = _load("penumbra_build_extension", os.path.join(ROOT, "scripts", "build_extension.py"))
+
+
+def _bpy_scripts() -> str:
+    """Blender's bundled scripts folder inside the installed bpy module
+    (found without importing bpy)."""
+    bpy_dir = os.path.dirname(importlib.util.find_spec("bpy").origin)
+    found = glob.glob(os.path.join(bpy_dir, "[0-9]*.[0-9]*", "scripts"))
+    assert len(found) == 1, found
+    return found[0]
+
+
+BLENDER_EXT = os.path.join(_bpy_scripts(), "addons_core", "bl_pkg", "cli", "blender_ext.py")
+BLENDER_TAGS = os.path.join(_bpy_scripts(), "modules", "_bpy_internal", "extensions", "tags.py")
+
+
+@pytest.fixture(scope="module")
+def blender_ext():
+    """Blender's own extension CLI module (build/validate), loaded from bpy."""
+    return _load("blender_ext_for_tests", BLENDER_EXT)
+
+
+def _manifest() -> dict:
+    with open(os.path.join(ROOT, "blender_manifest.toml"), "rb") as f:
+        return tomllib.load(f)
+
+
+# ---------------------------------------------------------------------------
+# The manifest against the schema's rules
+
+REQUIRED = ("schema_version", "id", "version", "name", "tagline", "maintainer", "type",
+            "blender_version_min", "license")
+SEMVER = re.compile(
+    r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)"
+    r"(?:-((?:0|[1-9]\d*|\d*[a-zA-Z-][0-9a-zA-Z-]*)(?:\.(?:0|[1-9]\d*|\d*[a-zA-Z-][0-9a-zA-Z-]*))*))?"
+    r"(?:\+([0-9a-zA-Z-]+(?:\.[0-9a-zA-Z-]+)*))?$")
+PERMISSIONS = {"files", "network", "clipboard", "camera", "microphone"}
+PLATFORMS = {"linux-x64", "macos-arm64", "macos-x64", "windows-x64"}
+
+
+def _empty_values(value, where=""):
+    if isinstance(value, str):
+        return [where] if not value.strip() else []
+    if isinstance(value, (list, dict)) and not value:
+        return [where]
+    if isinstance(value, list):
+        return [e for i, v in enumerate(value) for e in _empty_values(v, f"{where}[{i}]")]
+    if isinstance(value, dict):
+        return [e for k, v in value.items() for e in _empty_values(v, f"{where}.{k}")]
+    return []
+
+
+def _terse_error(text: str):
+    if len(text) > 64:
+        return f"longer than 64 characters ({len(text)})"
+    if text != text.strip() or not text:
+        return "empty or padded"
+    if not (text[-1].isalnum() or text[-1] in ")]}"):
+        return "ends with punctuation"
+    return None
+
+
+def _version_triple(v: str):
+    parts = v.split(".")
+    assert len(parts) == 3 and all(p.isdigit() for p in parts), v
+    return tuple(int(p) for p in parts)
+
+
+def manifest_errors(m: dict) -> list[str]:
+    """The extension schema's rules (docs.blender.org "Extensions: Getting
+    started" / blender_ext.py), as a list of broken ones."""
+    errs = [f"missing {k}" for k in REQUIRED if k not in m]
+    errs += [f"empty value at {w}" for w in _empty_values(m)]
+    if errs:
+        return errs
+    if m["schema_version"] != "1.0.0":
+        errs.append("schema_version")
+    ident = m["id"]
+    if not (ident.isidentifier() and "__" not in ident and not ident.startswith("_")
+            and not ident.endswith("_")):
+        errs.append("id is not a valid identifier")
+    if not SEMVER.match(m["version"]):
+        errs.append("version is not semver")
+    if (e := _terse_error(m["tagline"])) is not None:
+        errs.append(f"tagline {e}")
+    if m["type"] != "add-on":
+        errs.append("type")
+    if _version_triple(m["blender_version_min"]) < (4, 2, 0):
+        errs.append("blender_version_min below 4.2.0")
+    if m.get("blender_version_max") != "5.1.0":
+        errs.append("blender_version_max must be 5.1.0 (cp311 wheels)")
+    if not all(lic.startswith("SPDX:") for lic in m["license"]):
+        errs.append("license must be SPDX identifiers")
+    if not set(m.get("platforms", [])) <= PLATFORMS:
+        errs.append("unknown platform")
+    for w in m.get("wheels", []):
+        fields = os.path.basename(w)[:-4].split("-")
+        if not (w.startswith("./wheels/") and w.endswith(".whl") and "\\" not in w
+                and 5 <= len(fields) <= 6):
+            errs.append(f"wheel path {w}")
+        elif "cp311" not in fields[-3].split(".") or "cp311" not in fields[-2].split("."):
+            errs.append(f"not a cp311 wheel: {w}")
+        elif fields[0].lower() == "numpy":
+            errs.append("numpy is shipped by Blender")
+    for key, reason in m.get("permissions", {}).items():
+        if key not in PERMISSIONS:
+            errs.append(f"permission {key}")
+        elif not isinstance(reason, str) or (e := _terse_error(reason)) is not None:
+            errs.append(f"permission {key} reason {e}")
+    return errs
+
+
+def test_manifest_follows_the_schema_rules():
+    m = _manifest()
+    assert manifest_errors(m) == []
+    assert m["id"] == "penumbra" and m["platforms"] == sorted(PLATFORMS)
+    assert m["permissions"]["files"]
+    # one cp311 wheel per pinned package (numpy excluded) for every platform
+    build.check_manifest_wheels(m, m["platforms"])
+    pins = build.pinned_requirements()
+    assert set(pins) == {"numba", "llvmlite", "embreex", "openexr"}
+    assert pins["embreex"] == "4.4.0.post1"
+
+
+@pytest.mark.parametrize("mutate, broken", [
+    (lambda m: m.pop("maintainer"), "missing maintainer"),
+    (lambda m: m.update(name=" "), "empty value at .name"),
+    (lambda m: m.update(tagline="Soft shadow passes for the compositor."), "tagline ends with punctuation"),
+    (lambda m: m.update(tagline="x" * 65), "tagline longer than 64 characters (65)"),
+    (lambda m: m.update(version="0.1"), "version is not semver"),
+    (lambda m: m.update(id="penumbra-ext"), "id is not a valid identifier"),
+    (lambda m: m.update(blender_version_max="5.2.0"), "blender_version_max must be 5.1.0 (cp311 wheels)"),
+    (lambda m: m["wheels"].append("./wheels/numba-0.68.1-cp312-cp312-win_amd64.whl"),
+     "not a cp311 wheel: ./wheels/numba-0.68.1-cp312-cp312-win_amd64.whl"),
+    (lambda m: m["wheels"].append("wheels/x-1.0-cp311-cp311-win_amd64.whl"),
+     "wheel path wheels/x-1.0-cp311-cp311-win_amd64.whl"),
+    (lambda m: m["permissions"].update(internet="Downloads things"), "permission internet"),
+    (lambda m: m["permissions"].update(files="Writes passes."), "permission files reason ends with punctuation"),
+])
+def test_manifest_rules_reject_broken_manifests(mutate, broken, blender_ext):
+    m = copy.deepcopy(_manifest())
+    mutate(m)
+    assert broken in manifest_errors(m)
+    # Blender's strict validator rejects the same manifests (it does not
+    # know about the cp311/5.1 rules, which are ours)
+    if "cp311" not in broken and "5.1.0" not in broken and "wheel path" not in broken:
+        assert blender_ext.pkg_manifest_is_valid_or_error(m, from_repo=False, strict=True) is not None
+
+
+def test_blenders_validator_accepts_the_manifest():
+    proc = subprocess.run([sys.executable, BLENDER_EXT, "validate", "--valid-tags", BLENDER_TAGS, ROOT],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Success" in proc.stdout
+
+
+# ---------------------------------------------------------------------------
+# The builder against Blender's own rules
+
+def test_exclusions_and_platform_split_match_blenders_builder(blender_ext):
+    patterns = _manifest()["build"]["paths_exclude_pattern"]
+    matcher = blender_ext.PathPatternMatch(patterns)
+
+    def keep(rel, is_dir):     # as blender_ext.py's build() filters its scan
+        rel = rel.replace(os.sep, "/")
+        return not matcher.test_path(rel + "/" if is_dir else rel)
+
+    blender_files = sorted(rel.replace(os.sep, "/") for _, rel in
+                           blender_ext.scandir_recursive(ROOT, filter_fn=keep)
+                           if rel != "blender_manifest.toml")
+    ours = build.source_files(ROOT, patterns)
+    assert sorted(ours) == blender_files
+    assert "__init__.py" in ours and "core/frame.py" in ours and "operators/compute.py" in ours
+    for rel in ours:
+        assert not rel.startswith(("tests/", "sample_blends/", "scripts/", "bench/", "wheels/",
+                                   "dist/", ".venv/", ".git/", "demo_out/")), rel
+        assert "__pycache__" not in rel and not rel.endswith((".pyc", ".blend", ".blend1"))
+    assert "Makefile" not in ours and "pyproject.toml" not in ours
+
+    wheels = _manifest()["wheels"]
+    for platform in PLATFORMS:
+        mine = build.wheels_for_platform(wheels, platform)
+        assert mine == blender_ext.paths_filter_wheels_by_platform(wheels, platform)
+        assert len(mine) == 4
+
+
+@pytest.fixture(scope="module")
+def linux_zip(tmp_path_factory):
+    build.fetch_wheels([PLATFORM])
+    return build.build_zip(PLATFORM, str(tmp_path_factory.mktemp("dist")), log=lambda *_: None)
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def test_linux_zip_layout_and_wheels(linux_zip):
+    assert os.path.basename(linux_zip) == "penumbra-0.1.0-linux_x64.zip"
+    source = _manifest()
+    linux_wheels = build.wheels_for_platform(source["wheels"], PLATFORM)
+    with zipfile.ZipFile(linux_zip) as zf:
+        names = zf.namelist()
+        # Blender's layout: manifest and __init__.py at the top level
+        assert "blender_manifest.toml" in names and "__init__.py" in names
+        zipped = tomllib.loads(zf.read("blender_manifest.toml").decode())
+        # the split build narrows platforms/wheels in [build.generated], as
+        # `blender --command extension build --split-platforms` does
+        generated = zipped["build"]["generated"]
+        assert generated["platforms"] == [PLATFORM]
+        assert generated["wheels"] == linux_wheels
+        assert {k: v for k, v in zipped.items() if k != "build"} == \
+            {k: v for k, v in source.items() if k != "build"}
+        for w in linux_wheels:
+            rel = w[2:]
+            assert rel in names, rel
+            info = zf.getinfo(rel)
+            assert info.compress_type == zipfile.ZIP_STORED
+            with open(os.path.join(ROOT, rel), "rb") as f:      # unmodified
+                assert _sha256(zf.read(rel)) == _sha256(f.read())
+        zipped_wheels = sorted("./" + n for n in names if n.endswith(".whl"))
+        assert zipped_wheels == sorted(linux_wheels)
+        assert set(names) == {"blender_manifest.toml", *(w[2:] for w in linux_wheels),
+                              *build.source_files(ROOT)}
+        excluded = ("tests/", "sample_blends/", "scripts/", "bench/", ".venv/", ".git/", "dist/")
+        assert not [n for n in names if n.startswith(excluded) or "__pycache__" in n
+                    or n in ("Makefile", "pyproject.toml")]
+    proc = subprocess.run([sys.executable, BLENDER_EXT, "validate", "--valid-tags", BLENDER_TAGS,
+                           linux_zip], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "Success" in proc.stdout, proc.stdout + proc.stderr
+
+
+# ---------------------------------------------------------------------------
+# Installing the zip into a fresh bpy session
+
+_INSTALL = r'''
+import json, os, sys
+import bpy
+out = {"user_extensions": bpy.utils.user_resource("EXTENSIONS")}
+out["registered_before"] = "PENUMBRA_OT_compute_passes" in dir(bpy.types)
+out["install"] = sorted(bpy.ops.extensions.package_install_files(
+    filepath=sys.argv[1], repo="user_default", enable_on_install=True))
+out["addons"] = sorted(k for k in bpy.context.preferences.addons.keys() if "penumbra" in k)
+out["registered"] = "PENUMBRA_OT_compute_passes" in dir(bpy.types)
+print("RESULT " + json.dumps(out))
+'''
+
+# A second session is Blender started again: it puts the extensions'
+# site-packages before its own (here: before the venv's, which also has numba),
+# so the add-on runs on the wheels Blender installed from the zip.
+_RUN = r'''
+import glob, json, os, sys
+import bpy
+out = {"registered_before": "PENUMBRA_OT_compute_passes" in dir(bpy.types)}
+out["imported_before"] = [m for m in ("numba", "llvmlite", "embreex", "OpenEXR") if m in sys.modules]
+out["enable"] = sorted(bpy.ops.preferences.addon_enable(module="bl_ext.user_default.penumbra"))
+out["registered"] = "PENUMBRA_OT_compute_passes" in dir(bpy.types)
+bpy.ops.wm.open_mainfile(filepath=sys.argv[1], load_ui=False)
+scene = bpy.context.scene
+scene.render.resolution_x, scene.render.resolution_y = 32, 24
+scene.render.resolution_percentage = 100
+out["op"] = sorted(bpy.ops.penumbra.compute_passes(samples=4, methods="pcf,embree"))
+out["images"] = sorted(i.name for i in bpy.data.images if i.name.startswith("Penumbra"))
+import OpenEXR
+out["modules"] = {m: sys.modules[m].__file__ for m in ("numba", "llvmlite", "embreex", "OpenEXR")}
+ext = sys.modules["bl_ext.user_default.penumbra"]
+out["ext_dir"] = os.path.dirname(ext.__file__)
+out["ext_user"] = bpy.utils.extension_path_user("bl_ext.user_default.penumbra")
+out["cache_root"] = os.environ.get("PENUMBRA_NUMBA_CACHE_ROOT")
+out["cache_in_user"] = glob.glob(os.path.join(out["ext_user"], "**", "*.nbi"), recursive=True)
+out["cache_in_ext"] = [p for pat in ("*.nbi", "*.nbc")
+                       for p in glob.glob(os.path.join(out["ext_dir"], "**", pat), recursive=True)]
+print("RESULT " + json.dumps(out))
+'''
+
+
+def _run_bpy(code, args, env):
+    proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                          env=env, timeout=900, cwd=env["HOME"])
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return json.loads(lines[-1][len("RESULT "):]), proc.stdout + proc.stderr
+
+
+def test_zip_installs_and_runs_in_a_fresh_bpy_session(linux_zip, tmp_path):
+    home = tmp_path / "home"
+    home.mkdir()
+    res = tmp_path / "blender"
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PENUMBRA_NUMBA_CACHE_ROOT", "NUMBA_CACHE_DIR", "PYTHONPATH")
+           and not k.startswith("BLENDER_USER_")}
+    env.update(HOME=str(home), BLENDER_USER_RESOURCES=str(res),
+               XDG_CONFIG_HOME=str(home / ".config"), XDG_CACHE_HOME=str(home / ".cache"))
+
+    first, log = _run_bpy(_INSTALL, [linux_zip], env)
+    user_ext = first["user_extensions"]
+    assert user_ext.startswith(str(res)), user_ext          # not the real user folder
+    assert not first["registered_before"]
+    assert first["install"] == ["FINISHED"], log
+    assert first["addons"] == ["bl_ext.user_default.penumbra"]
+    assert first["registered"]
+    # Blender unpacked the extension's code into the user repository ...
+    ext_dir = os.path.join(user_ext, "user_default", "penumbra")
+    assert os.path.isfile(os.path.join(ext_dir, "__init__.py"))
+    assert os.path.isfile(os.path.join(ext_dir, "core", "frame.py"))
+    assert not os.path.exists(os.path.join(ext_dir, "tests"))
+    # ... and installed the wheels into the extensions' own site-packages
+    site = os.path.join(user_ext, ".local", "lib", "python{}.{}".format(*sys.version_info[:2]),
+                        "site-packages")
+    dist_infos = sorted(d for d in os.listdir(site) if d.endswith(".dist-info"))
+    assert dist_infos == ["embreex-4.4.0.post1.dist-info", "llvmlite-0.50.0.dist-info",
+                          "numba-0.68.1.dist-info", "openexr-3.5.3.dist-info"]
+
+    second, log = _run_bpy(_RUN, [sample_path("sphere_plane")], env)
+    assert not second["registered_before"] and second["imported_before"] == []
+    assert second["enable"] == ["FINISHED"] and second["registered"]
+    assert second["op"] == ["FINISHED"], log
+    assert [n for n in second["images"] if n.endswith(" pcf")]
+    assert [n for n in second["images"] if n.endswith(" embree")]
+    for mod, path in second["modules"].items():
+        assert path.startswith(site + os.sep), (mod, path)
+    # the Numba cache lives in the extension's user folder, not beside its code
+    assert second["ext_dir"] == ext_dir
+    assert second["ext_user"].startswith(user_ext) and not second["ext_user"].startswith(ext_dir)
+    assert second["cache_root"] == os.path.join(second["ext_user"], "numba")
+    assert second["cache_in_user"], "no Numba cache written"
+    assert second["cache_in_ext"] == []
