@@ -47,12 +47,23 @@ class Method:
     # helpers -------------------------------------------------------------
     def make_params(self, overrides: Mapping[str, object] | None = None):
         """Params dataclass with ``overrides`` applied (unknown names ignored
-        so one ``--samples`` can reach every method that samples)."""
+        so one ``--samples`` can reach every method that samples). Values are
+        converted to the field's default type; "false"/"0"/"no"/"off" are False."""
         p = self.Params()
         for f in fields(p):
-            if overrides and f.name in overrides and overrides[f.name] is not None:
-                setattr(p, f.name, type(getattr(p, f.name))(overrides[f.name])
-                        if getattr(p, f.name) is not None else overrides[f.name])
+            if not overrides or f.name not in overrides or overrides[f.name] is None:
+                continue
+            value, default = overrides[f.name], getattr(p, f.name)
+            if isinstance(default, bool):
+                if isinstance(value, str):
+                    low = value.strip().lower()
+                    if low not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                        raise ValueError(f"{f.name}: expected a boolean, not {value!r}")
+                    value = low in ("1", "true", "yes", "on")
+                value = bool(value)
+            elif default is not None:
+                value = type(default)(value)
+            setattr(p, f.name, value)
         return p
 
 

@@ -1,0 +1,376 @@
+"""The per-triangle traversal of hierarchical penumbra casting (Laine & Aila
+2005, figures 2 and 3) as one Numba kernel with an explicit stack.
+
+``cast_chunk`` processes blocker triangles ``tri_sel[t0:]`` against one
+receiver hierarchy and returns where it stopped: at the end, or where
+optimization A asks for a rebuild (line 29), which the caller performs before
+calling again. Every switch only prunes work (conservatively) or changes
+what is stored; the relation ``l_i -> r_j`` is marked blocked by one exact
+test (``in_hard_volume``), so the output does not depend on the switches.
+
+Per-chunk counters ``st`` (int64):
+  0 free mask slots, 1 live masks, 2 peak live masks, 3 points of the current
+  hierarchy in full umbra, 4 points in the current hierarchy, 5 triangle stamp,
+  6 nodes visited, 7 point-vs-V_L tests, 8 hard shadow volume tests,
+  9 triangles whose group volumes were built, 10 hard volumes built,
+  11 mask slots capacity, 12 triangles culled at the root.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._pc_geometry import MAXP, blocked_by_edges, box_vs_volume, hard_volume, in_hard_volume, \
+    penumbra_volume, point_in_volume, receiver_edge_functions, triangle_plane
+from ._pc_light import sample_point
+
+ALLP = np.int64(-1)
+
+
+@njit(cache=True, inline="always")
+def _bits_full(mask, a, b):
+    """Every bit in [a, b) set."""
+    i = a
+    while i < b:
+        w = i >> 6
+        o = i & 63
+        n = min(b - i, 64 - o)
+        if n == 64:
+            want = np.uint64(0xFFFFFFFFFFFFFFFF)
+        else:
+            want = ((np.uint64(1) << np.uint64(n)) - np.uint64(1)) << np.uint64(o)
+        if (mask[w] & want) != want:
+            return False
+        i += n
+    return True
+
+
+@njit(cache=True, inline="always")
+def _popcount(x):
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@njit(cache=True, inline="always")
+def _coefficients(ef, tn, rho, mode, r, M, centre, co):
+    """Per receiver: the three edge functions and T's plane as linear forms in
+    the sample, signed so that "blocked" reads v_e >= 0 for every e and
+    s > 0 (the sample strictly on the other side of T from r); negation is
+    exact, so this decides exactly as ``blocked_by_edges``. For the sphere the
+    receiver's rotation is folded in: p = c + M q gives a . p - k w =
+    (M^T a) . q - (k - a . c)."""
+    sr = 1.0 if rho > 0.0 else -1.0
+    for e in range(4):
+        if e < 3:
+            ax, ay, az, k = sr * ef[e, 0], sr * ef[e, 1], sr * ef[e, 2], sr * ef[e, 3]
+        else:
+            ax, ay, az, k = -sr * tn[0], -sr * tn[1], -sr * tn[2], -sr * tn[3]
+        if mode == 1:
+            bx = M[r, 0] * ax + M[r, 3] * ay + M[r, 6] * az
+            by = M[r, 1] * ax + M[r, 4] * ay + M[r, 7] * az
+            bz = M[r, 2] * ax + M[r, 5] * ay + M[r, 8] * az
+            k = k - (ax * centre[0] + ay * centre[1] + az * centre[2])
+            ax, ay, az = bx, by, bz
+        co[4 * e] = ax
+        co[4 * e + 1] = ay
+        co[4 * e + 2] = az
+        co[4 * e + 3] = k
+
+
+@njit(cache=True, inline="always")
+def _word_tests(T4, j, a, e, base, co):
+    """Bits [a, e) of one 64-bit mask word: sample i blocked by T."""
+    u0x, u0y, u0z, c0 = co[0], co[1], co[2], co[3]
+    u1x, u1y, u1z, c1 = co[4], co[5], co[6], co[7]
+    u2x, u2y, u2z, c2 = co[8], co[9], co[10], co[11]
+    tx, ty, tz, tc = co[12], co[13], co[14], co[15]
+    X = T4[j, 0]
+    Y = T4[j, 1]
+    Z = T4[j, 2]
+    W = T4[j, 3]
+    acc = np.uint64(0)
+    for i in range(a, e):
+        px, py, pz, pw = X[i], Y[i], Z[i], W[i]
+        v0 = u0x * px + u0y * py + u0z * pz - c0 * pw
+        v1 = u1x * px + u1y * py + u1z * pz - c1 * pw
+        v2 = u2x * px + u2y * py + u2z * pz - c2 * pw
+        sp = tx * px + ty * py + tz * pz - tc * pw
+        blk = (v0 >= 0.0) & (v1 >= 0.0) & (v2 >= 0.0) & (sp > 0.0)
+        acc |= np.uint64(blk) << np.uint64(i - base)
+    return acc
+
+
+@njit(cache=True, nogil=True)
+def chunk_visibility(fu, slot, pool, S, out):
+    """V = 1 - blocked / S; full umbra (mask released) = 0; no mask = 1."""
+    for r in range(fu.shape[0]):
+        if fu[r]:
+            out[r] = 0.0
+        elif slot[r] < 0:
+            out[r] = 1.0
+        else:
+            c = 0
+            for w in range(pool.shape[1]):
+                c += _popcount(pool[slot[r], w])
+            out[r] = 1.0 - c / S
+
+
+@njit(cache=True, nogil=True)
+def cast_chunk(t0, tri_sel, tris, VL, nVL,
+               DVg, nvg, DEg, neg, g_start,
+               mode, SP, Q, M, centre, lp, seed, pix, Pg, bit2s, nx, ny,
+               pts, set_id,
+               perm, bb, left, right, start, count, depth, node_gu, node_fu,
+               fu, gu, slot, pool, free, st,
+               optA, optB, optC, optD, rebuild_frac, leaf_size, tol, eps, materialize):
+    G = g_start.shape[0] - 1
+    planes = materialize and mode == 0     # the paper's V_li planes per (set, sample)
+    S = bit2s.shape[0]
+    nsets = SP.shape[0]
+    nwords = pool.shape[1]
+    L = depth + 3
+    PLv = np.empty(L, np.int64)
+    act = np.empty((L, G), np.int64)
+    act_on = np.zeros((L, G), np.uint8)
+    st_node = np.empty(2 * L + 4, np.int64)
+    st_lev = np.empty(2 * L + 4, np.int64)
+    st_state = np.empty(2 * L + 4, np.int64)
+    VG = np.zeros((G, MAXP, 4))
+    nVG = np.zeros(G, np.int64)
+    hsets = nsets if planes else 1
+    HV = np.zeros((hsets, S if planes else 1, 4, 4))
+    hv_ok = np.zeros((hsets, S if planes else 1), np.bool_)
+    tn = np.zeros(4)
+    ef = np.zeros((3, 4))
+    co = np.zeros(16)
+    # samples as structure of arrays (x, y, z, w rows): fixed points, or the
+    # sphere's disk offsets with w = 1 (the per-receiver rotation goes into
+    # the coefficients)
+    if mode == 1:
+        T4 = np.ones((Q.shape[0], 4, S))
+        for jj in range(Q.shape[0]):
+            for ii in range(S):
+                for aa in range(3):
+                    T4[jj, aa, ii] = Q[jj, ii, aa]
+    else:
+        T4 = np.zeros((SP.shape[0], 4, SP.shape[1]))
+        for jj in range(SP.shape[0]):
+            for ii in range(SP.shape[1]):
+                for aa in range(4):
+                    T4[jj, aa, ii] = SP[jj, ii, aa]
+    hv_stamp = np.full((hsets, G), -1, np.int64)
+    for ti in range(t0, tri_sel.shape[0]):
+        # line 29 (A): rebuild when enough points of the hierarchy are in umbra
+        if optA and st[4] > 2 * leaf_size and st[3] > rebuild_frac * st[4]:
+            return ti, pool, free
+        if st[4] == 0:
+            return tri_sel.shape[0], pool, free
+        k = tri_sel[ti]
+        nL = nVL[k]
+        tri = tris[k]
+        VLk = VL[k]
+        triangle_plane(tri, tn)
+        st[5] += 1
+        stamp = st[5]
+        vol_built = False
+        if not optC:
+            # basic algorithm, lines 2-3: every V_Gk and V_li up front
+            for g in range(G):
+                nVG[g] = max(0, penumbra_volume(tri, DVg[g], nvg[g], DEg[g], neg[g], eps, VG[g]))
+            if planes:
+                for j in range(nsets):
+                    for i in range(S):
+                        hv_ok[j, i] = hard_volume(tri, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
+                                                  SP[j, i, 3], HV[j, i])
+                    for g in range(G):
+                        hv_stamp[j, g] = stamp
+                st[10] += nsets * S
+            vol_built = True
+            st[9] += 1
+        # lines 32-34
+        PLv[0] = ALLP
+        for g in range(G):
+            act[0, g] = ALLP
+            act_on[0, g] = 1
+        sp = 1
+        st_node[0] = 0
+        st_lev[0] = 0
+        st_state[0] = 0
+        first = True
+        while sp > 0:
+            sp -= 1
+            node = st_node[sp]
+            lev = st_lev[sp]
+            if st_state[sp] == 1:
+                # lines 50-54 (A): AND of the children's umbra bits
+                ca = left[node]
+                cb = right[node]
+                for g in range(G):
+                    node_gu[node, g] = node_gu[ca, g] & node_gu[cb, g]
+                node_fu[node] = node_fu[ca] & node_fu[cb]
+                continue
+            st[6] += 1
+            if optA and node_fu[node]:                                   # line 35
+                continue
+            ok, pl = box_vs_volume(bb[node], VLk, nL, PLv[lev], optB, tol)  # line 36
+            if first:
+                first = False
+                if not ok:
+                    st[12] += 1
+            if not ok:
+                continue
+            nl = lev + 1
+            anyg = False
+            for g in range(G):                                           # lines 37-45
+                act_on[nl, g] = 0
+                if act_on[lev, g] == 0:
+                    continue
+                if optA and node_gu[node, g]:                            # line 39
+                    continue
+                if vol_built:                                            # lines 40-43
+                    ok2, a2 = box_vs_volume(bb[node], VG[g], nVG[g], act[lev, g], optB, tol)
+                    if not ok2:
+                        continue
+                    act[nl, g] = a2
+                else:                                                    # line 44
+                    act[nl, g] = ALLP
+                act_on[nl, g] = 1
+                anyg = True
+            if not anyg:                                                 # line 46
+                continue
+            PLv[nl] = pl
+            if left[node] >= 0:                                          # lines 47-49
+                if optA:
+                    st_node[sp] = node
+                    st_lev[sp] = lev
+                    st_state[sp] = 1
+                    sp += 1
+                st_node[sp] = right[node]
+                st_lev[sp] = nl
+                st_state[sp] = 0
+                st_node[sp + 1] = left[node]
+                st_lev[sp + 1] = nl
+                st_state[sp + 1] = 0
+                sp += 2
+                continue
+            # leaf: lines 56-80
+            for q in range(start[node], start[node] + count[node]):
+                r = perm[q]
+                if (optA or optD) and fu[r]:                             # line 57
+                    continue
+                x, y, z = pts[r, 0], pts[r, 1], pts[r, 2]
+                st[7] += 1
+                if not point_in_volume(VLk, nL, PLv[nl], x, y, z, tol):  # line 58
+                    continue
+                if slot[r] < 0:                                          # line 59 (D)
+                    if st[0] == 0:
+                        cap = pool.shape[0]
+                        ncap = 2 * cap
+                        np2 = np.zeros((ncap, nwords), np.uint64)
+                        np2[:cap] = pool
+                        pool = np2
+                        free = np.empty(ncap, np.int64)
+                        for q2 in range(ncap - cap):
+                            free[q2] = ncap - 1 - q2
+                        st[0] = ncap - cap
+                        st[11] = ncap
+                    st[0] -= 1
+                    sl = free[st[0]]
+                    for w in range(nwords):
+                        pool[sl, w] = np.uint64(0)
+                    slot[r] = sl
+                    st[1] += 1
+                    if st[1] > st[2]:
+                        st[2] = st[1]
+                if not vol_built:                                        # lines 60-64 (C)
+                    for g in range(G):
+                        nVG[g] = max(0, penumbra_volume(tri, DVg[g], nvg[g], DEg[g], neg[g],
+                                                        eps, VG[g]))
+                    vol_built = True
+                    st[9] += 1
+                sl = slot[r]
+                j = set_id[r] if mode != 2 else 0
+                rho = 0.0
+                have_ef = False
+                for g in range(G):                                       # line 65
+                    if act_on[nl, g] == 0:
+                        continue
+                    if optA and gu[r, g]:                                # line 66
+                        continue
+                    if not point_in_volume(VG[g], nVG[g], act[nl, g], x, y, z, tol):  # line 67
+                        continue
+                    if planes and hv_stamp[j, g] != stamp:
+                        # C: the hard volumes of this group of this set, on first need
+                        for i in range(g_start[g], g_start[g + 1]):
+                            hv_ok[j, i] = hard_volume(tri, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
+                                                      SP[j, i, 3], HV[j, i])
+                        hv_stamp[j, g] = stamp
+                        st[10] += g_start[g + 1] - g_start[g]
+                    i0 = g_start[g]
+                    i1 = g_start[g + 1]
+                    if not planes and not have_ef:
+                        # per receiver and triangle, on the first group that needs it
+                        rho = receiver_edge_functions(tri, x, y, z, ef)
+                        if mode != 2 and rho != 0.0:
+                            _coefficients(ef, tn, rho, mode, r, M, centre, co)
+                        have_ef = True
+                    if planes:                                           # lines 68-71
+                        for i in range(i0, i1):
+                            w = i >> 6
+                            b = np.uint64(1) << np.uint64(i & 63)
+                            if pool[sl, w] & b:
+                                continue
+                            st[8] += 1
+                            if hv_ok[j, i] and in_hard_volume(HV[j, i], x, y, z):
+                                pool[sl, w] |= b
+                    elif mode == 2:
+                        for i in range(i0, i1):
+                            w = i >> 6
+                            b = np.uint64(1) << np.uint64(i & 63)
+                            if pool[sl, w] & b:
+                                continue
+                            st[8] += 1
+                            px, py, pz, pw = sample_point(mode, i, r, set_id, SP, Q, M, centre, lp,
+                                                          seed, pix, Pg, bit2s, nx, ny)
+                            if blocked_by_edges(ef, rho, tn, px, py, pz, pw):
+                                pool[sl, w] |= b
+                    elif rho != 0.0:
+                        # the same four plane tests, a word of samples at a time
+                        for w in range(i0 >> 6, ((i1 - 1) >> 6) + 1):
+                            a = max(i0, w << 6)
+                            e = min(i1, (w + 1) << 6)
+                            pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co)
+                            st[8] += e - a
+                    if optA:                                             # line 72
+                        if _bits_full(pool[sl], g_start[g], g_start[g + 1]):
+                            gu[r, g] = 1
+                if optA:                                                 # line 74
+                    allg = True
+                    for g in range(G):
+                        if gu[r, g] == 0:
+                            allg = False
+                            break
+                    if allg:
+                        fu[r] = 1
+                        st[3] += 1
+                if optD:                                                 # line 75
+                    full = fu[r] == 1 if optA else _bits_full(pool[sl], 0, S)
+                    if full:
+                        fu[r] = 1
+                        free[st[0]] = sl
+                        st[0] += 1
+                        slot[r] = -1
+                        st[1] -= 1
+            if optA:                                                     # lines 77-80
+                lf = np.uint8(1)
+                for g in range(G):
+                    node_gu[node, g] = 1
+                for q in range(start[node], start[node] + count[node]):
+                    r = perm[q]
+                    lf &= fu[r]
+                    for g in range(G):
+                        node_gu[node, g] &= gu[r, g]
+                node_fu[node] = lf
+    return tri_sel.shape[0], pool, free

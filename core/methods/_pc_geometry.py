@@ -1,0 +1,278 @@
+"""Plane geometry of hierarchical penumbra casting (Laine & Aila 2005, section 3.2).
+
+Points of a light's bounding polygon / volume are homogeneous ``(x, y, z, w)``:
+``w = 1`` for a point, ``w = 0`` for a direction (a point at infinity, the sun).
+A plane is ``(nx, ny, nz, o)`` with value ``n . x - o w``; every volume here is
+oriented so that its *inside* (where shadow can be) is value >= 0.
+
+* ``penumbra_volume``: the separating planes between a convex light polygon
+  (or convex polytope, section 3.4 "Volumetric light sources") and the blocker
+  triangle T, found by enumerating every vertex-edge pair of the two and keeping
+  the planes with all light vertices on one side and all of T on the other,
+  plus T's own plane as a cap when it does not cut the light.
+* ``hard_volume``: the hard shadow volume V_l of one light sample: three planes
+  through the sample and T's edges and T's plane (four dot products per test).
+  A receiver r is inside iff the segment from r to the sample (or the ray from r
+  along a sun direction) meets T: edges inclusive, T's plane strict, which is
+  how Embree's watertight test treats a ray through a shared edge or a ray that
+  ends on T's plane.
+
+Culling tests (box / point vs penumbra volume) take a slack ``tol`` (scene
+units): they may only ever keep too much, never drop a blocked relation, so
+the exact per-sample test alone decides the output.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+MAXP = 31          # planes kept per penumbra volume (cap first); bit masks fit int64
+ALL = np.int64(-1)  # active plane set token "ALL" (every bit set)
+
+
+@njit(cache=True, inline="always")
+def _cross(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+@njit(cache=True)
+def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
+    """Separating planes between light polygon/polytope ``DV[:nv]`` (homogeneous
+    vertices, edges ``DE[:ne]`` as vertex index pairs) and triangle ``tri``
+    (float64[3,3]); unit normals, T's side >= 0. Writes ``out[:k]`` and returns
+    k (0 = no plane: the whole space), or -1 for a degenerate triangle (it
+    blocks nothing)."""
+    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
+    bx, by, bz = tri[1, 0], tri[1, 1], tri[1, 2]
+    cx, cy, cz = tri[2, 0], tri[2, 1], tri[2, 2]
+    tnx, tny, tnz = _cross(bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az)
+    tl = math.sqrt(tnx * tnx + tny * tny + tnz * tnz)
+    e1 = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
+    e2 = math.sqrt((cx - ax) ** 2 + (cy - ay) ** 2 + (cz - az) ** 2)
+    if not (tl > 1e-14 * e1 * e2) or not (tl > 0.0):
+        return -1
+    k = 0
+    # cap: T's plane, when every light vertex lies strictly on one side
+    tnx /= tl
+    tny /= tl
+    tnz /= tl
+    to = tnx * ax + tny * ay + tnz * az
+    if nv > 0:
+        pos = True
+        neg = True
+        for v in range(nv):
+            h = tnx * DV[v, 0] + tny * DV[v, 1] + tnz * DV[v, 2] - to * DV[v, 3]
+            if not (h > eps):
+                pos = False
+            if not (h < -eps):
+                neg = False
+        if pos or neg:
+            s = -1.0 if pos else 1.0
+            out[k, 0] = s * tnx
+            out[k, 1] = s * tny
+            out[k, 2] = s * tnz
+            out[k, 3] = s * to
+            k += 1
+    # candidate planes: (edge of T, vertex of light) and (vertex of T, edge of light)
+    n_cand = 3 * nv + 3 * ne
+    for q in range(n_cand):
+        if k >= MAXP:
+            break
+        if q < 3 * nv:
+            e = q // nv
+            v = q % nv
+            i0 = e
+            i1 = (e + 1) % 3
+            px, py, pz, pw = DV[v, 0], DV[v, 1], DV[v, 2], DV[v, 3]
+            sx, sy, sz = tri[i0, 0], tri[i0, 1], tri[i0, 2]
+            nx, ny, nz = _cross(tri[i1, 0] - sx, tri[i1, 1] - sy, tri[i1, 2] - sz,
+                                px - pw * sx, py - pw * sy, pz - pw * sz)
+        else:
+            qq = q - 3 * nv
+            t = qq // ne
+            e = qq % ne
+            sx, sy, sz = tri[t, 0], tri[t, 1], tri[t, 2]
+            v0 = DE[e, 0]
+            v1 = DE[e, 1]
+            nx, ny, nz = _cross(DV[v0, 0] - DV[v0, 3] * sx, DV[v0, 1] - DV[v0, 3] * sy,
+                                DV[v0, 2] - DV[v0, 3] * sz,
+                                DV[v1, 0] - DV[v1, 3] * sx, DV[v1, 1] - DV[v1, 3] * sy,
+                                DV[v1, 2] - DV[v1, 3] * sz)
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if not (ln > 1e-300):
+            continue
+        nx /= ln
+        ny /= ln
+        nz /= ln
+        o = nx * sx + ny * sy + nz * sz
+        tmin = 1e300
+        tmax = -1e300
+        for t in range(3):
+            h = nx * tri[t, 0] + ny * tri[t, 1] + nz * tri[t, 2] - o
+            tmin = min(tmin, h)
+            tmax = max(tmax, h)
+        dmin = 1e300
+        dmax = -1e300
+        for v in range(nv):
+            h = nx * DV[v, 0] + ny * DV[v, 1] + nz * DV[v, 2] - o * DV[v, 3]
+            dmin = min(dmin, h)
+            dmax = max(dmax, h)
+        if tmin >= -eps and dmax <= eps and (tmax > eps or dmin < -eps):
+            s = 1.0
+        elif tmax <= eps and dmin >= -eps and (tmin < -eps or dmax > eps):
+            s = -1.0
+        else:
+            continue
+        out[k, 0] = s * nx
+        out[k, 1] = s * ny
+        out[k, 2] = s * nz
+        out[k, 3] = s * o
+        k += 1
+    return k
+
+
+@njit(cache=True, inline="always")
+def hard_volume(tri, px, py, pz, pw, hv):
+    """Hard shadow volume V_l of sample ``(p, w)`` and T into ``hv[4, 4]``:
+    row 0 T's plane (inside strictly > 0), rows 1-3 the edge planes through the
+    sample (inside >= 0). Returns False when the sample lies on T's plane or T
+    is degenerate (T blocks nothing from it)."""
+    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
+    bx, by, bz = tri[1, 0], tri[1, 1], tri[1, 2]
+    cx, cy, cz = tri[2, 0], tri[2, 1], tri[2, 2]
+    tnx, tny, tnz = _cross(bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az)
+    to = tnx * ax + tny * ay + tnz * az
+    s = tnx * px + tny * py + tnz * pz - to * pw
+    if s == 0.0 or not (s == s):
+        return False
+    if s > 0.0:
+        tnx, tny, tnz, to = -tnx, -tny, -tnz, -to
+    hv[0, 0] = tnx
+    hv[0, 1] = tny
+    hv[0, 2] = tnz
+    hv[0, 3] = to
+    for e in range(3):
+        i0 = e
+        i1 = (e + 1) % 3
+        i2 = (e + 2) % 3
+        sx, sy, sz = tri[i0, 0], tri[i0, 1], tri[i0, 2]
+        nx, ny, nz = _cross(tri[i1, 0] - sx, tri[i1, 1] - sy, tri[i1, 2] - sz,
+                            px - pw * sx, py - pw * sy, pz - pw * sz)
+        o = nx * sx + ny * sy + nz * sz
+        if nx * tri[i2, 0] + ny * tri[i2, 1] + nz * tri[i2, 2] - o < 0.0:
+            nx, ny, nz, o = -nx, -ny, -nz, -o
+        hv[e + 1, 0] = nx
+        hv[e + 1, 1] = ny
+        hv[e + 1, 2] = nz
+        hv[e + 1, 3] = o
+    return True
+
+
+@njit(cache=True, inline="always")
+def in_hard_volume(hv, x, y, z):
+    """POINT-IN-VOLUME(r, V_l): four dot products."""
+    if hv[0, 0] * x + hv[0, 1] * y + hv[0, 2] * z - hv[0, 3] <= 0.0:
+        return False
+    if hv[1, 0] * x + hv[1, 1] * y + hv[1, 2] * z - hv[1, 3] < 0.0:
+        return False
+    if hv[2, 0] * x + hv[2, 1] * y + hv[2, 2] * z - hv[2, 3] < 0.0:
+        return False
+    if hv[3, 0] * x + hv[3, 1] * y + hv[3, 2] * z - hv[3, 3] < 0.0:
+        return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def box_vs_volume(bb, planes, n, active, use_b, tol):
+    """INTERSECTS(B_N, V, P, P'): False if the box lies outside one active
+    plane; otherwise the new active set P' (optimization B drops the planes
+    the box lies entirely inside of). Centre / half-extent form."""
+    out = active
+    cx = 0.5 * (bb[0] + bb[3])
+    cy = 0.5 * (bb[1] + bb[4])
+    cz = 0.5 * (bb[2] + bb[5])
+    hx = 0.5 * (bb[3] - bb[0])
+    hy = 0.5 * (bb[4] - bb[1])
+    hz = 0.5 * (bb[5] - bb[2])
+    for j in range(n):
+        bit = np.int64(1) << j
+        if (active & bit) == 0:
+            continue
+        nx, ny, nz = planes[j, 0], planes[j, 1], planes[j, 2]
+        d = nx * cx + ny * cy + nz * cz - planes[j, 3]
+        rr = abs(nx) * hx + abs(ny) * hy + abs(nz) * hz
+        if d + rr < -tol:
+            return False, out
+        if use_b and d - rr >= -tol:
+            out &= ~bit
+    return True, out
+
+
+@njit(cache=True, inline="always")
+def point_in_volume(planes, n, active, x, y, z, tol):
+    """POINT-IN-VOLUME(r, V, P) over the active planes, with slack ``tol``."""
+    for j in range(n):
+        if (active >> j) & 1:
+            if planes[j, 0] * x + planes[j, 1] * y + planes[j, 2] * z - planes[j, 3] < -tol:
+                return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def receiver_edge_functions(tri, x, y, z, ef):
+    """The hard shadow volume test of section 3.2 with the roles of sample
+    and receiver exchanged. Edge plane e of V_l through sample (p, w) and edge
+    (a, b) evaluated at r is [(b - a) x (p - w a)] . (r - a) = p . U_e - w (a . U_e)
+    with U_e = (r - a) x (b - a): linear in the sample. ``ef[e] = (U_e, a . U_e)``
+    for r, so each sample costs three dot products and no volume is built.
+    Returns T's plane value at r (its sign: r's side of T)."""
+    for e in range(3):
+        i0 = e
+        i1 = (e + 1) % 3
+        ax, ay, az = tri[i0, 0], tri[i0, 1], tri[i0, 2]
+        ux, uy, uz = _cross(x - ax, y - ay, z - az, tri[i1, 0] - ax, tri[i1, 1] - ay, tri[i1, 2] - az)
+        ef[e, 0] = ux
+        ef[e, 1] = uy
+        ef[e, 2] = uz
+        ef[e, 3] = ux * ax + uy * ay + uz * az
+    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
+    tnx, tny, tnz = _cross(tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az,
+                           tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az)
+    return tnx * x + tny * y + tnz * z - (tnx * ax + tny * ay + tnz * az)
+
+
+@njit(cache=True, inline="always")
+def blocked_by_edges(ef, rho, tn, px, py, pz, pw):
+    """POINT-IN-VOLUME(r, V_l) from ``receiver_edge_functions``: the sample
+    strictly on the other side of T's plane from r, and r inside the three
+    edge planes (inclusive), oriented by the sample's side as in ``hard_volume``."""
+    s = tn[0] * px + tn[1] * py + tn[2] * pz - tn[3] * pw
+    if s > 0.0:
+        if not (rho < 0.0):
+            return False
+        for e in range(3):
+            if ef[e, 0] * px + ef[e, 1] * py + ef[e, 2] * pz - ef[e, 3] * pw > 0.0:
+                return False
+        return True
+    if s < 0.0:
+        if not (rho > 0.0):
+            return False
+        for e in range(3):
+            if ef[e, 0] * px + ef[e, 1] * py + ef[e, 2] * pz - ef[e, 3] * pw < 0.0:
+                return False
+        return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def triangle_plane(tri, tn):
+    """T's (unnormalized) plane n_T = (b - a) x (c - a), o_T = n_T . a into tn[4]."""
+    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
+    tnx, tny, tnz = _cross(tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az,
+                           tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az)
+    tn[0] = tnx
+    tn[1] = tny
+    tn[2] = tnz
+    tn[3] = tnx * ax + tny * ay + tnz * az

@@ -1,0 +1,351 @@
+"""Light samples, sample groups and their bounding polygons for hierarchical
+penumbra casting (Laine & Aila 2005, sections 3.1, 3.2 and 3.4).
+
+Samples lie on a jittered grid of ``nx x ny`` strata in the unit square (the
+same strata and the same unit-square-to-light maps as the ``embree``
+reference, ``sampling.light_sample``). A light sample group G_k is a block of
+strata; its bounding polygon Delta_Gk bounds the image of the whole block, so
+it bounds the group's samples in *every* sample set (section 3.4: "the
+bounding polygons ... must bound the light samples of the respective group in
+all light sample sets"), including the per-pixel sets of the reference.
+
+Bit order: the bits of a receiver's mask are ordered group by group; ``bit2s``
+maps a bit to its stratum index ``s = ix + iy * nx``.
+
+Light kinds (DESIGN.md "Light domains"):
+
+* area light: the block's image under the square map (a rectangle) or the
+  concentric disk map (an annular sector, bounded by a convex polygon whose
+  outer side is circumscribed about the arc), scaled by the half sizes.
+  Delta_L is the rectangle, or a circumscribed octagon for disks/ellipses.
+* sun: samples are directions (homogeneous w = 0). Polygons are built in the
+  tangent plane of the sun's axis (a direction's central projection), where a
+  concentric-map annular sector stays an annular sector (the radial map
+  rho -> tan(theta(rho)) is monotone), so a convex polygon there is a convex
+  cone of directions.
+* sphere (point/spot of radius r): each receiver sees its own disk facing it.
+  We use the disk facing receiver r rotated from the disk facing the mean
+  direction w0 by the minimal rotation w0 -> w_r (same uniform distribution
+  over the same disk as the reference: only the in-disk rotation differs).
+  Every receiver's rotation is at most theta = max angle(w0, w_r), which moves
+  a disk point by at most 2 r sin(theta/2) in the disk plane and r sin(theta)
+  along w0: Delta_Gk / Delta_L are the boxes (in the w0 frame) around the
+  block's bounding rectangle grown by those amounts and clipped to the
+  sphere's cube - the "convex bounding volumes" of section 3.4.
+  With ``shared_samples_with_reference`` the reference's own per-point disk
+  frame is used (it is not continuous in w), and every group is bounded by
+  the sphere's cube.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..sampling import concentric_disk, light_sample, rand01, strata
+
+MAXV = 16
+MAXE = 16
+
+MODE_FIXED = 0      # sample positions shared by all receivers of one set
+MODE_SPHERE = 1     # c + M_r q: per-receiver rotation of a fixed disk set
+MODE_SHARED = 2     # the reference's own per-pixel samples (sampling.light_sample)
+
+SET_KEY = 1 << 40   # pixel slot of rand01 used for the sample sets (beyond any pixel id)
+
+
+def group_layout(n_samples: int, group_size: int):
+    """Strata grid (nx, ny), groups (gx, gy) and the group of each stratum.
+
+    Groups are blocks of about ``group_size`` strata, as square as the grid
+    allows (paper: 32 samples per group on a jittered grid)."""
+    nx, ny = strata(n_samples)
+    target = max(1, int(round(n_samples / max(1, group_size))))
+    best = None
+    for gx in range(1, nx + 1):
+        for gy in range(1, ny + 1):
+            g = gx * gy
+            if g > target:
+                continue
+            bx, by = nx / gx, ny / gy
+            score = (target - g, abs(math.log(bx / by)))
+            if best is None or score < best[0]:
+                best = (score, gx, gy)
+    _, gx, gy = best
+    ix = np.arange(nx)
+    iy = np.arange(ny)
+    gxi = ix * gx // nx
+    gyi = iy * gy // ny
+    group_of = (gxi[None, :] + gx * gyi[:, None]).reshape(-1)     # stratum s = ix + iy*nx
+    order = np.argsort(group_of, kind="stable")                    # bit -> stratum
+    G = gx * gy
+    starts = np.searchsorted(group_of[order], np.arange(G + 1)).astype(np.int64)
+    blocks = np.zeros((G, 4))                                      # u0, u1, v0, v1
+    for g in range(G):
+        kx, ky = g % gx, g // gx
+        cols = ix[gxi == kx]
+        rows = iy[gyi == ky]
+        blocks[g] = (cols.min() / nx, (cols.max() + 1) / nx, rows.min() / ny, (rows.max() + 1) / ny)
+    return nx, ny, G, order.astype(np.int64), starts, blocks
+
+
+# --------------------------------------------------------------------------
+# 2D bounds of a block's image
+def _concentric_phi(a, b):
+    """Angle of the concentric map's image of square point (a, b) in [-1,1]^2."""
+    if a == 0.0 and b == 0.0:
+        return 0.0
+    if abs(a) > abs(b):
+        r, phi = a, (math.pi / 4.0) * (b / a)
+    else:
+        r, phi = b, (math.pi / 2.0) - (math.pi / 4.0) * (a / b)
+    if r < 0:
+        phi += math.pi
+    return phi
+
+
+def _wrap(x):
+    return (x + math.pi) % (2 * math.pi) - math.pi
+
+
+def block_sector(u0, u1, v0, v1):
+    """Annular sector (rmin, rmax, phi0, phi1) in the unit disk holding the
+    concentric image of the block, or None when it is not a proper sector
+    (the block holds the centre, or spans about half the disk or more)."""
+    a0, a1, b0, b1 = 2 * u0 - 1, 2 * u1 - 1, 2 * v0 - 1, 2 * v1 - 1
+    corners = [(a0, b0), (a1, b0), (a1, b1), (a0, b1)]
+    rmax = max(max(abs(a), abs(b)) for a, b in corners)
+    da = 0.0 if a0 <= 0.0 <= a1 else min(abs(a0), abs(a1))
+    db = 0.0 if b0 <= 0.0 <= b1 else min(abs(b0), abs(b1))
+    rmin = max(da, db)                       # L-inf distance of the block to the centre
+    if rmin <= 0.0:
+        return None
+    # the concentric map sends square rays (b/a = const) to disk rays and keeps
+    # the angular order: the angular range is spanned by the corners
+    pc = _concentric_phi(0.5 * (a0 + a1), 0.5 * (b0 + b1))
+    rel = [_wrap(_concentric_phi(a, b) - pc) for a, b in corners]
+    lo, hi = min(rel), max(rel)
+    if hi - lo > 0.9 * math.pi:
+        return None
+    return rmin, rmax, pc + lo, pc + hi
+
+
+def sector_polygon(rmin, rmax, phi0, phi1):
+    """Convex polygon (k x 2) holding the annular sector: inner chord, outer
+    side circumscribed about the arc (tangents every <= pi/8)."""
+    span = phi1 - phi0
+    m = max(1, int(math.ceil(span / (math.pi / 8) - 1e-9)))
+    d = span / m
+    R = rmax / math.cos(0.5 * d)
+    pts = [(rmin * math.cos(phi0), rmin * math.sin(phi0))]
+    for k in range(m + 1):
+        a = phi0 + k * d
+        pts.append((R * math.cos(a), R * math.sin(a)))
+    pts.append((rmin * math.cos(phi1), rmin * math.sin(phi1)))
+    return np.array(pts)
+
+
+def disk_polygon(radius):
+    """Regular octagon circumscribed about the disk."""
+    R = radius / math.cos(math.pi / 8)
+    a = (np.arange(8) + 0.5) * (math.pi / 4)
+    return np.stack([R * np.cos(a), R * np.sin(a)], 1)
+
+
+def block_polygon_2d(u0, u1, v0, v1, disk: bool, radial=None):
+    """Convex 2D polygon bounding the image of block [u0,u1]x[v0,v1] under the
+    square map (disk=False: a rectangle in [-1,1]^2) or the concentric map,
+    with radii optionally remapped by the monotone ``radial``."""
+    radial = radial or (lambda r: r)
+    if not disk:
+        a0, a1, b0, b1 = 2 * u0 - 1, 2 * u1 - 1, 2 * v0 - 1, 2 * v1 - 1
+        return np.array([[a0, b0], [a1, b0], [a1, b1], [a0, b1]], float)
+    sec = block_sector(u0, u1, v0, v1)
+    if sec is None:
+        return disk_polygon(radial(1.0))
+    rmin, rmax, p0, p1 = sec
+    return sector_polygon(radial(rmin), radial(rmax), p0, p1)
+
+
+def _dedupe_ring(pts, tol):
+    out = []
+    for p in pts:
+        if not out or np.abs(p - out[-1]).max() > tol:
+            out.append(p)
+    while len(out) > 1 and np.abs(out[0] - out[-1]).max() <= tol:
+        out.pop()
+    return np.array(out)
+
+
+def polygon_to_homog(poly2, origin, ex, ey, w, tol):
+    """2D polygon in the frame (origin, ex, ey) -> homogeneous ring and edges."""
+    pts = np.asarray(origin)[None, :] + poly2[:, :1] * ex[None, :] + poly2[:, 1:2] * ey[None, :]
+    pts = _dedupe_ring(pts, tol)
+    n = len(pts)
+    V = np.zeros((MAXV, 4))
+    E = np.zeros((MAXE, 2), np.int64)
+    V[:n, :3] = pts
+    V[:n, 3] = w
+    ne = 0 if n < 2 else (1 if n == 2 else n)
+    for e in range(ne):
+        E[e] = (e, (e + 1) % n)
+    return V, n, E, ne
+
+
+_BOX_EDGES = np.array([[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7],
+                       [0, 4], [1, 5], [2, 6], [3, 7]], np.int64)
+
+
+def box_to_homog(lo, hi, origin, frame, tol):
+    """Box [lo, hi] in the orthonormal frame (rows of ``frame``) around ``origin``."""
+    V = np.zeros((MAXV, 4))
+    E = np.zeros((MAXE, 2), np.int64)
+    ext = np.asarray(hi) - np.asarray(lo)
+    if np.all(np.abs(ext) <= tol):
+        V[0, :3] = origin + (0.5 * (np.asarray(lo) + hi)) @ frame
+        V[0, 3] = 1.0
+        return V, 1, E, 0
+    for k in range(8):
+        c = np.array([hi[0] if k & 1 else lo[0], hi[1] if k & 2 else lo[1], hi[2] if k & 4 else lo[2]])
+        V[k, :3] = origin + c @ frame
+        V[k, 3] = 1.0
+    E[:12] = _BOX_EDGES
+    return V, 8, E, 12
+
+
+# --------------------------------------------------------------------------
+# sample tables
+@njit(cache=True)
+def fixed_sample_table(lp, nsets, nx, ny, bit2s, seed, key):
+    """SP[set, bit, 4]: homogeneous sample of every set (area: points, sun:
+    directions), jittered in its stratum with rand01(seed, key + set, s, dim)."""
+    S = nx * ny
+    out = np.empty((nsets, S, 4))
+    for j in range(nsets):
+        for i in range(S):
+            s = bit2s[i]
+            u = ((s % nx) + rand01(seed, key + j, s, 0)) / nx
+            v = ((s // nx) + rand01(seed, key + j, s, 1)) / ny
+            x, y, z, is_dir, _ = light_sample(lp, 0.0, 0.0, 0.0, u, v)
+            out[j, i, 0] = x
+            out[j, i, 1] = y
+            out[j, i, 2] = z
+            out[j, i, 3] = 0.0 if is_dir else 1.0
+    return out
+
+
+@njit(cache=True)
+def sphere_disk_table(nsets, nx, ny, bit2s, seed, key, radius, e1, e2):
+    """Q[set, bit, 3]: disk offsets r (dx e1 + dy e2) in the w0 frame."""
+    S = nx * ny
+    out = np.empty((nsets, S, 3))
+    for j in range(nsets):
+        for i in range(S):
+            s = bit2s[i]
+            u = ((s % nx) + rand01(seed, key + j, s, 0)) / nx
+            v = ((s // nx) + rand01(seed, key + j, s, 1)) / ny
+            dx, dy = concentric_disk(u, v)
+            for a in range(3):
+                out[j, i, a] = radius * (dx * e1[a] + dy * e2[a])
+    return out
+
+
+@njit(cache=True)
+def min_rotations(P, centre, w0):
+    """Per receiver: the 3x3 minimal rotation taking w0 to the unit direction
+    from the point to the light centre (Rodrigues), row-major, and its angle."""
+    n = P.shape[0]
+    M = np.empty((n, 9))
+    ang = np.zeros(n)
+    for i in range(n):
+        wx, wy, wz = centre[0] - P[i, 0], centre[1] - P[i, 1], centre[2] - P[i, 2]
+        d = math.sqrt(wx * wx + wy * wy + wz * wz)
+        for a in range(9):
+            M[i, a] = 0.0
+        M[i, 0] = M[i, 4] = M[i, 8] = 1.0
+        if d == 0.0:
+            continue
+        wx /= d
+        wy /= d
+        wz /= d
+        c = w0[0] * wx + w0[1] * wy + w0[2] * wz
+        c = min(1.0, max(-1.0, c))
+        kx = w0[1] * wz - w0[2] * wy
+        ky = w0[2] * wx - w0[0] * wz
+        kz = w0[0] * wy - w0[1] * wx
+        s = math.sqrt(kx * kx + ky * ky + kz * kz)
+        ang[i] = math.atan2(s, c)
+        if s < 1e-15:
+            if c > 0.0:
+                continue
+            # opposite: rotate by pi about any axis perpendicular to w0
+            if abs(w0[0]) < 0.9:
+                kx, ky, kz = 0.0, -w0[2], w0[1]
+            else:
+                kx, ky, kz = w0[2], 0.0, -w0[0]
+            s = math.sqrt(kx * kx + ky * ky + kz * kz)
+            kx /= s
+            ky /= s
+            kz /= s
+            sn, cs = 0.0, -1.0
+        else:
+            kx /= s
+            ky /= s
+            kz /= s
+            sn, cs = s, c
+        t = 1.0 - cs
+        M[i, 0] = cs + kx * kx * t
+        M[i, 1] = kx * ky * t - kz * sn
+        M[i, 2] = kx * kz * t + ky * sn
+        M[i, 3] = ky * kx * t + kz * sn
+        M[i, 4] = cs + ky * ky * t
+        M[i, 5] = ky * kz * t - kx * sn
+        M[i, 6] = kz * kx * t - ky * sn
+        M[i, 7] = kz * ky * t + kx * sn
+        M[i, 8] = cs + kz * kz * t
+    return M, ang
+
+
+@njit(cache=True)
+def sample_point(mode, i, r, set_id, SP, Q, M, centre, lp, seed, pix, Pg, bit2s, nx, ny):
+    """Homogeneous position of bit ``i`` of receiver ``r``'s light sample set."""
+    if mode == 0:
+        j = set_id[r]
+        return SP[j, i, 0], SP[j, i, 1], SP[j, i, 2], SP[j, i, 3]
+    if mode == 1:
+        j = set_id[r]
+        qx, qy, qz = Q[j, i, 0], Q[j, i, 1], Q[j, i, 2]
+        return (centre[0] + M[r, 0] * qx + M[r, 1] * qy + M[r, 2] * qz,
+                centre[1] + M[r, 3] * qx + M[r, 4] * qy + M[r, 5] * qz,
+                centre[2] + M[r, 6] * qx + M[r, 7] * qy + M[r, 8] * qz, 1.0)
+    s = bit2s[i]
+    u = ((s % nx) + rand01(seed, pix[r], s, 0)) / nx
+    v = ((s // nx) + rand01(seed, pix[r], s, 1)) / ny
+    x, y, z, is_dir, _ = light_sample(lp, Pg[r, 0], Pg[r, 1], Pg[r, 2], u, v)
+    return x, y, z, (0.0 if is_dir else 1.0)
+
+
+@njit(cache=True)
+def all_sample_points(mode, rows, S, set_id, SP, Q, M, centre, lp, seed, pix, Pg, bit2s, nx, ny):
+    """float64[len(rows), S, 4]: every sample of the given receivers, bit order."""
+    out = np.empty((rows.shape[0], S, 4))
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        for i in range(S):
+            x, y, z, w = sample_point(mode, i, r, set_id, SP, Q, M, centre, lp, seed, pix, Pg,
+                                      bit2s, nx, ny)
+            out[k, i, 0] = x
+            out[k, i, 1] = y
+            out[k, i, 2] = z
+            out[k, i, 3] = w
+    return out
+
+
+@njit(cache=True)
+def assign_sets(pix, nsets, seed):
+    """Section 3.4: one light sample set per receiver, by a hash of its pixel."""
+    out = np.empty(pix.shape[0], np.int64)
+    for i in range(pix.shape[0]):
+        out[i] = min(nsets - 1, int(rand01(seed, pix[i], 0, 7) * nsets))
+    return out

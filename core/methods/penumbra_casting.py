@@ -1,0 +1,580 @@
+"""Hierarchical penumbra casting (Laine & Aila 2005), method id ``penumbra_casting``.
+
+The transpose of ray tracing: instead of finding, per receiver and light
+sample, the triangle that blocks the ray, every blocker triangle T finds all
+``l_i -> r_j`` relations it blocks by traversing two hierarchies at once.
+
+* Receiver points r_j: the camera G-buffer hits in world space (section 3.2),
+  moved off their surface exactly like the reference's ray origins
+  (``sampling.offset_origin``, then rounded to float32 as Embree receives
+  them), in a bounding volume hierarchy (``_pc_hierarchy``: midpoint splits
+  above ``MidpointLimit`` points, SAH below, ``LeafSize`` points per leaf),
+  each with a bit mask of blocked light samples.
+* Light samples l_i: a jittered grid of ``samples`` strata, in groups G_k of
+  about ``GroupSize`` strata with convex bounding polygons Delta_Gk, under the
+  bounding polygon Delta_L (``_pc_light``), in ``SampleSets`` distinct sets,
+  one set per receiver chosen by a hash of its pixel (section 3.4).
+* Per triangle (``_pc_cast``): the penumbra volume V_L of the whole light
+  (separating planes between Delta_L and T, capped by T's plane), the
+  penumbra volumes V_Gk, the hard shadow volumes V_li (4 planes), and the
+  recursive traversal of figure 2 with the optimizations of figure 3, each
+  behind a switch: A ``umbra_bits`` (group/full umbra bits on points and nodes,
+  AND propagation, rebuild of the hierarchy when ``RebuildFraction`` of its
+  points are in full umbra), B ``active_plane_sets``, C ``lazy_volumes``, D
+  ``masks_on_demand`` (allocated on first need, released in full umbra); and
+  ``coarse_sort``: blockers bucketed by area (``SortBuckets`` log-spaced
+  buckets, linear time), largest first.
+* POINT-IN-VOLUME(r_j, V_li) (line 70): by default the four plane tests of
+  V_li are evaluated with the roles of sample and receiver exchanged
+  (``_pc_geometry.receiver_edge_functions``): per receiver and triangle three
+  cross products, then per sample four dot products against the sample's
+  coordinates, a 64-bit mask word at a time, and no V_li is ever built.
+  ``materialize_hard_volumes=True`` builds the paper's per-sample planes
+  instead (per triangle, per set and group on first need under C); the two
+  agree exactly except for rays within rounding of an edge.
+* Triangles that cannot shadow a visible receiver never enter the
+  traversal: a bounding-box test against the hull of the light and the
+  receivers, then V_L against the receivers' bounding box.
+
+V = 1 - (blocked samples) / samples, average visibility (Agrawala et al.
+equation 2), the same quantity as the ``embree`` pass.
+
+Light types (see ``_pc_light``): area lights use their rectangle / disk /
+ellipse with the reference's own maps; the sun works with directions
+(points at infinity, homogeneous w = 0: hard volumes are prisms, penumbra
+volumes are separating planes between a cone of directions and T); sphere
+lights (disk facing each point) use a fixed disk sample set rotated per
+receiver and convex bounding *volumes* (boxes) for L and G_k (section 3.4,
+"Volumetric light sources").
+
+``shared_samples_with_reference``: every receiver uses the reference's own
+per-pixel jittered samples (same seed, same strata, same maps) instead of the
+8 sets, so the pass equals ``embree``'s up to rays that graze an edge.
+``prepare`` exposes the receivers and every light sample position so a test
+can cast the same rays itself.
+
+Parallelism (ours, not the paper's): the receivers are split into
+``chunks`` spatial chunks (median splits), each with its own hierarchy and
+masks, processed on worker threads (Numba's thread count; the kernels release
+the GIL); a relation's status is a geometric fact, so any chunking gives the
+same bits.
+"""
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Dict, List, Optional
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .. import sampling
+from ..sampling import offset_origin
+from . import register
+from ._pc_cast import cast_chunk, chunk_visibility
+from ._pc_geometry import MAXP, box_vs_volume, penumbra_volume
+from ._pc_hierarchy import build_hierarchy, node_umbra_bits
+from ._pc_light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, all_sample_points,
+                        assign_sets, block_polygon_2d, box_to_homog, disk_polygon, fixed_sample_table,
+                        group_layout, min_rotations, polygon_to_homog, sphere_disk_table)
+from .base import AVERAGE, GBUFFER, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
+
+
+@dataclass
+class PenumbraCastingParams:
+    samples: int = 256                # light samples per receiver (paper's benchmark: 256)
+    GroupSize: int = 32               # light samples per group G_k (paper: 32)
+    LeafSize: int = 16                # receiver points per leaf (paper: 16)
+    MidpointLimit: int = 1024         # midpoint splits above, SAH below (paper: 1K)
+    SampleSets: int = 8               # distinct light sample sets (paper: 8, section 3.4)
+    umbra_bits: bool = True           # optimization A
+    active_plane_sets: bool = True    # optimization B
+    lazy_volumes: bool = True         # optimization C
+    masks_on_demand: bool = True      # optimization D
+    coarse_sort: bool = True          # coarse blocker sorting by area, largest first
+    SortBuckets: int = 32             # area buckets (paper: a histogram; count not given)
+    RebuildFraction: float = 0.25     # A, line 29: the paper's "large enough fraction" (not given)
+    shared_samples_with_reference: bool = False   # the embree reference's own per-pixel samples
+    materialize_hard_volumes: bool = False  # True: build the 4 planes of every V_li per triangle
+    chunks: int = 0                   # receiver chunks processed in parallel; 0 = automatic
+    seed: int = 0
+
+
+_VL_BATCH = 1 << 16
+
+# --------------------------------------------------------------------------
+# small kernels
+@njit(cache=True, parallel=True)
+def _offset_points(P, Nrm, scale, out):
+    """The reference's ray origins: offset_origin, rounded to float32."""
+    for i in prange(P.shape[0]):
+        ox, oy, oz = offset_origin(P[i, 0], P[i, 1], P[i, 2], Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], scale)
+        out[i, 0] = np.float64(np.float32(ox))
+        out[i, 1] = np.float64(np.float32(oy))
+        out[i, 2] = np.float64(np.float32(oz))
+
+
+@njit(cache=True, parallel=True)
+def _light_volumes(tris, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
+    """V_L of every candidate triangle and the test against the receivers'
+    bounding box: ``keep`` = T may shadow some receiver."""
+    for t in prange(tris.shape[0]):
+        k = penumbra_volume(tris[t], DV, nv, DE, ne, eps, VL[t])
+        nVL[t] = k
+        if k < 0:
+            keep[t] = False
+            continue
+        ok, _ = box_vs_volume(root_bb, VL[t], k, np.int64(-1), False, tol)
+        keep[t] = ok
+
+
+@njit(cache=True)
+def _bucket_sort_by_area(tris, nb):
+    """Coarse blocker sorting (section 3.3): bucket by area on a log scale,
+    largest first; linear time (histogram + counting sort), stable."""
+    n = tris.shape[0]
+    area = np.empty(n)
+    for t in range(n):
+        ux = tris[t, 1, 0] - tris[t, 0, 0]
+        uy = tris[t, 1, 1] - tris[t, 0, 1]
+        uz = tris[t, 1, 2] - tris[t, 0, 2]
+        vx = tris[t, 2, 0] - tris[t, 0, 0]
+        vy = tris[t, 2, 1] - tris[t, 0, 1]
+        vz = tris[t, 2, 2] - tris[t, 0, 2]
+        cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        area[t] = 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
+    out = np.arange(n)
+    if n == 0:
+        return out
+    lo = np.inf
+    hi = -np.inf
+    for t in range(n):
+        if area[t] > 0.0:
+            la = math.log(area[t])
+            lo = min(lo, la)
+            hi = max(hi, la)
+    if not (hi > lo):
+        return out
+    bucket = np.empty(n, np.int64)
+    hist = np.zeros(nb + 1, np.int64)
+    for t in range(n):
+        if area[t] > 0.0:
+            b = int((hi - math.log(area[t])) / (hi - lo) * nb)
+            b = min(nb - 1, max(0, b))
+        else:
+            b = nb - 1
+        bucket[t] = b
+        hist[b + 1] += 1
+    for b in range(nb):
+        hist[b + 1] += hist[b]
+    for t in range(n):
+        out[hist[bucket[t]]] = t
+        hist[bucket[t]] += 1
+    return out
+
+
+# --------------------------------------------------------------------------
+# light setup
+@dataclass
+class LightSetup:
+    mode: int
+    S: int
+    nx: int
+    ny: int
+    G: int
+    nsets: int
+    bit2s: np.ndarray
+    g_start: np.ndarray
+    DVL: np.ndarray
+    nvl: int
+    DEL: np.ndarray
+    nel: int
+    DVg: np.ndarray
+    nvg: np.ndarray
+    DEg: np.ndarray
+    neg: np.ndarray
+    SP: np.ndarray
+    Q: np.ndarray
+    centre: np.ndarray
+    lp: np.ndarray
+    theta: float = 0.0
+    w0: Optional[np.ndarray] = None
+
+
+def _light_setup(light, params: PenumbraCastingParams, Pg: np.ndarray, tol: float) -> LightSetup:
+    S = 1 if light.is_zero_size else max(1, int(params.samples))
+    nx, ny, G, bit2s, g_start, blocks = group_layout(S, max(1, int(params.GroupSize)))
+    shared = bool(params.shared_samples_with_reference)
+    nsets = 1 if (light.is_zero_size or shared) else max(1, int(params.SampleSets))
+    lp = sampling.pack_light(light)
+    seed = int(params.seed)
+    centre = light.position.astype(np.float64)
+    m = light.world_from_light
+    ax, ay, az = [m[:3, k] / np.linalg.norm(m[:3, k]) for k in range(3)]
+    DVg = np.zeros((G, MAXV, 4))
+    DEg = np.zeros((G, MAXE, 2), np.int64)
+    nvg = np.zeros(G, np.int64)
+    neg = np.zeros(G, np.int64)
+    SP = np.zeros((1, 1, 4))
+    Q = np.zeros((1, 1, 3))
+    theta = 0.0
+    w0 = None
+    if light.kind == "area":
+        mode = MODE_SHARED if shared else MODE_FIXED
+        disk = light.shape in ("DISK", "ELLIPSE")
+        ex, ey = ax * (0.5 * light.size), ay * (0.5 * light.size_y)
+        full = disk_polygon(1.0) if disk else block_polygon_2d(0, 1, 0, 1, False)
+        DVL, nvl, DEL, nel = polygon_to_homog(full, centre, ex, ey, 1.0, tol)
+        for g in range(G):
+            poly = block_polygon_2d(*blocks[g], disk)
+            DVg[g], nvg[g], DEg[g], neg[g] = polygon_to_homog(poly, centre, ex, ey, 1.0, tol)
+    elif light.kind == "sun":
+        mode = MODE_SHARED if shared else MODE_FIXED
+        cosmax = lp[sampling.L_COSMAX]
+        if cosmax < 0.05:
+            # a cone this wide has no tangent-plane polygon: no culling volumes
+            DVL, nvl, DEL, nel = np.zeros((MAXV, 4)), 0, np.zeros((MAXE, 2), np.int64), 0
+        else:
+            def radial(rho):
+                c = 1.0 - rho * rho * (1.0 - cosmax)
+                return math.sqrt(max(0.0, 1.0 - c * c)) / c
+            full = disk_polygon(radial(1.0))
+            DVL, nvl, DEL, nel = polygon_to_homog(full, az, ax, ay, 0.0, 1e-15)
+            for g in range(G):
+                poly = block_polygon_2d(*blocks[g], True, radial)
+                DVg[g], nvg[g], DEg[g], neg[g] = polygon_to_homog(poly, az, ax, ay, 0.0, 1e-15)
+    else:  # sphere
+        r = float(light.radius)
+        if shared:
+            mode = MODE_SHARED
+            DVL, nvl, DEL, nel = box_to_homog([-r] * 3, [r] * 3, centre, np.eye(3), tol)
+            for g in range(G):
+                DVg[g], nvg[g], DEg[g], neg[g] = DVL, nvl, DEL, nel
+        else:
+            mode = MODE_SPHERE
+            d = centre[None, :] - Pg
+            dn = np.linalg.norm(d, axis=1)
+            ok = dn > 0
+            mean = (d[ok] / dn[ok, None]).sum(0) if ok.any() else np.zeros(3)
+            if np.linalg.norm(mean) > 1e-9 * max(1, ok.sum()):
+                w0 = mean / np.linalg.norm(mean)
+            else:
+                w0 = az.copy()
+            e1, e2 = sampling.orthonormal_basis(*w0)
+            e1, e2 = np.array(e1), np.array(e2)
+            frame = np.stack([e1, e2, w0])
+            _, ang = min_rotations(np.ascontiguousarray(Pg), centre, w0)
+            theta = float(ang.max()) if len(ang) else 0.0
+            dlt = 2.0 * r * math.sin(0.5 * min(theta, math.pi))
+            dz = r * (math.sin(theta) if theta < 0.5 * math.pi else 1.0)
+            DVL, nvl, DEL, nel = box_to_homog([-r, -r, -dz], [r, r, dz], centre, frame, tol)
+            for g in range(G):
+                poly = block_polygon_2d(*blocks[g], True) * r
+                lo = np.maximum(poly.min(0) - dlt, -r)
+                hi = np.minimum(poly.max(0) + dlt, r)
+                DVg[g], nvg[g], DEg[g], neg[g] = box_to_homog([lo[0], lo[1], -dz], [hi[0], hi[1], dz],
+                                                              centre, frame, tol)
+            Q = sphere_disk_table(nsets, nx, ny, bit2s, seed, SET_KEY, r, e1, e2)
+    if mode == MODE_FIXED:
+        SP = fixed_sample_table(lp, nsets, nx, ny, bit2s, seed, SET_KEY)
+    return LightSetup(mode, S, nx, ny, G, nsets, bit2s, g_start, DVL, int(nvl), DEL, int(nel),
+                      DVg, nvg, DEg, neg, SP, Q, centre, lp, theta, w0)
+
+
+# --------------------------------------------------------------------------
+@dataclass
+class Setup:
+    """Everything the casting needs, before any triangle: receivers, light
+    samples, groups, polygons. ``sample_points(rows)`` gives the exact light
+    sample positions (homogeneous, bit order) the casting tests for those
+    receivers, so a test can cast the same rays with Embree."""
+
+    idx: np.ndarray          # pixel ids of the receivers
+    Pg: np.ndarray           # G-buffer positions
+    pts: np.ndarray          # receiver points r_j (the reference's ray origins)
+    set_id: np.ndarray
+    M: np.ndarray
+    light: LightSetup
+    seed: int
+    tol: float
+    eps: float
+
+    def sample_points(self, rows) -> np.ndarray:
+        L = self.light
+        rows = np.ascontiguousarray(rows, np.int64)
+        return all_sample_points(L.mode, rows, L.S, self.set_id, L.SP, L.Q, self.M, L.centre, L.lp,
+                                 self.seed, self.idx, self.Pg, L.bit2s, L.nx, L.ny)
+
+
+def prepare(buffers, light, params: PenumbraCastingParams) -> Setup:
+    g = buffers.gbuffer
+    idx = np.flatnonzero(g.hit.reshape(-1)).astype(np.int64)
+    Pg = np.ascontiguousarray(g.position.reshape(-1, 3)[idx], np.float64)
+    Nrm = np.ascontiguousarray(g.normal.reshape(-1, 3)[idx], np.float64)
+    pts = np.empty_like(Pg)
+    if len(idx):
+        _offset_points(Pg, Nrm, float(buffers.scale), pts)
+    mag = float(np.abs(pts).max()) if len(pts) else 1.0
+    mag = max(mag, float(np.abs(light.position).max()), float(buffers.scale), 1e-30)
+    tol = 1e-9 * mag
+    eps = 1e-12 * mag
+    L = _light_setup(light, params, Pg, tol)
+    seed = int(params.seed)
+    if L.mode == MODE_SPHERE:
+        M, _ = min_rotations(Pg, L.centre, L.w0)
+    else:
+        M = np.zeros((1, 9))
+    set_id = assign_sets(idx, L.nsets, seed) if L.nsets > 1 else np.zeros(len(idx), np.int64)
+    return Setup(idx, Pg, pts, set_id, M, L, seed, tol, eps)
+
+
+def _chunk_receivers(pts, n_chunks):
+    """Median splits along the longest axis into about ``n_chunks`` pieces."""
+    parts = [np.arange(len(pts))]
+    while len(parts) < n_chunks:
+        parts.sort(key=len)
+        big = parts.pop()
+        if len(big) < 2:
+            parts.append(big)
+            break
+        p = pts[big]
+        ax = int(np.argmax(p.max(0) - p.min(0)))
+        h = len(big) // 2
+        o = np.argpartition(p[:, ax], h)
+        parts += [np.sort(big[o[:h]]), np.sort(big[o[h:]])]
+    return [c for c in parts if len(c)]
+
+
+@dataclass
+class _Chunk:
+    rows: np.ndarray
+    pts: np.ndarray
+    set_id: np.ndarray
+    pix: np.ndarray
+    Pg: np.ndarray
+    M: np.ndarray
+    hier: tuple = None
+    fu: np.ndarray = None
+    gu: np.ndarray = None
+    slot: np.ndarray = None
+    pool: np.ndarray = None
+    free: np.ndarray = None
+    st: np.ndarray = None
+    build_s: float = 0.0
+    rebuild_s: float = 0.0
+    cast_s: float = 0.0
+    rebuilds: int = 0
+    hier_nodes_peak: int = 0
+    V: np.ndarray = None
+
+
+def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: PhaseTimer,
+         threads: Optional[int] = None):
+    """Run the casting for ``tris`` (float64[T,3,3], already the blockers);
+    returns V per receiver (float64) and stats."""
+    L = setup.light
+    n = len(setup.idx)
+    stats: Dict[str, object] = {"receivers": int(n), "samples": int(L.S), "groups": int(L.G),
+                                "sample_sets": int(L.nsets), "triangles_in": int(len(tris))}
+    V = np.ones(n)
+    if n == 0:
+        return V, stats
+    optA = bool(params.umbra_bits)
+    optB = bool(params.active_plane_sets)
+    optC = bool(params.lazy_volumes)
+    optD = bool(params.masks_on_demand)
+    leaf = max(1, int(params.LeafSize))
+    midl = max(leaf, int(params.MidpointLimit))
+    nwords = (L.S + 63) // 64
+    # -- cull: triangles that cannot shadow any receiver -------------------
+    with timer("cull"):
+        lo = setup.pts.min(0)
+        hi = setup.pts.max(0)
+        root_bb = np.concatenate([lo, hi])
+        blo, bhi = lo.copy(), hi.copy()
+        verts = L.DVL[:L.nvl]
+        fin = verts[verts[:, 3] != 0.0, :3]
+        if len(fin):
+            blo = np.minimum(blo, fin.min(0))
+            bhi = np.maximum(bhi, fin.max(0))
+        dirs = verts[verts[:, 3] == 0.0, :3]
+        if L.nvl == 0 and L.mode != MODE_SPHERE and L.lp[0] == sampling.KIND_SUN:
+            blo[:] = -np.inf
+            bhi[:] = np.inf
+        if len(dirs):
+            blo[(dirs < 0).any(0)] = -np.inf
+            bhi[(dirs > 0).any(0)] = np.inf
+        tmin = tris.min(1)
+        tmax = tris.max(1)
+        inbox = np.all((tmax >= blo - setup.tol) & (tmin <= bhi + setup.tol), axis=1)
+        cand = tris[inbox]
+        # V_L of every candidate, in batches (bounds the MAXP-wide temporary);
+        # survivors keep only as many plane slots as they use
+        parts, nparts, widest = [], [], 1
+        blocker_parts = []
+        for a in range(0, len(cand), _VL_BATCH):
+            cb = np.ascontiguousarray(cand[a:a + _VL_BATCH])
+            VLb = np.zeros((len(cb), MAXP, 4))
+            nVLb = np.zeros(len(cb), np.int64)
+            keep = np.zeros(len(cb), np.bool_)
+            _light_volumes(cb, L.DVL, L.nvl, L.DEL, L.nel, setup.eps, root_bb, setup.tol, VLb, nVLb, keep)
+            w = int(nVLb[keep].max()) if keep.any() else 0
+            widest = max(widest, w)
+            parts.append(VLb[keep, :max(w, 1)])
+            nparts.append(nVLb[keep])
+            blocker_parts.append(cb[keep])
+        VL = np.zeros((sum(len(q) for q in parts), widest, 4))
+        o = 0
+        for q in parts:
+            VL[o:o + len(q), :q.shape[1]] = q
+            o += len(q)
+        nVL = np.concatenate(nparts) if nparts else np.zeros(0, np.int64)
+        blockers = np.ascontiguousarray(np.concatenate(blocker_parts)) if blocker_parts \
+            else np.zeros((0, 3, 3))
+    stats["triangles_box_culled"] = int(len(tris) - len(cand))
+    stats["triangles_volume_culled"] = int(len(cand) - len(blockers))
+    stats["blockers"] = int(len(blockers))
+    # -- coarse sort ---------------------------------------------------------
+    with timer("sort"):
+        if params.coarse_sort and len(blockers):
+            order = _bucket_sort_by_area(blockers, max(1, int(params.SortBuckets)))
+        else:
+            order = np.arange(len(blockers), dtype=np.int64)
+    # -- chunks --------------------------------------------------------------
+    workers = max(1, int(threads or numba.get_num_threads()))
+    n_ch = int(params.chunks) if params.chunks else min(4 * workers, max(1, n // 4096))
+    n_ch = max(1, n_ch)
+    chunks: List[_Chunk] = []
+    for rows in _chunk_receivers(setup.pts, n_ch):
+        chunks.append(_Chunk(rows, np.ascontiguousarray(setup.pts[rows]), setup.set_id[rows].copy(),
+                             setup.idx[rows].copy(), np.ascontiguousarray(setup.Pg[rows]),
+                             np.ascontiguousarray(setup.M[rows]) if L.mode == MODE_SPHERE else setup.M))
+    stats["chunks"] = len(chunks)
+
+    def run_pool(fn):
+        if workers == 1 or len(chunks) == 1:
+            for c in chunks:
+                fn(c)
+        else:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                for f in [pool.submit(fn, c) for c in chunks]:
+                    f.result()
+
+    def build(c: _Chunk):
+        t = time.perf_counter()
+        m = len(c.rows)
+        c.hier = build_hierarchy(c.pts, np.arange(m, dtype=np.int64), leaf, midl)
+        nn = len(c.hier[2])
+        c.hier_nodes_peak = nn
+        c.fu = np.zeros(m, np.uint8)
+        c.gu = np.zeros((m, L.G), np.uint8)
+        c.node_gu = np.zeros((nn, L.G), np.uint8)
+        c.node_fu = np.zeros(nn, np.uint8)
+        c.st = np.zeros(16, np.int64)
+        if optD:
+            cap = max(16, min(m, 1024))
+            c.pool = np.zeros((cap, nwords), np.uint64)
+            c.free = np.arange(cap - 1, -1, -1, dtype=np.int64)
+            c.slot = np.full(m, -1, np.int64)
+            c.st[0] = cap
+        else:
+            c.pool = np.zeros((m, nwords), np.uint64)
+            c.free = np.zeros(1, np.int64)
+            c.slot = np.arange(m, dtype=np.int64)
+            c.st[1] = c.st[2] = m
+        c.st[11] = len(c.pool)
+        c.st[4] = m
+        c.build_s = time.perf_counter() - t
+
+    def run(c: _Chunk):
+        t_start = time.perf_counter()
+        t0 = 0
+        while True:
+            perm, bb, left, right, start, count, depth = c.hier
+            t0, c.pool, c.free = cast_chunk(
+                t0, order, blockers, VL, nVL, L.DVg, L.nvg, L.DEg, L.neg, L.g_start,
+                L.mode, L.SP, L.Q, c.M, L.centre, L.lp, setup.seed, c.pix, c.Pg, L.bit2s, L.nx, L.ny,
+                c.pts, c.set_id, perm, bb, left, right, start, count, depth, c.node_gu, c.node_fu,
+                c.fu, c.gu, c.slot, c.pool, c.free, c.st, optA, optB, optC, optD,
+                float(params.RebuildFraction), leaf, setup.tol, setup.eps,
+                bool(params.materialize_hard_volumes))
+            if t0 >= len(order):
+                break
+            # line 29 (A): rebuild the hierarchy over the points not in full umbra
+            tr = time.perf_counter()
+            live = np.flatnonzero(c.fu == 0).astype(np.int64)
+            c.hier = build_hierarchy(c.pts, live, leaf, midl)
+            nn = len(c.hier[2])
+            c.node_gu = np.zeros((nn, L.G), np.uint8)
+            c.node_fu = np.zeros(nn, np.uint8)
+            if len(live):
+                node_umbra_bits(c.hier[2], c.hier[3], c.hier[4], c.hier[5], c.hier[0], c.gu, c.fu,
+                                c.node_gu, c.node_fu)
+            c.st[3] = 0
+            c.st[4] = len(live)
+            c.rebuilds += 1
+            c.rebuild_s += time.perf_counter() - tr
+        c.V = np.empty(len(c.rows))
+        chunk_visibility(c.fu, c.slot, c.pool, L.S, c.V)
+        c.cast_s = time.perf_counter() - t_start - c.rebuild_s
+
+    with timer("build"):
+        run_pool(build)
+    with timer("cast"):
+        run_pool(run)
+    for c in chunks:
+        V[c.rows] = c.V
+    st = np.sum([c.st for c in chunks], axis=0)
+    bytes_per_mask = nwords * 8
+    stats.update({
+        "rebuilds": int(sum(c.rebuilds for c in chunks)),
+        "rebuild_thread_s": float(sum(c.rebuild_s for c in chunks)),
+        "cast_thread_s": float(sum(c.cast_s for c in chunks)),
+        "build_thread_s": float(sum(c.build_s for c in chunks)),
+        "peak_masks": int(st[2]),
+        "peak_mask_bytes": int(st[2] * bytes_per_mask),
+        "mask_pool_bytes": int(st[11] * bytes_per_mask),
+        "hierarchy_bytes": int(sum(c.hier_nodes_peak * (6 * 8 + 4 * 8 + L.G + 1) + 8 * len(c.rows)
+                                   for c in chunks)),
+        "receiver_bytes": int(n * (3 * 8 + 8 + 1 + L.G)),
+        "nodes_visited": int(st[6]),
+        "point_tests": int(st[7]),
+        "hard_volume_tests": int(st[8]),
+        "triangles_with_group_volumes": int(st[9]),
+        "hard_volumes_built": int(st[10]),
+        "triangles_root_culled": int(st[12]),
+    })
+    return V, stats
+
+
+def scene_blockers(scene) -> np.ndarray:
+    """Shadow-casting, finite triangles as float64[T,3,3]."""
+    tris = scene.triangles[scene.tri_casts_shadow]
+    ok = np.isfinite(tris.reshape(len(tris), -1)).all(axis=1)
+    return np.ascontiguousarray(tris[ok], np.float64)
+
+
+@register
+class PenumbraCasting(Method):
+    id = "penumbra_casting"
+    paper = "Laine, Aila 2005: Hierarchical Penumbra Casting"
+    passes = {"penumbra_casting": AVERAGE}
+    needs = frozenset({GBUFFER, SHADOW_GEOMETRY})
+    Params = PenumbraCastingParams
+    physical = True
+
+    def run(self, buffers, light, params: PenumbraCastingParams) -> MethodResult:
+        timer = PhaseTimer()
+        g = buffers.gbuffer
+        H, W = g.shape
+        with timer("setup"):
+            setup = prepare(buffers, light, params)
+            tris = scene_blockers(buffers.scene)
+        V, stats = cast(setup, tris, params, timer)
+        out = np.ones(H * W, np.float32)
+        out[setup.idx] = np.clip(V, 0.0, 1.0).astype(np.float32)
+        return MethodResult(passes={"penumbra_casting": out.reshape(H, W)}, time_s=timer.result(),
+                            stats=stats)
