@@ -147,9 +147,16 @@ def write_results(rows, out_dir, name):
 
 def run_bench(args) -> int:
     repeats = max(1, args.repeats)
-    rows = bench_skeleton(repeats, args.quick) + bench_startup()
-    md = write_results(rows, args.out, "skeleton")
     print(f"machine: {json.dumps(machine())}")
-    print(f"medians of {repeats} warm runs")
-    print(md)
+    if args.part in ("all", "skeleton"):
+        rows = bench_skeleton(repeats, args.quick) + bench_startup()
+        md = write_results(rows, args.out, "skeleton")
+        print(f"pipeline phases, medians of {repeats} warm runs")
+        print(md)
+    if args.part in ("all", "methods"):
+        from .bench_methods import run_method_benchmarks
+        run_method_benchmarks(args.out, repeats, args.quick)
+    if args.part in ("all", "study"):
+        from .study import run_study
+        run_study(args.out, repeats=repeats, quick=args.quick)
     return 0

@@ -72,6 +72,22 @@ def rand01(seed, pixel, sample, dim):
 
 
 @njit(cache=True, inline="always")
+def stream_start(seed, pixel):
+    """A 32-bit state for one pixel's stream of cheap random numbers
+    (``stream_next``): one hash per pixel instead of one per number."""
+    return _pcg(np.uint32(seed & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel >> 32))))
+
+
+@njit(cache=True, inline="always")
+def stream_next(state):
+    """(next state, uniform in [0, 1)): PCG's output permutation of an LCG step."""
+    state = (state * np.uint32(747796405) + np.uint32(2891336453)) & np.uint32(0xFFFFFFFF)
+    word = (((state >> ((state >> np.uint32(28)) + np.uint32(4))) ^ state) * np.uint32(277803737)) & np.uint32(0xFFFFFFFF)
+    word = ((word >> np.uint32(22)) ^ word) & np.uint32(0xFFFFFFFF)
+    return state, np.float64(word >> np.uint32(8)) * (1.0 / 16777216.0)
+
+
+@njit(cache=True, inline="always")
 def concentric_disk(u, v):
     """Shirley-Chiu concentric map of [0,1)^2 to the unit disk (area-preserving,
     keeps strata compact)."""

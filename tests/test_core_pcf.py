@@ -10,7 +10,7 @@ from penumbra.core.methods.pcf import hard_shadow_kernel, resolved_bias, scene_e
 
 from synthetic import area_light, half_plane_scene, pixel_world_y, sphere_light, sun_light
 
-NOPLANE = np.zeros(12)   # figure 4's constant receiver depth
+NOPLANE = (0.0,) * 12   # figure 4's constant receiver depth
 
 
 def run_pcf(scene, **over):
@@ -105,3 +105,13 @@ def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane():
     off, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, receiver_plane=False)
     assert on.passes["pcf"].min() == 1.0
     assert off.passes["pcf"].mean() < 0.95
+
+
+def test_tile_early_out_changes_nothing():
+    """Reeves et al. 3.3's tiles only skip regions whose result they decide:
+    the pass is bit-identical with them off."""
+    for make in (lambda: area_light(1.0), lambda: sphere_light(0.3), lambda: sun_light(0.1)):
+        scene = half_plane_scene(make(), res=48)
+        a, _ = run_pcf(scene, tiles=True)
+        b, _ = run_pcf(scene, tiles=False)
+        np.testing.assert_array_equal(a.passes["pcf"], b.passes["pcf"])

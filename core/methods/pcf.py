@@ -41,7 +41,7 @@ from numba import njit, prange
 
 from .. import views
 from ..kernels import face_project, finite_bbox, footprint_on_face, pick_face
-from ..sampling import rand01
+from ..sampling import stream_next, stream_start
 from . import register
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
@@ -67,6 +67,8 @@ class PCFParams:
     MaxSize: float = 64.0         # cap on the region's half size (texels), for grazing views
     receiver_plane: bool = True   # beyond the paper: compare each sample with the receiver's
                                   # tangent-plane depth at that texel, not the centre's z
+    tiles: bool = True            # Reeves et al. 3.3's tile scheme: skip sampling where a tile's
+                                  # min/max depth decides the whole region (same result)
     seed: int = 0
 
 
@@ -100,13 +102,15 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     smin = s - sres + 0.5 * ds
     tmin = t - tres + 0.5 * dt
     inshadow = 0
-    k = 0
+    st = stream_start(seed, pixel)
     for i in range(ns):
         for j in range(nt):
-            iu = int(math.floor(smin + i * ds + (rand01(seed, pixel, k, 0) - 0.5) * ds))
-            iv = int(math.floor(tmin + j * dt + (rand01(seed, pixel, k, 1) - 0.5) * dt))
-            bias = rand01(seed, pixel, k, 2) * (Bias1 - Bias0) + Bias0
-            k += 1
+            st, r0 = stream_next(st)
+            st, r1 = stream_next(st)
+            st, r2 = stream_next(st)
+            iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
+            iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
+            bias = r2 * (Bias1 - Bias0) + Bias0
             # the map's window is fitted to the receivers, not the light's field
             # of view: samples past its border read the border texel
             iu = min(max(iu, 0), depth_f.shape[1] - 1)
@@ -120,23 +124,21 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     return inshadow / (ns * nt)
 
 
+NO_PLANE = (0.0,) * 12   # figure 4's constant receiver depth
+
+
 @njit(cache=True)
 def receiver_plane(fp, px, py, pz, nx, ny, nz):
     """The receiver's tangent plane in face ``fp``'s view space, packed for
     ``plane_depth``: (1, ortho, l, r, b, t, w, h, n.p, nx, ny, nz)."""
-    out = np.zeros(12)
     vx = fp[0] * px + fp[1] * py + fp[2] * pz + fp[3]
     vy = fp[4] * px + fp[5] * py + fp[6] * pz + fp[7]
     vz = fp[8] * px + fp[9] * py + fp[10] * pz + fp[11]
     mx = fp[0] * nx + fp[1] * ny + fp[2] * nz
     my = fp[4] * nx + fp[5] * ny + fp[6] * nz
     mz = fp[8] * nx + fp[9] * ny + fp[10] * nz
-    out[0] = 1.0
-    out[1] = fp[16]
-    out[2:8] = fp[17:23]
-    out[8] = mx * vx + my * vy + mz * vz
-    out[9], out[10], out[11] = mx, my, mz
-    return out
+    return (1.0, fp[16], fp[17], fp[18], fp[19], fp[20], fp[21], fp[22],
+            mx * vx + my * vy + mz * vz, mx, my, mz)
 
 
 @njit(cache=True, inline="always")
@@ -160,9 +162,71 @@ def plane_depth(pl, uc, vc, z):
     return d
 
 
+TILE = 8
+
+
 @njit(cache=True, parallel=True)
-def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, ResFactor, MinSize, MaxSize,
-               NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, out):
+def tile_minmax(depth):
+    """Per face, per TILE x TILE block: min and max map depth (Reeves et al.
+    3.3's tile scheme, "a maximum z value with each tile")."""
+    F, h, w = depth.shape
+    th = (h + TILE - 1) // TILE
+    tw = (w + TILE - 1) // TILE
+    lo = np.full((F, th, tw), np.inf, np.float32)
+    hi = np.full((F, th, tw), -np.inf, np.float32)
+    for k in prange(F * th):
+        f = k // th
+        ty = k % th
+        for tx in range(tw):
+            a, b = np.inf, -np.inf
+            for r in range(ty * TILE, min(h, ty * TILE + TILE)):
+                for c in range(tx * TILE, min(w, tx * TILE + TILE)):
+                    d = depth[f, r, c]
+                    a = min(a, d)
+                    b = max(b, d)
+            lo[f, ty, tx] = a
+            hi[f, ty, tx] = b
+    return lo, hi
+
+
+@njit(cache=True)
+def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
+    """The tile test: 0.0 when every sample of the region must be lit, 1.0
+    when every one must be in shadow, -1.0 when samples must be taken. Exact:
+    the receiver's depth over the region lies between its values at the
+    region's corners (a linear-fractional function of the texel position)."""
+    u0 = max(0.0, math.floor(s - sres))
+    u1 = min(float(w), math.ceil(s + sres))
+    v0 = max(0.0, math.floor(t - tres))
+    v1 = min(float(h), math.ceil(t + tres))
+    if u1 <= u0:
+        u0, u1 = min(u0, w - 1.0), min(u0, w - 1.0) + 1.0
+    if v1 <= v0:
+        v0, v1 = min(v0, h - 1.0), min(v0, h - 1.0) + 1.0
+    zlo, zhi = z, z
+    if plane[0] != 0.0:
+        for cu in (u0, u1):
+            for cv in (v0, v1):
+                zc = plane_depth(plane, cu, cv, -1.0)
+                if zc < 0.0:
+                    return -1.0
+                zlo = min(zlo, zc)
+                zhi = max(zhi, zc)
+    dmin, dmax = np.inf, -np.inf
+    for ty in range(int(v0) // TILE, (int(v1) - 1) // TILE + 1):
+        for tx in range(int(u0) // TILE, (int(u1) - 1) // TILE + 1):
+            dmin = min(dmin, tlo[ty, tx])
+            dmax = max(dmax, thi[ty, tx])
+    if zhi <= dmin * DEPTH_REL_EPS + Bias0:
+        return 0.0
+    if dmax < np.inf and zlo > dmax * DEPTH_REL_EPS + Bias1:
+        return 1.0
+    return -1.0
+
+
+@njit(cache=True, parallel=True)
+def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
+               NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out):
     for i in prange(P.shape[0]):
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         f = pick_face(faces, px, py, pz)
@@ -182,7 +246,13 @@ def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, ResFactor, MinS
         if use_plane:
             plane = receiver_plane(faces[f], px, py, pz, Nrm[i, 0], Nrm[i, 1], Nrm[i, 2])
         else:
-            plane = np.zeros(12)
+            plane = NO_PLANE
+        if use_tiles and z >= 0.0:
+            known = region_decided(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, sres, tres,
+                                   plane, Bias0, Bias1)
+            if known >= 0.0:
+                out[i] = 1.0 - known
+                continue
         out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
                                      MinSamples, Bias0, Bias1, seed, pix[i], plane)
 
@@ -243,11 +313,12 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 vals = np.empty(len(idx), np.float64)
+                tlo, thi = tile_minmax(lv.depth)
                 pcf_kernel(P, Nrm, rows, cols, idx.astype(np.int64),
                            views.pack_camera(buffers.scene.camera, W, H),
-                           lv.packed_faces(), lv.depth, finite_bbox(lv.depth),
+                           lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi,
                            res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                           b0, b1, int(params.seed), bool(params.receiver_plane), vals)
+                           b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles), vals)
                 out[idx] = np.clip(vals, 0.0, 1.0)
         return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})

@@ -1,0 +1,137 @@
+"""Per-method benchmark tables (issues 3-5), run by ``penumbra bench``.
+
+Each table is the shape the issue asks for; all times are medians of
+``repeats`` warm runs (JIT compiled, shared buffers built) in seconds, with
+the per-phase split each method reports. Written to ``bench/results/methods.md``.
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import time
+
+import numba
+
+from .bench import _load
+
+
+def _median(fn, repeats):
+    fn()
+    runs = []
+    out = None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        runs.append((time.perf_counter() - t, out))
+    runs.sort(key=lambda r: r[0])
+    return runs[len(runs) // 2]
+
+
+def _phases(res):
+    return ", ".join(f"{k} {v:.3f}" for k, v in res.time_s.items() if k != "total")
+
+
+def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
+    from .core.buffers import FrameBuffers
+    from .core.methods import producers
+    reg = producers()
+    lines = [f"# Per-method benchmarks (medians of {repeats} warm runs, {numba.get_num_threads()} threads)", ""]
+    big = 128 if quick else 512
+
+    def fb_for(name, res, map_size=None):
+        sc = _load(name, (res, res))
+        fb = FrameBuffers(sc, res, res, map_size)
+        fb.gbuffer
+        return sc, fb
+
+    emb = reg["embree"]
+    embree_cache = {}
+
+    def embree_time(key, fb, light, ns):
+        if key not in embree_cache:
+            embree_cache[key] = _median(lambda: emb.run(fb, light, emb.make_params({"samples": ns})), repeats)[0]
+        return embree_cache[key]
+
+    if "single_sample" in reg:
+        m = reg["single_sample"]
+        lines += ["## single_sample (Brabec & Seidel): 512x512, 256x256 light map", "",
+                  "| scene | adaptive | search off | speed-up | pixels searched |", "|---|---|---|---|---|"]
+        for name in ("grids", "torus_plane"):
+            sc, fb = fb_for(name, big, big // 2)
+            lt = sc.lights[0]
+            ta, ra = _median(lambda: m.run(fb, lt, m.make_params({"adaptive": True})), repeats)
+            tf, _ = _median(lambda: m.run(fb, lt, m.make_params({"adaptive": False})), repeats)
+            lines.append(f"| {name} | {ta:.4f} | {tf:.4f} | {tf / ta:.2f}x | "
+                         f"{100 * ra.stats.get('searched_fraction', 0):.1f}% |")
+        lines.append("")
+    if "layered" in reg:
+        m = reg["layered"]
+        lines += ["## layered (Agrawala et al. 4): 512x512 output, 256x256 maps", "",
+                  "| scene | samples | precompute | display | depth complexity |", "|---|---|---|---|---|"]
+        for name in ("grids", "torus_plane"):
+            sc, fb = fb_for(name, big, big // 2)
+            lt = sc.lights[0]
+            for ns in ((16, 64) if quick else (64, 256)):
+                t, r = _median(lambda: m.run(fb, lt, m.make_params({"samples": ns})), repeats)
+                ph = r.time_s
+                pre = sum(v for k, v in ph.items() if k not in ("total", "display"))
+                lines.append(f"| {name} | {ns} | {pre:.3f} | {ph.get('display', float('nan')):.4f} | "
+                             f"{r.stats.get('depth_complexity', float('nan')):.3f} |")
+        lines.append("")
+    if "depth_raytrace" in reg:
+        m = reg["depth_raytrace"]
+        lines += ["## depth_raytrace (Agrawala et al. 5, figure 10 middle): grids 512x512", "",
+                  "| samples | no accel | accel | accel + coherence | rays/pixel | embree | speed-up vs embree |",
+                  "|---|---|---|---|---|---|---|"]
+        sc, fb = fb_for("grids", big)
+        lt = sc.lights[0]
+        for ns in ((16, 64) if quick else (64, 256, 1024)):
+            none = {"samples": ns, "coherence": False, "hierarchical_connectedness": False, "minmax_clipping": False,
+                    "rank_images": False, "clear_miss": False, "carry_intervals": False}
+            acc = {"samples": ns, "coherence": False}
+            coh = {"samples": ns, "coherence": True}
+            t0, _ = _median(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else repeats)
+            t1, _ = _median(lambda: m.run(fb, lt, m.make_params(acc)), repeats)
+            t2, r2 = _median(lambda: m.run(fb, lt, m.make_params(coh)), repeats)
+            te = embree_time(("grids", big, ns), fb, lt, ns)
+            lines.append(f"| {ns} | {t0:.3f} | {t1:.3f} | {t2:.3f} | {r2.stats.get('rays_per_pixel', float('nan')):.1f} "
+                         f"| {te:.3f} | {te / t2:.2f}x |")
+        lines.append("")
+    if "penumbra_casting" in reg:
+        m = reg["penumbra_casting"]
+        lines += ["## penumbra_casting (Laine & Aila, table 2 shape): grids", "",
+                  "| case | time | phases | peak mask MB | embree | embree / casting |", "|---|---|---|---|---|---|"]
+        cases = [(64, 64, 1.0), (128, 64, 1.0)] if quick else [(256, 256, 1.0), (512, 256, 1.0), (1024, 256, 1.0),
+                                                                (512, 1024, 1.0), (512, 256, 2.0)]
+        for res, ns, scale in cases:
+            sc, fb = fb_for("grids", res)
+            lt = sc.lights[0]
+            if scale != 1.0:
+                import copy
+                lt = copy.copy(lt)
+                lt.size *= scale
+                lt.size_y *= scale
+            t, r = _median(lambda: m.run(fb, lt, m.make_params({"samples": ns})), 1 if res >= 1024 or ns > 256 else repeats)
+            te = embree_time(("grids", res, ns, scale), fb, lt, ns)
+            lines.append(f"| {res}^2, {ns} spp{', light x4 area' if scale != 1 else ''} | {t:.3f} | {_phases(r)} | "
+                         f"{r.stats.get('peak_mask_bytes', 0) / 2**20:.1f} | {te:.3f} | {te / t:.2f}x |")
+        lines.append("")
+    if "irregular" in reg:
+        m = reg["irregular"]
+        lines += ["## irregular (Johnson et al.): grids 512x512", "",
+                  "| light size x | silhouettes from | time | phases |", "|---|---|---|---|"]
+        sc, fb = fb_for("grids", big)
+        import copy
+        for scale in (0.5, 1.0, 2.0, 4.0):
+            lt = copy.copy(sc.lights[0])
+            lt.size *= scale
+            lt.size_y *= scale
+            for mode in ("centre", "light"):
+                t, r = _median(lambda: m.run(fb, lt, m.make_params({"silhouette_from": mode})), repeats)
+                lines.append(f"| {scale} | {mode} | {t:.3f} | {_phases(r)} |")
+        lines.append("")
+    text = "\n".join(lines) + "\n"
+    os.makedirs(out_dir, exist_ok=True)
+    with open(os.path.join(out_dir, "methods.md"), "w") as f:
+        f.write(text)
+    print(text)

@@ -1,0 +1,210 @@
+"""The accuracy-versus-time study (issue 7): every method and quality knob on
+the sample scenes at two resolutions, against a converged reference.
+
+For each run: median wall time per phase over ``repeats`` warm runs, and the
+error against ``embree`` (or ``embree_irr``, same V definition) at
+REFERENCE_SAMPLES: RMSE, max abs, mean signed, RMSE inside the penumbra
+(0.02 < ref < 0.98). Output under ``bench/results/``: ``study.csv`` (every
+run), ``study.md`` (table + one sentence per method), ``pareto_<scene>.png``
+(error vs time, log axes, Pareto front), ``sheet_<scene>.png`` (passes and
+error images), ``auto_table.json`` (the Pareto fronts the planner's ``auto``
+reads). A method that fails a scene is recorded as failed, not dropped.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import statistics
+import sys
+import time
+import traceback
+from typing import Dict, List
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.abspath(__file__))
+REFERENCE_SAMPLES = 1024
+SCENES = ("grids", "sphere_plane", "torus_plane")
+RESOLUTIONS = ((128, 128), (256, 256))
+
+# method id -> list of (label, params). The knobs each paper names.
+SWEEPS: Dict[str, List] = {
+    "pcf": [("NumSamples=16 ResFactor=3", {"NumSamples": 16, "ResFactor": 3.0}),
+            ("NumSamples=64 ResFactor=3", {"NumSamples": 64, "ResFactor": 3.0}),
+            ("NumSamples=16 ResFactor=1", {"NumSamples": 16, "ResFactor": 1.0}),
+            ("NumSamples=16 ResFactor=8", {"NumSamples": 16, "ResFactor": 8.0}),
+            ("map 2x", {"map_scale": 2.0}),
+            ("receiver_plane off", {"receiver_plane": False})],
+    "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
+    "single_sample": [("adaptive", {"adaptive": True}), ("no adaptive", {"adaptive": False}),
+                      ("map 2x", {"map_scale": 2.0})],
+    "layered": [(f"samples={n}", {"samples": n}) for n in (16, 64, 256)] + [("bilinear off", {"samples": 64, "bilinear": False})],
+    "depth_raytrace": [(f"samples={n}", {"samples": n}) for n in (16, 64, 256)]
+                      + [("no coherence", {"samples": 64, "coherence": False})],
+    "penumbra_casting": [(f"samples={n}", {"samples": n}) for n in (16, 64, 256)],
+    "irregular": [("default", {})],
+}
+
+
+def _load(name, res):
+    sys.path.insert(0, os.path.join(ROOT, "tests"))
+    from scenes import load_sample
+    return load_sample(name, tuple(res))
+
+
+def _apply(method, params: dict, buffers):
+    """Params for ``method`` from a sweep entry; ``map_scale`` multiplies the
+    default map size (the output's larger side)."""
+    p = dict(params)
+    scale = p.pop("map_scale", None)
+    fields = {f for f in method.Params.__dataclass_fields__}
+    if scale is not None and "map_size" in fields:
+        p["map_size"] = int(scale * max(buffers.width, buffers.height))
+    unknown = [k for k in p if k not in fields]
+    return method.make_params(p), unknown
+
+
+def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUTIONS, quick=False) -> List[dict]:
+    from penumbra.core import methods as registry
+    from penumbra.core.buffers import FrameBuffers
+    from penumbra.core.metrics import errors, reach_mask
+    import numba
+    os.makedirs(out_dir, exist_ok=True)
+    rows = []
+    sheets = {}
+    producers = registry.producers()
+    for name in scenes:
+        for res in resolutions:
+            scene = _load(name, res)
+            light = scene.lights[0]
+            fb = FrameBuffers(scene, *res)
+            ref_m = producers["embree"]
+            t0 = time.perf_counter()
+            ref = ref_m.run(fb, light, ref_m.make_params({"samples": 64 if quick else REFERENCE_SAMPLES, "seed": 12345}))
+            ref_time = time.perf_counter() - t0
+            mask = reach_mask(fb.gbuffer, light)
+            refs = {"average": ref.passes["embree"], "irradiance": ref.passes["embree_irr"]}
+            sheet = {"reference (embree)": refs["average"]}
+            for mid, sweep in SWEEPS.items():
+                if mid not in producers:
+                    continue
+                m = producers[mid]
+                for label, params in (sweep[:2] if quick else sweep):
+                    row = dict(scene=name, size=f"{res[0]}x{res[1]}", method=mid, setting=label,
+                               threads=numba.get_num_threads(), repeats=repeats, status="ok")
+                    try:
+                        p, unknown = _apply(m, params, fb)
+                        if unknown:
+                            raise ValueError(f"unknown knob(s) {unknown}")
+                        m.run(fb, light, p)                         # warm: JIT and shared buffers
+                        phase_runs, out = [], None
+                        for _ in range(repeats):
+                            t = time.perf_counter()
+                            out = m.run(fb, light, p)
+                            wall = time.perf_counter() - t
+                            phases = dict(out.time_s)
+                            phases["wall"] = wall
+                            phase_runs.append(phases)
+                        med = {k: statistics.median(r.get(k, 0.0) for r in phase_runs) for k in phase_runs[0]}
+                        row["seconds"] = med["wall"]
+                        row["phases"] = json.dumps({k: round(v, 5) for k, v in med.items() if k not in ("wall", "total")})
+                        pid = mid if mid in out.passes else next(iter(out.passes))
+                        vis = m.passes[pid]
+                        v = np.where(mask, out.passes[pid], 1.0)
+                        e = errors(v, refs[vis], mask)
+                        row.update(visibility=vis, rmse=e["rmse"], max_abs=e["max_abs"],
+                                   mean_signed=e["mean_signed"], rmse_penumbra=e["rmse_penumbra"])
+                        if label == sweep[0][0]:
+                            sheet[mid] = v
+                    except Exception as exc:  # a failing method is shown, not dropped
+                        row.update(status="failed", error=f"{type(exc).__name__}: {exc}",
+                                   trace=traceback.format_exc(limit=2))
+                    rows.append(row)
+                    print(f"{name} {res[0]}x{res[1]} {mid:16s} {label:28s} "
+                          + (f"{row['seconds']:.4f}s rmse {row['rmse']:.4f}" if row["status"] == "ok"
+                             else row["error"]), flush=True)
+            rows.append(dict(scene=name, size=f"{res[0]}x{res[1]}", method="embree (reference)",
+                             setting=f"samples={REFERENCE_SAMPLES}", seconds=ref_time, status="ok",
+                             threads=numba.get_num_threads(), repeats=1, visibility="average",
+                             rmse=0.0, max_abs=0.0, mean_signed=0.0, rmse_penumbra=0.0))
+            sheets[(name, res)] = (sheet, refs["average"], mask)
+    write_outputs(rows, sheets, out_dir)
+    return rows
+
+
+def pareto(points):
+    """Indices of the (time, error) points no other point beats in both."""
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], float("inf")
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def write_outputs(rows, sheets, out_dir):
+    keys = ["scene", "size", "method", "setting", "status", "visibility", "seconds", "phases", "rmse", "max_abs",
+            "mean_signed", "rmse_penumbra", "threads", "repeats", "error"]
+    with open(os.path.join(out_dir, "study.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, keys, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    auto = {}
+    for scene in sorted({r["scene"] for r in rows}):
+        fig, ax = plt.subplots(figsize=(7, 5))
+        ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok" and "reference" not in r["method"]
+              and r["size"] == max(rr["size"] for rr in rows if rr["scene"] == scene)]
+        for mid in sorted({r["method"] for r in ok}):
+            pts = [r for r in ok if r["method"] == mid]
+            ax.scatter([r["seconds"] for r in pts], [max(r["rmse"], 1e-5) for r in pts], label=mid)
+        if ok:
+            pts = [(r["seconds"], r["rmse"]) for r in ok]
+            front = pareto(pts)
+            fr = sorted((pts[i] for i in front))
+            ax.plot([p[0] for p in fr], [max(p[1], 1e-5) for p in fr], "k--", lw=1, label="Pareto front")
+            auto[scene] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=ok[i]["seconds"],
+                                rmse=ok[i]["rmse"]) for i in sorted(front, key=lambda i: pts[i][0])]
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("wall time per light (s, median of warm runs)")
+        ax.set_ylabel("RMSE against embree 1024 spp")
+        ax.set_title(f"{scene}: accuracy versus time")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out_dir, f"pareto_{scene}.png"), dpi=110)
+        plt.close(fig)
+    for (scene, res), (sheet, ref, mask) in sheets.items():
+        if res != max(r for (s, r) in sheets if s == scene):
+            continue
+        n = len(sheet)
+        fig, axes = plt.subplots(2, n, figsize=(2.2 * n, 4.6))
+        axes = np.atleast_2d(axes).reshape(2, n)
+        for k, (label, img) in enumerate(sheet.items()):
+            axes[0, k].imshow(img, cmap="gray", vmin=0, vmax=1)
+            axes[0, k].set_title(label, fontsize=8)
+            err = np.where(mask, np.abs(img - ref), 0.0)
+            axes[1, k].imshow(err, cmap="inferno", vmin=0, vmax=0.5)
+            axes[1, k].set_title("|error|" if k else "", fontsize=8)
+            for a in axes[:, k]:
+                a.axis("off")
+        fig.tight_layout()
+        fig.savefig(os.path.join(out_dir, f"sheet_{scene}.png"), dpi=100)
+        plt.close(fig)
+    with open(os.path.join(out_dir, "auto_table.json"), "w") as f:
+        json.dump({"reference": f"embree {REFERENCE_SAMPLES} spp", "fronts": auto}, f, indent=2)
+    lines = ["| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r["status"] != "ok":
+            lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | FAILED: {r.get('error','')[:60]} | | | | |")
+            continue
+        lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | {r['seconds']:.4f} | "
+                     f"{r['rmse']:.4f} | {r['max_abs']:.3f} | {r['mean_signed']:+.4f} | {r['rmse_penumbra']:.4f} |")
+    with open(os.path.join(out_dir, "study.md"), "w") as f:
+        f.write("\n".join(lines) + "\n")
