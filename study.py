@@ -30,20 +30,23 @@ RESOLUTIONS = ((128, 128), (256, 256))
 
 # method id -> list of (label, params). The knobs each paper names.
 SWEEPS: Dict[str, List] = {
-    "pcf": [("NumSamples=16 ResFactor=3", {"NumSamples": 16, "ResFactor": 3.0}),
-            ("NumSamples=64 ResFactor=3", {"NumSamples": 64, "ResFactor": 3.0}),
-            ("NumSamples=16 ResFactor=1", {"NumSamples": 16, "ResFactor": 1.0}),
-            ("NumSamples=16 ResFactor=8", {"NumSamples": 16, "ResFactor": 8.0}),
+    "pcf": [("NumSamples=16 ResFactor=3", {}),
+            ("NumSamples=64 ResFactor=3", {"NumSamples": 64}),
+            ("ResFactor=1", {"ResFactor": 1.0}),
+            ("ResFactor=8", {"ResFactor": 8.0}),
             ("map 2x", {"map_scale": 2.0}),
             ("receiver_plane off", {"receiver_plane": False})],
     "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
-    "single_sample": [("adaptive", {"adaptive": True}), ("no adaptive", {"adaptive": False}),
-                      ("map 2x", {"map_scale": 2.0})],
-    "layered": [(f"samples={n}", {"samples": n}) for n in (16, 64, 256)] + [("bilinear off", {"samples": 64, "bilinear": False})],
-    "depth_raytrace": [(f"samples={n}", {"samples": n}) for n in (16, 64, 256)]
-                      + [("no coherence", {"samples": 64, "coherence": False})],
-    "penumbra_casting": [(f"samples={n}", {"samples": n}) for n in (16, 64, 256)],
-    "irregular": [("default", {})],
+    "single_sample": [("adaptive", {}), ("no adaptive", {"adaptive": False}),
+                      ("map 2x", {"map_scale": 2.0}), ("paper radius knobs", {"auto_radius": False})],
+    "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
+                ("bilinear", {"samples": 64, "bilinear": True}),
+                ("footprint splat", {"samples": 64, "splat": "footprint"})],
+    "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
+                       ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False})],
+    "penumbra_casting": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
+                         ("samples=256", {"samples": 256})],
+    "irregular": [("silhouettes from centre", {}), ("silhouettes from light", {"silhouette_from": "light"})],
 }
 
 

@@ -37,6 +37,9 @@ def _set_cache_dir():
         or _default_cache_root()
     os.environ["PENUMBRA_NUMBA_CACHE_ROOT"] = root
     os.environ["NUMBA_CACHE_DIR"] = os.path.join(root, _source_fingerprint())
+    import sys
+    if "numba" in sys.modules:   # imported first: its config already read the environment
+        sys.modules["numba"].config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
 
 _set_cache_dir()

@@ -77,7 +77,7 @@ class TriangleScene:
             e = min(n, s + BATCH)
             kw = {}
             if tfar is not None:
-                kw["dists"] = np.ascontiguousarray(tfar[s:e], np.float32)
+                kw["dists"] = np.array(tfar[s:e], np.float32, copy=True)  # Embree writes hits into it
             r = self._scene.run(np.ascontiguousarray(origins[s:e], np.float32),
                                 np.ascontiguousarray(dirs[s:e], np.float32),
                                 output=1, **kw)

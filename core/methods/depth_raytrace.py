@@ -1,0 +1,604 @@
+"""Coherence-based ray tracing of depth images (Agrawala, Ramamoorthi, Heirich,
+Moll 2000, section 5), method id ``depth_raytrace``.
+
+Precompute (independent of the number of light samples): reference shadow
+maps from a few points on the light - the 4 corners of a rectangle, documented
+boundary points for the other shapes (``_drt_maps.reference_eyes``) - rendered
+with the skeleton's Embree depth renderer, and per map the min / max depth
+quadtrees and the connectedness quadtree (gap bias).
+
+Per camera G-buffer point: one shadow ray per stratum of the light's unit
+square, to a jittered point on the light's true shape (the reference's
+``sampling.light_sample`` with the same counter hash, so the two sample the
+same points), from the point moved off its surface by
+``sampling.offset_origin``. Each ray is traced through the depth images
+(``_drt_trace``: hierarchical epipolar traversal, floors and walls, the
+accelerations of 5.1.1-5.1.2 behind switches). With ``coherence`` only the
+cells the coherent sampler of 5.2 asks for are traced (``_drt_coherence``);
+points are visited in a serpentine order inside ``tile`` x ``tile`` tiles,
+tiles run in parallel, each with its own state, so the result does not depend
+on the thread count.
+
+Passes: ``depth_raytrace`` = equation 2 (average visibility);
+``depth_raytrace_irr`` = equation 1's ratio (the same cells weighted by
+cos theta_r cos theta_l / r^2, as ``embree_irr``).
+
+``tracer="embree"`` drives Embree shadow rays against the real triangles with
+the same coherent sampler (the paper: "a standard geometric ray tracer might
+incorporate our coherence-based sampling method"), batching the queued rays
+of all tiles per wave, so the two ideas can be measured apart.
+
+Stats: ``rays_per_pixel`` (rays actually traced, averaged over the shaded
+pixels; the paper reports 79.86 of 256 on its dragon), reference map count
+and texels, and the time split ``reference_maps`` / ``trace``.
+
+Departures / choices, each documented where it is made:
+  * bias: a floor is the texel depth plus a bias in texel footprints and a
+    slope term (section 6.1 only says a user bias is needed);
+  * normal offset: ray origins also move ``normal_offset`` texel footprints
+    x (1 - cos theta) along the normal (``normal_offsets``): a point on a
+    face seen edge-on from the light (the side of a thin bar) otherwise
+    shares its texel with the bar's top and shadows itself;
+  * a ray leaving the point into its own surface (cos theta_r <= 0) is
+    blocked without tracing (``_drt_coherence``);
+  * gap bias in texel footprints by default (scene units if given);
+  * hierarchical connectedness is off while coherence is on (5.2.2: the
+    coherent sampler needs the blocker point);
+  * the unresolved parts of a ray after the last image count as unblocked;
+  * cube faces (wide point / spot / area lights) overlap by 3 texels and the
+    outermost texel ring of every face is not traced (``_drt_maps``);
+  * reset of the prediction when the previous point is farther than
+    ``reset_pixels`` camera-pixel footprints (5.2.1 gives no value).
+
+Speed (measured on this 2-core machine, CPU seconds, 128^2, 256 samples,
+warm JIT): ``grids`` embree 0.36 s, this method 1.11 s with coherence (145
+rays per pixel), 1.30 s without; ``sphere_plane`` embree 0.27 s, 0.42 s
+(65 rays per pixel), 1.09 s. A ray through the depth images costs 0.26-0.53
+us here against 0.06-0.14 us for an Embree ray, so coherence narrows but
+does not close the gap on these scenes (see ``benchmark_table``).
+"""
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+from typing import Dict, List, Optional, Sequence
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .. import sampling, views
+from ..kernels import face_project, pick_face
+from ..sampling import strata
+from . import register
+from ._drt_coherence import (M_QH, M_QT, M_RAYS, M_SIZE, absorb, begin_point, blocker_capacity,
+                             finish_point)
+from ._drt_maps import ReferenceMaps, build_reference_maps
+from ._drt_trace import LN, MAXI, trace_ray
+from .base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method,
+                   MethodResult, PhaseTimer)
+
+
+@dataclass
+class DepthRaytraceParams:
+    samples: int = 256            # light samples per pixel (section 6: "the equivalent of 256")
+    seed: int = 0
+    # reference images (5.1)
+    map_scale: float = 2.0        # map side / output side: the paper's 1024^2 maps for 512^2 images
+    map_size: Optional[int] = None  # overrides map_scale
+    ref_points: int = 4           # boundary points for disk / ellipse / sun (rectangle: its 4 corners)
+    shadow_bias: Optional[float] = None  # scene units; None = bias_texels + slope_bias terms
+    bias_texels: float = 0.5      # constant part, in texel footprints at the texel's depth
+    slope_bias: float = 1.0       # x the depth change across half a texel
+    gap_bias: Optional[float] = None     # scene units; None = gap_texels footprints
+    gap_texels: float = 8.0       # connected while |dZ| < gap_texels texel footprints
+    normal_offset: float = 1.5    # ray origins move this many texel footprints x (1 - cos theta) along the normal
+    # accelerations (5.1.1, 5.1.2)
+    hierarchical_connectedness: bool = True
+    minmax_clipping: bool = True
+    rank_images: bool = True
+    clear_miss: bool = True
+    occlusion_intervals: bool = True
+    # coherence-based sampling (5.2)
+    coherence: bool = True
+    subgrid: int = 3              # "typically 3x3" high-resolution grid per light cell
+    subgrid_shortcut: bool = True
+    reset_pixels: float = 4.0     # tolerance, in camera pixel footprints at the point
+    reset_distance: Optional[float] = None  # tolerance in scene units (overrides reset_pixels)
+    tile: int = 16                # coherent order: serpentine scan inside tile x tile blocks
+    tracer: str = "depth"         # "depth" (reference images) | "embree" (real triangles)
+
+
+# ---------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _segment_end(ox, oy, oz, ex, ey, ez, lo, hi):
+    """t where o + t (E - o) leaves the casters' box (<= 1 - 1e-7); 0 if the
+    segment misses the box."""
+    tmin = 0.0
+    tmax = 1.0 - 1e-7
+    o = (ox, oy, oz)
+    d = (ex - ox, ey - oy, ez - oz)
+    for a in range(3):
+        if d[a] == 0.0:
+            if o[a] < lo[a] or o[a] > hi[a]:
+                return 0.0
+        else:
+            t1 = (lo[a] - o[a]) / d[a]
+            t2 = (hi[a] - o[a]) / d[a]
+            if t1 > t2:
+                t1, t2 = t2, t1
+            if t1 > tmin:
+                tmin = t1
+            if t2 < tmax:
+                tmax = t2
+    if tmin > tmax:
+        return 0.0
+    return tmax
+
+
+@njit(cache=True, parallel=True)
+def _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, seed, scale, big, blo, bhi,
+                 coherent, S, shortcut, fp, offs, dims, mn, mx, conn, zp,
+                 hier, clip, rank, clear_miss, occl, out_avg, out_irr, rays):
+    nt = tile_ptr.shape[0] - 1
+    C = nx * ny
+    F = fp.shape[0]
+    cap = C * S * S + C
+    for ti in prange(nt):
+        origin = np.empty(3)
+        tgt = np.empty((C, 3))
+        wts = np.empty(C)
+        subi = np.empty(C, np.int32)
+        back = np.zeros(C, np.uint8)
+        blk = np.empty((cap, 3))
+        blk2 = np.empty((cap, 3))
+        stamp = np.zeros(C * S * S, np.int64)
+        vis = np.zeros(C, np.uint8)
+        cst = np.zeros(C, np.uint8)
+        queue = np.empty(C, np.int32)
+        pred = np.zeros(C, np.uint8)
+        prevp = np.zeros(3)
+        misc = np.zeros(M_SIZE, np.int64)
+        ws_line = np.empty((max(F, 1), LN))
+        ws_order = np.empty(max(F, 1), np.int64)
+        ws_key = np.empty(max(F, 1))
+        U = np.empty((MAXI, 2))
+        U2 = np.empty((MAXI, 2))
+        for i in range(tile_ptr[ti], tile_ptr[ti + 1]):
+            begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, tol[i], big,
+                        noff[i], origin, tgt, wts, subi, back, blk, blk2, stamp, vis, cst, queue, pred, prevp, misc)
+            ox, oy, oz = origin[0], origin[1], origin[2]
+            while misc[M_QH] < misc[M_QT]:
+                c = queue[misc[M_QH]]
+                misc[M_QH] += 1
+                ex, ey, ez = tgt[c, 0], tgt[c, 1], tgt[c, 2]
+                t_end = _segment_end(ox, oy, oz, ex, ey, ez, blo, bhi)
+                blocked = False
+                th = 0.0
+                if F > 0 and t_end > 0.0:
+                    blocked, th = trace_ray(fp, offs, dims, mn, mx, conn, zp, ox, oy, oz, ex, ey, ez, t_end,
+                                            hier, clip, rank, clear_miss, occl,
+                                            ws_line, ws_order, ws_key, U, U2)
+                absorb(c, blocked, ox + th * (ex - ox), oy + th * (ey - oy), oz + th * (ez - oz),
+                       nx, ny, coherent, blk, vis, cst, queue, misc)
+            a, r = finish_point(P, i, nx, ny, wts, vis, prevp, misc)
+            out_avg[i] = a
+            out_irr[i] = r
+        rays[ti] = misc[M_RAYS]
+
+
+@njit(cache=True, parallel=True)
+def normal_offsets(P, Nrm, lp, faces, factor):
+    """Normal offset per point: ``factor`` texel footprints (of the first
+    reference face holding the point, at its depth) x (1 - cos theta), theta
+    the angle between the normal and the direction to the light's centre. A point on a surface
+    seen edge-on from the light shares its texel with whatever the texel shows
+    (the top of a thin bar, for a point on the bar's side); moving it off the
+    surface by about a texel takes it out of that texel. Surfaces facing the
+    light move little."""
+    n = P.shape[0]
+    out = np.zeros(n)
+    if factor == 0.0 or faces.shape[0] == 0:
+        return out
+    for i in prange(n):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        f = pick_face(faces, px, py, pz)
+        if f < 0:
+            continue
+        _u, _v, d = face_project(faces[f], px, py, pz)
+        foot = faces[f, 24] * d if faces[f, 16] == 0.0 else faces[f, 24]
+        if lp[0] == 2.0:
+            lx, ly, lz = lp[10], lp[11], lp[12]
+        else:
+            lx, ly, lz = lp[1] - px, lp[2] - py, lp[3] - pz
+            ll = math.sqrt(lx * lx + ly * ly + lz * lz)
+            if ll == 0.0:
+                continue
+            lx /= ll
+            ly /= ll
+            lz /= ll
+        c = Nrm[i, 0] * lx + Nrm[i, 1] * ly + Nrm[i, 2] * lz
+        s = 1.0 - min(1.0, abs(c))
+        if foot > 0.0:
+            out[i] = factor * foot * s
+    return out
+
+
+# ---------------------------------------------------------------------------
+# Embree wave driver: the same sampler, the queued rays of every tile per call
+@njit(cache=True, parallel=True)
+def _wave_emit(tile_ptr, cursor, phase, P, Nrm, pix, tol, lp, nx, ny, seed, scale, big,
+               coherent, S, shortcut, origin, tgt, wts, subi, back, blk, blk2, stamp, vis, cst, queue,
+               pred, prevp, misc, r_cell, cnt):
+    nt = tile_ptr.shape[0] - 1
+    for ti in prange(nt):
+        cnt[ti] = 0
+        if cursor[ti] >= tile_ptr[ti + 1]:
+            continue
+        if phase[ti] == 0:
+            begin_point(lp, P, Nrm, pix, cursor[ti], seed, scale, nx, ny, S, coherent, shortcut,
+                        tol[cursor[ti]], big, 0.0, origin[ti], tgt[ti], wts[ti], subi[ti], back[ti], blk[ti], blk2[ti],
+                        stamp[ti], vis[ti], cst[ti], queue[ti], pred[ti], prevp[ti], misc[ti])
+            phase[ti] = 1
+        j = 0
+        m = misc[ti]
+        while m[M_QH] < m[M_QT]:
+            r_cell[ti, j] = queue[ti, m[M_QH]]
+            m[M_QH] += 1
+            j += 1
+        cnt[ti] = j
+
+
+@njit(cache=True, parallel=True)
+def _wave_pack(cnt, off, origin, tgt, r_cell, is_sun, org, dirs, tfar):
+    nt = cnt.shape[0]
+    for ti in prange(nt):
+        o = origin[ti]
+        for j in range(cnt[ti]):
+            k = off[ti] + j
+            c = r_cell[ti, j]
+            dx = tgt[ti, c, 0] - o[0]
+            dy = tgt[ti, c, 1] - o[1]
+            dz = tgt[ti, c, 2] - o[2]
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if d > 0.0:
+                dx /= d
+                dy /= d
+                dz /= d
+            org[k, 0] = o[0]
+            org[k, 1] = o[1]
+            org[k, 2] = o[2]
+            dirs[k, 0] = dx
+            dirs[k, 1] = dy
+            dirs[k, 2] = dz
+            tfar[k] = np.float32(1e30) if is_sun else d * (1.0 - 1e-6)
+
+
+@njit(cache=True, parallel=True)
+def _wave_absorb(tile_ptr, cursor, phase, P, nx, ny, coherent, cnt, off, r_cell, hit_t, org, dirs,
+                 wts, blk, vis, cst, queue, prevp, misc, out_avg, out_irr):
+    nt = tile_ptr.shape[0] - 1
+    for ti in prange(nt):
+        if cursor[ti] >= tile_ptr[ti + 1] or phase[ti] == 0:
+            continue
+        for j in range(cnt[ti]):
+            k = off[ti] + j
+            t = hit_t[k]
+            blocked = t < np.inf
+            bx = org[k, 0] + t * dirs[k, 0] if blocked else 0.0
+            by = org[k, 1] + t * dirs[k, 1] if blocked else 0.0
+            bz = org[k, 2] + t * dirs[k, 2] if blocked else 0.0
+            absorb(r_cell[ti, j], blocked, bx, by, bz, nx, ny, coherent, blk[ti], vis[ti], cst[ti],
+                   queue[ti], misc[ti])
+        if misc[ti, M_QH] >= misc[ti, M_QT]:
+            i = cursor[ti]
+            a, r = finish_point(P, i, nx, ny, wts[ti], vis[ti], prevp[ti], misc[ti])
+            out_avg[i] = a
+            out_irr[i] = r
+            cursor[ti] += 1
+            phase[ti] = 0
+
+
+def _embree_waves(tri_scene, tile_ptr, P, Nrm, pix, tol, lp, nx, ny, seed, scale, big,
+                  coherent, S, shortcut, threads=None):
+    nt = len(tile_ptr) - 1
+    C = nx * ny
+    cap = blocker_capacity(C, S)
+    n = len(P)
+    out_avg = np.ones(n, np.float64)
+    out_irr = np.ones(n, np.float64)
+    cursor = tile_ptr[:-1].astype(np.int64).copy()
+    phase = np.zeros(nt, np.int64)
+    origin = np.zeros((nt, 3))
+    tgt = np.zeros((nt, C, 3))
+    wts = np.zeros((nt, C))
+    subi = np.zeros((nt, C), np.int32)
+    back = np.zeros((nt, C), np.uint8)
+    blk = np.zeros((nt, cap, 3))
+    blk2 = np.zeros((nt, cap, 3))
+    stamp = np.zeros((nt, C * S * S), np.int64)
+    vis = np.zeros((nt, C), np.uint8)
+    cst = np.zeros((nt, C), np.uint8)
+    queue = np.zeros((nt, C), np.int32)
+    pred = np.zeros((nt, C), np.uint8)
+    prevp = np.zeros((nt, 3))
+    misc = np.zeros((nt, M_SIZE), np.int64)
+    r_cell = np.zeros((nt, C), np.int32)
+    cnt = np.zeros(nt, np.int64)
+    is_sun = bool(lp[0] == 2.0)
+    workers = max(1, int(threads or numba.get_num_threads()))
+    pool = ThreadPoolExecutor(max_workers=workers) if workers > 1 else None
+    waves = 0
+    try:
+        while (cursor < tile_ptr[1:]).any():
+            _wave_emit(tile_ptr, cursor, phase, P, Nrm, pix, tol, lp, nx, ny, seed, scale, big,
+                       coherent, S, shortcut, origin, tgt, wts, subi, back, blk, blk2, stamp, vis, cst,
+                       queue, pred, prevp, misc, r_cell, cnt)
+            off = np.zeros(nt, np.int64)
+            np.cumsum(cnt[:-1], out=off[1:])
+            m = int(cnt.sum())
+            org = np.empty((m, 3), np.float32)
+            dirs = np.empty((m, 3), np.float32)
+            tfar = np.empty(m, np.float32)
+            _wave_pack(cnt, off, origin, tgt, r_cell, is_sun, org, dirs, tfar)
+            hit_t = np.full(m, np.inf)
+            if m:
+                if pool is not None and m >= 8192:
+                    parts = np.array_split(np.arange(m), workers)
+
+                    def run(ix):
+                        tri, t, _, _ = tri_scene.intersect(org[ix], dirs[ix], tfar[ix])
+                        return ix, np.where(tri >= 0, t, np.inf)
+                    for ix, tt in pool.map(run, parts):
+                        hit_t[ix] = tt
+                else:
+                    tri, t, _, _ = tri_scene.intersect(org, dirs, tfar)
+                    hit_t = np.where(tri >= 0, t, np.inf)
+            _wave_absorb(tile_ptr, cursor, phase, P, nx, ny, coherent, cnt, off, r_cell, hit_t, org,
+                         dirs, wts, blk, vis, cst, queue, prevp, misc, out_avg, out_irr)
+            waves += 1
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    return out_avg, out_irr, int(misc[:, M_RAYS].sum()), waves
+
+
+# ---------------------------------------------------------------------------
+def coherent_order(idx: np.ndarray, width: int, tile: int):
+    """Hit pixel ids -> (order, tile_ptr): pixels grouped by tile x tile block,
+    serpentine rows inside each block (consecutive points are neighbours)."""
+    rows = idx // width
+    cols = idx % width
+    T = max(1, int(tile))
+    ntx = (width + T - 1) // T
+    tid = (rows // T) * ntx + cols // T
+    lr = rows % T
+    lc = cols % T
+    key = lr * T + np.where(lr % 2 == 0, lc, T - 1 - lc)
+    order = np.lexsort((key, tid))
+    tids = tid[order]
+    starts = np.flatnonzero(np.r_[True, tids[1:] != tids[:-1]]) if len(tids) else np.zeros(0, np.int64)
+    tile_ptr = np.r_[starts, len(tids)].astype(np.int64)
+    return order, tile_ptr
+
+
+def camera_footprint(buffers) -> np.ndarray:
+    """Camera pixel footprint (scene units) at each pixel's depth, float64[H*W]."""
+    cam = buffers.scene.camera
+    W, H = buffers.width, buffers.height
+    xmin, xmax, _, _ = views.camera_viewplane(cam, W, H)
+    per = (xmax - xmin) / W
+    if cam.kind == "ORTHO":
+        return np.full(W * H, per)
+    d = buffers.gbuffer.depth.reshape(-1).astype(np.float64)
+    return np.where(np.isfinite(d), d * per, 0.0)
+
+
+def casters_box(scene, scale):
+    m = scene.tri_casts_shadow
+    if not m.any():
+        return None
+    v = scene.triangles[m].reshape(-1, 3).astype(np.float64)
+    v = v[np.isfinite(v).all(1)]
+    if not len(v):
+        return None
+    pad = 1e-6 * scale
+    return v.min(0) - pad, v.max(0) + pad
+
+
+def resolve_map_size(params: DepthRaytraceParams, W: int, H: int) -> int:
+    if params.map_size:
+        return int(params.map_size)
+    return max(8, int(round(float(params.map_scale) * max(W, H))))
+
+
+@register
+class DepthRaytrace(Method):
+    id = "depth_raytrace"
+    paper = "Agrawala, Ramamoorthi, Heirich, Moll 2000, section 5"
+    passes = {"depth_raytrace": AVERAGE, "depth_raytrace_irr": IRRADIANCE}
+    needs = frozenset({GBUFFER, SHADOW_GEOMETRY, LIGHT_SAMPLE_VIEWS})
+    Params = DepthRaytraceParams
+    physical = True
+
+    def run(self, buffers, light, params: DepthRaytraceParams, maps: Optional[ReferenceMaps] = None
+            ) -> MethodResult:
+        """``maps`` lets a caller reuse reference maps built by ``build_maps``
+        (they do not depend on the sample count)."""
+        timer = PhaseTimer()
+        g = buffers.gbuffer
+        H, W = g.shape
+        out_a = np.ones(H * W, np.float32)
+        out_i = np.ones(H * W, np.float32)
+        idx = np.flatnonzero(g.hit.reshape(-1))
+        ns = 1 if light.is_zero_size else max(1, int(params.samples))
+        nx, ny = strata(ns)
+        C = nx * ny
+        coherent = bool(params.coherence) and C > 1
+        S = max(1, int(params.subgrid))
+        stats: Dict[str, object] = {"samples": C, "strata": [nx, ny], "pixels": int(len(idx)),
+                                    "tracer": params.tracer, "coherence": coherent}
+        box = casters_box(buffers.scene, buffers.scale)
+        if len(idx) == 0 or box is None:
+            stats["rays_per_pixel"] = 0.0
+            return MethodResult({"depth_raytrace": out_a.reshape(H, W),
+                                 "depth_raytrace_irr": out_i.reshape(H, W)}, timer.result(), stats)
+        with timer("order"):
+            order, tile_ptr = coherent_order(idx, W, params.tile)
+            sel = idx[order]
+            P = np.ascontiguousarray(g.position.reshape(-1, 3)[sel], np.float64)
+            Nrm = np.ascontiguousarray(g.normal.reshape(-1, 3)[sel], np.float64)
+            pix = np.ascontiguousarray(sel, np.int64)
+            if params.reset_distance is not None:
+                tol = np.full(len(sel), float(params.reset_distance))
+            else:
+                tol = float(params.reset_pixels) * camera_footprint(buffers)[sel]
+            lp = sampling.pack_light(light)
+            big = 4.0 * buffers.scale
+        if params.tracer == "embree":
+            tri = buffers.shadow_scene
+            with timer("trace"):
+                va, vi, rays, waves = _embree_waves(tri, tile_ptr, P, Nrm, pix, tol, lp, nx, ny,
+                                                    int(params.seed), float(buffers.scale), big,
+                                                    coherent, S, bool(params.subgrid_shortcut))
+            stats["waves"] = waves
+        elif params.tracer == "depth":
+            if maps is None:
+                with timer("reference_maps"):
+                    maps = self.build_maps(buffers, light, params)
+            stats["reference_faces"] = maps.face_count
+            stats["reference_eyes"] = int(len(maps.eyes))
+            stats["map_texels"] = maps.map_texels
+            hier = bool(params.hierarchical_connectedness) and not coherent
+            va = np.ones(len(sel))
+            vi = np.ones(len(sel))
+            rays_t = np.zeros(len(tile_ptr) - 1, np.int64)
+            chunk = numba.get_parallel_chunksize()
+            numba.set_parallel_chunksize(1)   # tiles differ widely in cost: hand them out one by one
+            try:
+                with timer("trace"):
+                    noff = normal_offsets(P, Nrm, lp, maps.faces, float(params.normal_offset))
+                    _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, int(params.seed),
+                                 float(buffers.scale), big, box[0], box[1], coherent, S,
+                                 bool(params.subgrid_shortcut), maps.faces, maps.offs, maps.dims,
+                                 maps.mn, maps.mx, maps.conn, maps.zp, hier, bool(params.minmax_clipping),
+                                 bool(params.rank_images), bool(params.clear_miss),
+                                 bool(params.occlusion_intervals), va, vi, rays_t)
+            finally:
+                numba.set_parallel_chunksize(chunk)
+            rays = int(rays_t.sum())
+            stats["hierarchical_connectedness_used"] = hier
+        else:
+            raise ValueError(f"depth_raytrace: unknown tracer {params.tracer!r}")
+        out_a[sel] = np.clip(va, 0.0, 1.0)
+        out_i[sel] = np.clip(vi, 0.0, 1.0)
+        t = timer.result()
+        stats["rays"] = rays
+        stats["rays_per_pixel"] = float(rays / len(sel))
+        stats["precompute_s"] = float(t.get("reference_maps", 0.0))
+        stats["trace_s"] = float(t.get("trace", 0.0))
+        return MethodResult(passes={"depth_raytrace": out_a.reshape(H, W),
+                                    "depth_raytrace_irr": out_i.reshape(H, W)},
+                            time_s=t, stats=stats)
+
+    @staticmethod
+    def build_maps(buffers, light, params: DepthRaytraceParams) -> ReferenceMaps:
+        W, H = buffers.width, buffers.height
+        return build_reference_maps(buffers, light, resolve_map_size(params, W, H), params.ref_points,
+                                    params.shadow_bias, params.bias_texels, params.slope_bias,
+                                    params.gap_bias, params.gap_texels)
+
+
+# ---------------------------------------------------------------------------
+# the paper's figure 10 (middle) as a table
+NO_ACCEL = dict(hierarchical_connectedness=False, minmax_clipping=False, rank_images=False,
+                clear_miss=False, occlusion_intervals=False, coherence=False)
+ACCEL = dict(coherence=False)
+ACCEL_COHERENCE = dict()
+
+
+def benchmark_table(buffers, light, sample_counts: Sequence[int] = (64, 256, 1024), seed: int = 0,
+                    configs=None, embree: bool = True, embree_coherent: bool = False,
+                    repeats: int = 1) -> List[dict]:
+    """Figure 10 (middle): per sample count, the tracing time without the
+    accelerations, with them, and with them plus coherence; rays per pixel;
+    speed-ups; and the ``embree`` reference's time at the same count.
+    Reference maps are built once (they do not depend on the sample count)
+    and their time reported separately. Times are wall seconds, the best of
+    ``repeats`` (warm JIT: call once at a small size first); ``*_cpu_s`` is
+    the process CPU time of the last repeat (all threads), a figure that a
+    machine shared with other work disturbs less."""
+    from .embree_ref import EmbreeReference
+    m = DepthRaytrace()
+    configs = configs or {"no_accel": NO_ACCEL, "accel": ACCEL, "accel_coherence": ACCEL_COHERENCE}
+    base = DepthRaytraceParams(seed=seed)
+    buffers.gbuffer
+    buffers.shadow_scene
+    t0 = time.perf_counter()
+    maps = m.build_maps(buffers, light, base)
+    t_maps = time.perf_counter() - t0
+    rows = []
+    ref = EmbreeReference()
+    for n in sample_counts:
+        row = {"samples": int(n), "precompute_s": t_maps, "pixels": int(buffers.gbuffer.hit.sum())}
+        outs = {}
+        for name, over in configs.items():
+            p = replace(base, samples=int(n), **over)
+            best = None
+            for _ in range(max(1, repeats)):
+                c0 = time.process_time()
+                r = m.run(buffers, light, p, maps=maps)
+                cpu = time.process_time() - c0
+                tt = r.time_s["trace"] + r.time_s.get("order", 0.0)
+                best = tt if best is None else min(best, tt)
+            row[f"{name}_s"] = best
+            row[f"{name}_cpu_s"] = cpu
+            row[f"{name}_rays_per_pixel"] = r.stats["rays_per_pixel"]
+            outs[name] = r.passes["depth_raytrace"]
+        if embree:
+            rp = ref.make_params({"samples": int(n), "seed": seed})
+            best = None
+            for _ in range(max(1, repeats)):
+                c0 = time.process_time()
+                rr = ref.run(buffers, light, rp)
+                cpu = time.process_time() - c0
+                best = rr.time_s["total"] if best is None else min(best, rr.time_s["total"])
+            row["embree_s"] = best
+            row["embree_cpu_s"] = cpu
+            refimg = rr.passes["embree"]
+            for name in outs:
+                d = (outs[name].astype(np.float64) - refimg)[buffers.gbuffer.hit]
+                row[f"{name}_rmse"] = float(np.sqrt(np.mean(d * d))) if d.size else 0.0
+        if embree_coherent:
+            p = replace(base, samples=int(n), tracer="embree")
+            r = m.run(buffers, light, p)
+            row["embree_coherent_s"] = r.time_s["trace"] + r.time_s.get("order", 0.0)
+            row["embree_coherent_rays_per_pixel"] = r.stats["rays_per_pixel"]
+        if "no_accel_s" in row and "accel_s" in row:
+            row["speedup_accel"] = row["no_accel_s"] / max(row["accel_s"], 1e-12)
+        if "no_accel_s" in row and "accel_coherence_s" in row:
+            row["speedup_accel_coherence"] = row["no_accel_s"] / max(row["accel_coherence_s"], 1e-12)
+        if "embree_s" in row:
+            for name in configs:
+                row[f"{name}_vs_embree"] = row["embree_s"] / max(row[f"{name}_s"], 1e-12)
+                row[f"{name}_vs_embree_incl_maps"] = row["embree_s"] / max(row[f"{name}_s"] + t_maps, 1e-12)
+        rows.append(row)
+    return rows
+
+
+def format_table(rows: List[dict]) -> str:
+    """Markdown version of ``benchmark_table``'s rows."""
+    head = ("| samples | no accel (s) | accel (s) | accel+coherence (s) | rays/pixel | "
+            "speed-up accel | speed-up accel+coh | embree (s) | vs embree (incl. maps) |")
+    lines = [head, "|" + "---|" * 9]
+    for r in rows:
+        lines.append("| {samples} | {a:.3f} | {b:.3f} | {c:.3f} | {rp:.1f} | {s1:.2f}x | {s2:.2f}x | {e} | {v} |".format(
+            samples=r["samples"], a=r.get("no_accel_s", float("nan")), b=r.get("accel_s", float("nan")),
+            c=r.get("accel_coherence_s", float("nan")), rp=r.get("accel_coherence_rays_per_pixel", float("nan")),
+            s1=r.get("speedup_accel", float("nan")), s2=r.get("speedup_accel_coherence", float("nan")),
+            e=f"{r['embree_s']:.3f}" if "embree_s" in r else "-",
+            v=(f"{r['accel_coherence_vs_embree']:.2f}x ({r['accel_coherence_vs_embree_incl_maps']:.2f}x)"
+               if "accel_coherence_vs_embree" in r else "-")))
+    return "\n".join(lines)
