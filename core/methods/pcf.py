@@ -225,9 +225,13 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
 
 
 @njit(cache=True, parallel=True)
-def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
+def pcf_kernel(P, Nrm, hit, width, cam, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
                NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out):
+    """Every camera pixel i (row-major, ``width`` wide) where ``hit[i]``:
+    out[i] = V; other pixels are left as they are."""
     for i in prange(P.shape[0]):
+        if not hit[i]:
+            continue
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         f = pick_face(faces, px, py, pz)
         if f < 0:
@@ -235,7 +239,7 @@ def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, tlo, thi, ResFa
             continue
         s, t, z = face_project(faces[f], px, py, pz)
         if ResFactor > 0.0:
-            hs, ht = footprint_on_face(cam, faces[f], cols[i], rows[i], px, py, pz,
+            hs, ht = footprint_on_face(cam, faces[f], float(i % width), float(i // width), px, py, pz,
                                        Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], s, t, MaxSize)
         else:
             hs, ht = 0.0, 0.0
@@ -254,7 +258,7 @@ def pcf_kernel(P, Nrm, rows, cols, pix, cam, faces, depth, bbox, tlo, thi, ResFa
                 out[i] = 1.0 - known
                 continue
         out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
-                                     MinSamples, Bias0, Bias1, seed, pix[i], plane)
+                                     MinSamples, Bias0, Bias1, seed, i, plane)
 
 
 @njit(cache=True, parallel=True)
@@ -302,23 +306,16 @@ class PercentageCloserFiltering(Method):
         lv = buffers.light_view(light, params.map_size)
         with timer("filter"):
             out = np.ones(H * W, np.float32)
-            idx = np.flatnonzero(g.hit.reshape(-1))
-            if len(lv.faces) and len(idx):
-                P = np.ascontiguousarray(g.position.reshape(-1, 3)[idx])
-                Nrm = np.ascontiguousarray(g.normal.reshape(-1, 3)[idx], np.float64)
-                rows = (idx // W).astype(np.float64)
-                cols = (idx % W).astype(np.float64)
+            if len(lv.faces) and g.hit.any():
                 b0, b1 = resolved_bias(params, scene_extent(buffers.scene))
                 res, minsize, minsamp = float(params.ResFactor), float(params.MinSize), int(params.MinSamples)
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
-                vals = np.empty(len(idx), np.float64)
                 tlo, thi = tile_minmax(lv.depth)
-                pcf_kernel(P, Nrm, rows, cols, idx.astype(np.int64),
+                pcf_kernel(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
                            views.pack_camera(buffers.scene.camera, W, H),
                            lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi,
                            res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                           b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles), vals)
-                out[idx] = np.clip(vals, 0.0, 1.0)
+                           b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles), out)
         return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
