@@ -132,7 +132,7 @@ def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUT
                              threads=numba.get_num_threads(), repeats=1, visibility="average",
                              rmse=0.0, max_abs=0.0, mean_signed=0.0, rmse_penumbra=0.0))
             sheets[(name, res)] = (sheet, refs["average"], mask)
-    write_outputs(rows, sheets, out_dir)
+            write_outputs(rows, sheets, out_dir)      # after every scene: a cut-short run keeps its rows
     return rows
 
 
