@@ -164,6 +164,37 @@ def light_sample(lp, px, py, pz, u, v):
     return x, y, z, True, 1.0
 
 
+@njit(cache=True, inline="always")
+def reference_sample(lp, seed, pixel, s, nx, ny, px, py, pz, ox, oy, oz, n0, n1, n2):
+    """The ``embree`` reference's sample ``s`` of ``pixel`` (stratum s of an
+    nx x ny grid, jittered by the counter hash), seen from origin (ox, oy, oz).
+
+    Returns (u, v, x, y, z, is_dir, dx, dy, dz, dist, w_light): the unit-square
+    point, the light point (or, for a sun, the direction), the unit direction
+    from the origin, the distance (1e30 for a sun), and the light's share of
+    the irradiance weight (cos at the light / d^2; 1 for a sun). Every method
+    that traces "the reference's own samples" goes through here, so they
+    cannot drift apart."""
+    u = ((s % nx) + rand01(seed, pixel, s, 0)) / nx
+    v = ((s // nx) + rand01(seed, pixel, s, 1)) / ny
+    x, y, z, is_dir, cos_l = light_sample(lp, px, py, pz, u, v)
+    if is_dir:
+        return u, v, x, y, z, True, x, y, z, 1e30, 1.0
+    dx, dy, dz = x - ox, y - oy, z - oz
+    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if dist > 0.0:
+        dx /= dist
+        dy /= dist
+        dz /= dist
+    else:
+        dx, dy, dz = n0, n1, n2
+    if lp[0] == 0.0:  # area light: one-sided, emits along its -Z
+        cos_l = dx * lp[10] + dy * lp[11] + dz * lp[12]
+        if cos_l < 0.0:
+            cos_l = 0.0
+    return u, v, x, y, z, False, dx, dy, dz, dist, cos_l / max(dist * dist, 1e-300)
+
+
 # --------------------------------------------------------------------------
 # self-intersection offset
 OFFSET_ULPS = 32.0

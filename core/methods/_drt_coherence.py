@@ -52,7 +52,7 @@ import math
 
 from numba import njit
 
-from ..sampling import light_sample, offset_origin, orthonormal_basis, rand01
+from ..sampling import offset_origin, orthonormal_basis, reference_sample
 
 USEPREV, QUEUED, DONE = 0, 1, 2
 
@@ -184,31 +184,14 @@ def begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, 
     origin[1] = oy
     origin[2] = oz
     C = nx * ny
-    is_area = lp[0] == 0.0
     for s in range(C):
-        u = ((s % nx) + rand01(seed, pix[i], s, 0)) / nx
-        v = ((s // nx) + rand01(seed, pix[i], s, 1)) / ny
-        x, y, z, is_dir, cos_l = light_sample(lp, px, py, pz, u, v)
+        u, v, x, y, z, is_dir, dx, dy, dz, dist, wt = reference_sample(
+            lp, seed, pix[i], s, nx, ny, px, py, pz, ox, oy, oz, n0, n1, n2)
         if is_dir:
-            dx, dy, dz = x, y, z
             tgt[s, 0] = ox + dx * big
             tgt[s, 1] = oy + dy * big
             tgt[s, 2] = oz + dz * big
-            wt = 1.0
         else:
-            dx, dy, dz = x - ox, y - oy, z - oz
-            dist = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if dist > 0.0:
-                dx /= dist
-                dy /= dist
-                dz /= dist
-            else:
-                dx, dy, dz = n0, n1, n2
-            if is_area:
-                cos_l = dx * lp[10] + dy * lp[11] + dz * lp[12]
-                if cos_l < 0.0:
-                    cos_l = 0.0
-            wt = cos_l / max(dist * dist, 1e-300)
             tgt[s, 0] = x
             tgt[s, 1] = y
             tgt[s, 2] = z

@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 
 from .. import sampling
-from ..sampling import light_sample, offset_origin, rand01
+from ..sampling import offset_origin, reference_sample
 from . import register
 from .base import AVERAGE, GBUFFER, IRRADIANCE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
@@ -58,34 +58,14 @@ def generate_shadow_rays(P, Nrm, pix, lp, ns, seed, scale, org, dirs, tfar, w):
     while ns % nx:
         nx -= 1
     ny = ns // nx
-    is_area = lp[0] == 0.0
     for i in range(P.shape[0]):
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         n0, n1, n2 = Nrm[i, 0], Nrm[i, 1], Nrm[i, 2]
         ox, oy, oz = offset_origin(px, py, pz, n0, n1, n2, scale)
         for s in range(ns):
-            u = ((s % nx) + rand01(seed, pix[i], s, 0)) / nx
-            v = ((s // nx) + rand01(seed, pix[i], s, 1)) / ny
-            x, y, z, is_dir, cos_l = light_sample(lp, px, py, pz, u, v)
+            _, _, _, _, _, is_dir, dx, dy, dz, dist, wt = reference_sample(
+                lp, seed, pix[i], s, nx, ny, px, py, pz, ox, oy, oz, n0, n1, n2)
             k = i * ns + s
-            if is_dir:
-                dx, dy, dz = x, y, z
-                dist = 1e30
-                wt = 1.0
-            else:
-                dx, dy, dz = x - ox, y - oy, z - oz
-                dist = math.sqrt(dx * dx + dy * dy + dz * dz)
-                if dist > 0.0:
-                    dx /= dist
-                    dy /= dist
-                    dz /= dist
-                else:
-                    dx, dy, dz = n0, n1, n2
-                if is_area:
-                    cos_l = dx * lp[10] + dy * lp[11] + dz * lp[12]
-                    if cos_l < 0.0:
-                        cos_l = 0.0
-                wt = cos_l / max(dist * dist, 1e-300)
             cos_r = dx * n0 + dy * n1 + dz * n2
             if cos_r < 0.0:
                 cos_r = 0.0
