@@ -211,6 +211,14 @@ class GBuffer:
     def shape(self) -> Tuple[int, int]:
         return self.depth.shape
 
+    def hit_points(self):
+        """(flat pixel ids int64, positions float64[n,3], normals float64[n,3])
+        of the pixels that see a surface, contiguous, for the kernels."""
+        idx = np.flatnonzero(self.hit.reshape(-1)).astype(np.int64)
+        P = np.ascontiguousarray(self.position.reshape(-1, 3)[idx], np.float64)
+        N = np.ascontiguousarray(self.normal.reshape(-1, 3)[idx], np.float64)
+        return idx, P, N
+
 
 @dataclass
 class ViewFace:

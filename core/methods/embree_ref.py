@@ -148,9 +148,7 @@ class EmbreeReference(Method):
         g = buffers.gbuffer
         H, W = g.shape
         with timer("select"):
-            idx = np.flatnonzero(g.hit.reshape(-1))
-            P = g.position.reshape(-1, 3)[idx]
-            Nrm = g.normal.reshape(-1, 3)[idx].astype(np.float64)
+            idx, P, Nrm = g.hit_points()
         ns = 1 if light.is_zero_size else max(1, int(params.samples))
         with timer("trace"):
             va, vi, rays = trace_visibility(buffers.shadow_scene_for(light), P, Nrm, idx, light, ns,

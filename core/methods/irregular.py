@@ -431,9 +431,7 @@ class SoftIrregularShadowMapping(Method):
         g = buffers.gbuffer
         H, W = g.shape
         with timer("select"):
-            idx = np.flatnonzero(g.hit.reshape(-1))
-            P = g.position.reshape(-1, 3)[idx]
-            Nrm = g.normal.reshape(-1, 3)[idx].astype(np.float64)
+            idx, P, Nrm = g.hit_points()
             sc = buffers.scene
             mask = sc.tri_casts_shadow
             tris = sc.triangles[mask]

@@ -311,9 +311,7 @@ class Setup:
 
 def prepare(buffers, light, params: PenumbraCastingParams) -> Setup:
     g = buffers.gbuffer
-    idx = np.flatnonzero(g.hit.reshape(-1)).astype(np.int64)
-    Pg = np.ascontiguousarray(g.position.reshape(-1, 3)[idx], np.float64)
-    Nrm = np.ascontiguousarray(g.normal.reshape(-1, 3)[idx], np.float64)
+    idx, Pg, Nrm = g.hit_points()
     pts = np.empty_like(Pg)
     if len(idx):
         _offset_points(Pg, Nrm, float(buffers.scale), pts)
