@@ -6,11 +6,13 @@ from penumbra.core import views
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.kernels import finite_bbox
 from penumbra.core.methods import producer_of
-from penumbra.core.methods.pcf import hard_shadow_kernel, resolved_bias, scene_extent, sample_shadow
+from penumbra.core.methods.pcf import (hard_shadow_kernel, pixel_footprint, pixel_ray_terms, resolved_bias,
+                                      sample_shadow, scene_extent)
 
-from synthetic import area_light, half_plane_scene, pixel_world_y, sphere_light, sun_light
+from synthetic import (area_light, half_plane_scene, make_scene, persp_camera, pixel_world_y, quad, sphere_light,
+                       sun_light)
 
-NOPLANE = (0.0,) * 12   # figure 4's constant receiver depth
+NOPLANE = (0.0,) * 6    # figure 4's constant receiver depth
 
 
 def run_pcf(scene, **over):
@@ -115,3 +117,50 @@ def test_tile_early_out_changes_nothing():
         a, _ = run_pcf(scene, tiles=True)
         b, _ = run_pcf(scene, tiles=False)
         np.testing.assert_array_equal(a.passes["pcf"], b.passes["pcf"])
+
+
+@pytest.mark.parametrize("camera", [None, persp_camera((0.3, -3.0, 2.5), (0.0, 0.0, 0.0))])
+def test_pixel_ray_terms_meet_the_gbuffer_hits(camera):
+    """The affine camera rays pcf carries pixel corners along pass, at pixel
+    centres, through the G-buffer's hit points on the ground z = 0."""
+    scene = make_scene(quad(-20, 20, -20, 20, 0.0), [0, 0], [area_light(1.0)], res=40, camera=camera,
+                       names=("ground",))
+    fb = FrameBuffers(scene, 40, 40)
+    g = fb.gbuffer
+    rt = pixel_ray_terms(views.pack_camera(scene.camera, 40, 40))
+    rows, cols = np.nonzero(g.hit)
+    c, r = cols + 0.5, rows + 0.5
+    o = rt[0] + c[:, None] * rt[1] + r[:, None] * rt[2]
+    d = rt[3] + c[:, None] * rt[4] + r[:, None] * rt[5]
+    t = -o[:, 2] / d[:, 2]
+    assert (t > 0).all()
+    np.testing.assert_allclose(o + t[:, None] * d, g.position[rows, cols], atol=1e-4)
+
+
+def test_pixel_footprint_closed_form_for_a_sun_straight_down():
+    """Orthographic camera and sun both looking straight down at z = 0: a
+    camera pixel covers (4 / 64)^2 world units, so its half extents in the
+    map are half a pixel over the texel size, on both axes."""
+    scene = half_plane_scene(sun_light(0.0), res=64)
+    fb = FrameBuffers(scene, 64, 64)
+    face = fb.light_view(scene.lights[0]).packed_faces()[0]
+    texel_u = (face[18] - face[17]) / face[21]
+    texel_v = (face[20] - face[19]) / face[22]
+    rt = pixel_ray_terms(views.pack_camera(scene.camera, 64, 64))
+    g = fb.gbuffer
+    for row, col in [(3, 5), (40, 20), (63, 63)]:
+        p = g.position[row, col].astype(np.float64)
+        hs, ht = pixel_footprint(rt, face, float(col), float(row), p[0], p[1], p[2], 0.0, 0.0, 1.0,
+                                 *_centre_texel(face, p), 1e9)
+        assert hs == pytest.approx(0.5 * (4.0 / 64) / texel_u, rel=1e-4)   # P is float32
+        assert ht == pytest.approx(0.5 * (4.0 / 64) / texel_v, rel=1e-4)
+    # a camera ray parallel to the receiver plane: the region is capped
+    p = g.position[10, 10].astype(np.float64)
+    assert pixel_footprint(rt, face, 10.0, 10.0, p[0], p[1], p[2], 1.0, 0.0, 0.0,
+                           *_centre_texel(face, p), 7.0) == (7.0, 7.0)
+
+
+def _centre_texel(face, p):
+    from penumbra.core.kernels import face_project
+    u, v, _ = face_project(face, p[0], p[1], p[2])
+    return u, v

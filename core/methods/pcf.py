@@ -36,11 +36,12 @@ import math
 from dataclasses import dataclass
 from typing import Optional
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from .. import views
-from ..kernels import face_project, finite_bbox, footprint_on_face, pick_face
+from ..kernels import face_project, finite_bbox, pick_face
 from ..sampling import stream_next, stream_start
 from . import register
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
@@ -124,21 +125,103 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     return inshadow / (ns * nt)
 
 
-NO_PLANE = (0.0,) * 12   # figure 4's constant receiver depth
+def pixel_ray_terms(cp) -> np.ndarray:
+    """The camera's rays through float pixel (c, r) as affine functions:
+    origin = o0 + c oc + r orr, direction = d0 + c dc + r dr (unnormalised),
+    rows (o0, oc, orr, d0, dc, dr) of a float64[6, 3], from ``pack_camera``'s
+    layout."""
+    R = np.array([cp[0], cp[3], cp[6]])
+    U = np.array([cp[1], cp[4], cp[7]])
+    B = np.array([cp[2], cp[5], cp[8]])
+    eye = np.array([cp[9], cp[10], cp[11]])
+    per_c = R * (cp[13] - cp[12]) / cp[17]
+    per_r = -U * (cp[15] - cp[14]) / cp[18]
+    corner = R * cp[12] + U * cp[15]
+    zero = np.zeros(3)
+    if cp[16] == 1.0:
+        rows = (eye + corner, per_c, per_r, -B, zero, zero)
+    else:
+        rows = (eye, zero, zero, corner - B, per_c, per_r)
+    return np.ascontiguousarray(np.array(rows, np.float64))
+
+
+@njit(cache=True)
+def pixel_footprint(rt, fp, col, row, px, py, pz, nx, ny, nz, u0, v0, max_half):
+    """Half extents (in face texels) of the bounding box of camera pixel
+    (col, row)'s four corners, carried along their camera rays onto the
+    tangent plane through P (normal n) and projected into face ``fp``: the
+    shading region of Reeves et al. figure 4 (its "transform pixel region to
+    shadow map space"). Corners whose ray misses the plane (grazing) or that
+    fall behind the light give ``max_half``. The rays' affine terms ``rt``
+    (``pixel_ray_terms``) leave two divisions per corner."""
+    su = fp[21] / (fp[18] - fp[17])
+    sv = fp[22] / (fp[20] - fp[19])
+    hu = 0.0
+    hv = 0.0
+    for k in range(4):
+        c = col + (1.0 if k & 1 else 0.0)
+        r = row + (1.0 if k & 2 else 0.0)
+        ox = rt[0, 0] + c * rt[1, 0] + r * rt[2, 0]
+        oy = rt[0, 1] + c * rt[1, 1] + r * rt[2, 1]
+        oz = rt[0, 2] + c * rt[1, 2] + r * rt[2, 2]
+        dx = rt[3, 0] + c * rt[4, 0] + r * rt[5, 0]
+        dy = rt[3, 1] + c * rt[4, 1] + r * rt[5, 1]
+        dz = rt[3, 2] + c * rt[4, 2] + r * rt[5, 2]
+        den = dx * nx + dy * ny + dz * nz
+        if abs(den) < 1e-12 * (abs(dx) + abs(dy) + abs(dz)):
+            return max_half, max_half
+        t = ((px - ox) * nx + (py - oy) * ny + (pz - oz) * nz) / den
+        if not (t > 0.0):
+            return max_half, max_half
+        x = ox + t * dx
+        y = oy + t * dy
+        z = oz + t * dz
+        vx = fp[0] * x + fp[1] * y + fp[2] * z + fp[3]
+        vy = fp[4] * x + fp[5] * y + fp[6] * z + fp[7]
+        if fp[16] == 0.0:
+            depth = -(fp[8] * x + fp[9] * y + fp[10] * z + fp[11])
+            if not (depth > 0.0):
+                return max_half, max_half
+            inv = 1.0 / depth
+            vx *= inv
+            vy *= inv
+        u = (vx - fp[17]) * su
+        v = (fp[20] - vy) * sv
+        if not (np.isfinite(u) and np.isfinite(v)):
+            return max_half, max_half
+        hu = max(hu, abs(u - u0))
+        hv = max(hv, abs(v - v0))
+    return min(hu, max_half), min(hv, max_half)
+
+
+NO_PLANE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)   # figure 4's constant receiver depth
 
 
 @njit(cache=True)
 def receiver_plane(fp, px, py, pz, nx, ny, nz):
-    """The receiver's tangent plane in face ``fp``'s view space, packed for
-    ``plane_depth``: (1, ortho, l, r, b, t, w, h, n.p, nx, ny, nz)."""
+    """The receiver's tangent plane in face ``fp``'s view space, as a function
+    of the texel position (u, v), packed for ``plane_depth``:
+    (1, ortho, A, B, C, K) with depth = K / (A u + B v + C) for a perspective
+    face and depth = A u + B v + C for an orthographic one (the view-space
+    plane n.x = n.p along the ray through the texel, solved once per pixel, so
+    each sample costs one division). ``NO_PLANE`` (the point's own depth
+    everywhere) when the plane holds the orthographic view direction."""
     vx = fp[0] * px + fp[1] * py + fp[2] * pz + fp[3]
     vy = fp[4] * px + fp[5] * py + fp[6] * pz + fp[7]
     vz = fp[8] * px + fp[9] * py + fp[10] * pz + fp[11]
     mx = fp[0] * nx + fp[1] * ny + fp[2] * nz
     my = fp[4] * nx + fp[5] * ny + fp[6] * nz
     mz = fp[8] * nx + fp[9] * ny + fp[10] * nz
-    return (1.0, fp[16], fp[17], fp[18], fp[19], fp[20], fp[21], fp[22],
-            mx * vx + my * vy + mz * vz, mx, my, mz)
+    npv = mx * vx + my * vy + mz * vz
+    # view-space x = l + u (r - l) / w, y = t - v (t - b) / h
+    A = mx * (fp[18] - fp[17]) / fp[21]
+    B = -my * (fp[20] - fp[19]) / fp[22]
+    C = mx * fp[17] + my * fp[20]
+    if fp[16] == 1.0:
+        if abs(mz) < 1e-12:        # the view direction lies in the plane
+            return NO_PLANE
+        return (1.0, 1.0, A / mz, B / mz, (C - npv) / mz, 0.0)
+    return (1.0, 0.0, A, B, C - mz, npv)
 
 
 @njit(cache=True, inline="always")
@@ -146,23 +229,20 @@ def plane_depth(pl, uc, vc, z):
     """Depth of the receiver's tangent plane along the ray through texel
     centre (uc, vc); ``z`` (the point's own depth) where the ray runs along
     the plane (grazing) or meets it behind the light."""
-    x = pl[2] + uc / pl[6] * (pl[3] - pl[2])
-    y = pl[5] - vc / pl[7] * (pl[5] - pl[4])
     if pl[1] == 1.0:
-        if abs(pl[11]) < 1e-12:
-            return z
-        d = (pl[9] * x + pl[10] * y - pl[8]) / pl[11]
+        d = pl[2] * uc + pl[3] * vc + pl[4]
     else:
-        den = pl[9] * x + pl[10] * y - pl[11]
+        den = pl[2] * uc + pl[3] * vc + pl[4]
         if abs(den) < 1e-12:
             return z
-        d = pl[8] / den
+        d = pl[5] / den
     if not (d > 0.0) or not np.isfinite(d):
         return z
     return d
 
 
 TILE = 8
+PIXEL_CHUNK = 4096   # pixels per scheduling chunk in pcf_kernel
 
 
 @njit(cache=True, parallel=True)
@@ -225,40 +305,52 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
 
 
 @njit(cache=True, parallel=True)
-def pcf_kernel(P, Nrm, hit, width, cam, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
+def pcf_kernel(P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
                NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out):
     """Every camera pixel i (row-major, ``width`` wide) where ``hit[i]``:
-    out[i] = V; other pixels are left as they are."""
+    out[i] = V; other pixels are left as they are. Pixels are handed to the
+    threads in chunks of a few rows (dynamic), not in one contiguous half
+    each: sky and ground rows differ widely in cost (the caller sets the
+    chunk size: ``numba.parallel_chunksize`` inside a cached kernel cannot be
+    cached)."""
     for i in prange(P.shape[0]):
-        if not hit[i]:
-            continue
-        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-        f = pick_face(faces, px, py, pz)
-        if f < 0:
-            out[i] = 1.0
-            continue
-        s, t, z = face_project(faces[f], px, py, pz)
-        if ResFactor > 0.0:
-            hs, ht = footprint_on_face(cam, faces[f], float(i % width), float(i // width), px, py, pz,
-                                       Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], s, t, MaxSize)
-        else:
-            hs, ht = 0.0, 0.0
-        sres = max(hs * ResFactor, MinSize)
-        tres = max(ht * ResFactor, MinSize)
-        sres = min(sres, MaxSize)
-        tres = min(tres, MaxSize)
-        if use_plane:
-            plane = receiver_plane(faces[f], px, py, pz, Nrm[i, 0], Nrm[i, 1], Nrm[i, 2])
-        else:
-            plane = NO_PLANE
-        if use_tiles and z >= 0.0:
-            known = region_decided(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, sres, tres,
-                                   plane, Bias0, Bias1)
-            if known >= 0.0:
-                out[i] = 1.0 - known
-                continue
-        out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
-                                     MinSamples, Bias0, Bias1, seed, i, plane)
+        _pcf_pixel(i, P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor, MinSize,
+                   MaxSize, NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out)
+
+
+@njit(cache=True, inline="always")
+def _pcf_pixel(i, P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
+               NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out):
+    """``pcf_kernel``'s body for pixel i."""
+    if not hit[i]:
+        return
+    px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+    f = pick_face(faces, px, py, pz)
+    if f < 0:
+        out[i] = 1.0
+        return
+    s, t, z = face_project(faces[f], px, py, pz)
+    if ResFactor > 0.0:
+        hs, ht = pixel_footprint(rays, faces[f], float(i % width), float(i // width), px, py, pz,
+                                 Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], s, t, MaxSize)
+    else:
+        hs, ht = 0.0, 0.0
+    sres = max(hs * ResFactor, MinSize)
+    tres = max(ht * ResFactor, MinSize)
+    sres = min(sres, MaxSize)
+    tres = min(tres, MaxSize)
+    if use_plane:
+        plane = receiver_plane(faces[f], px, py, pz, Nrm[i, 0], Nrm[i, 1], Nrm[i, 2])
+    else:
+        plane = NO_PLANE
+    if use_tiles and z >= 0.0:
+        known = region_decided(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, sres, tres,
+                               plane, Bias0, Bias1)
+        if known >= 0.0:
+            out[i] = 1.0 - known
+            return
+    out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
+                                 MinSamples, Bias0, Bias1, seed, i, plane)
 
 
 @njit(cache=True, parallel=True)
@@ -312,10 +404,15 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
-                pcf_kernel(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
-                           views.pack_camera(buffers.scene.camera, W, H),
-                           lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi,
-                           res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                           b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles), out)
+                chunk = numba.get_parallel_chunksize()
+                numba.set_parallel_chunksize(PIXEL_CHUNK)
+                try:
+                    pcf_kernel(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
+                               pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)),
+                               lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi,
+                               res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
+                               b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles), out)
+                finally:
+                    numba.set_parallel_chunksize(chunk)
         return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
