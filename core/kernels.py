@@ -1,8 +1,7 @@
 """Small Numba helpers shared by the image-space methods: projecting a world
-point into a packed ``ViewFace`` and picking the face that holds it, and the
-camera pixel footprint on a surface's tangent plane."""
+point into a packed ``ViewFace``, picking the face that holds it, and the
+bounding box of a map's finite depths."""
 from __future__ import annotations
-
 
 import numpy as np
 from numba import njit
