@@ -90,15 +90,20 @@ def _word_tests(T4, j, a, e, base, co):
     Y = T4[j, 1]
     Z = T4[j, 2]
     W = T4[j, 3]
+    # unsigned indices and shifts: no negative-index wraparound or
+    # out-of-range-shift selects in the loop body, so LLVM vectorizes it
+    ua = np.uint64(a)
+    sh = np.uint64(a - base)
     acc = np.uint64(0)
-    for i in range(a, e):
+    for k in range(np.uint64(e - a)):
+        i = ua + k
         px, py, pz, pw = X[i], Y[i], Z[i], W[i]
         v0 = u0x * px + u0y * py + u0z * pz - c0 * pw
         v1 = u1x * px + u1y * py + u1z * pz - c1 * pw
         v2 = u2x * px + u2y * py + u2z * pz - c2 * pw
         sp = tx * px + ty * py + tz * pz - tc * pw
         blk = (v0 >= 0.0) & (v1 >= 0.0) & (v2 >= 0.0) & (sp > 0.0)
-        acc |= np.uint64(blk) << np.uint64(i - base)
+        acc |= np.uint64(blk) << (k + sh)
     return acc
 
 

@@ -465,6 +465,13 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         t = time.perf_counter()
         m = len(c.rows)
         c.hier = build_hierarchy(c.pts, np.arange(m, dtype=np.int64), leaf, midl)
+        # receivers stored in leaf order: a leaf's points are contiguous in memory
+        perm = c.hier[0]
+        c.rows, c.pts, c.set_id, c.pix, c.Pg = (c.rows[perm], np.ascontiguousarray(c.pts[perm]), c.set_id[perm],
+                                                c.pix[perm], np.ascontiguousarray(c.Pg[perm]))
+        if L.mode == MODE_SPHERE:
+            c.M = np.ascontiguousarray(c.M[perm])
+        c.hier = (np.arange(m, dtype=np.int64),) + tuple(c.hier[1:])
         nn = len(c.hier[2])
         c.hier_nodes_peak = nn
         c.fu = np.zeros(m, np.uint8)
