@@ -73,6 +73,17 @@ def _positive(name, lo, hi):
     return conv
 
 
+def _error_budget(text: str) -> float:
+    import math
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and 0.0 < v <= 1.0):
+        raise UsageError(f"bad --error-budget {text!r}: expected an RMSE in (0, 1], e.g. 0.05")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="penumbra", description="Soft-shadow passes for Blender scenes.")
     sub = p.add_subparsers(dest="command")
@@ -98,8 +109,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     pl = sub.add_parser("plan", help="print what the scene calls for, and why")
     pl.add_argument("scene")
-    pl.add_argument("--methods", default="all")
+    pl.add_argument("--methods", default="all",
+                    help="comma-separated method ids, 'all', or 'auto' (picked per light)")
     pl.add_argument("--lights", default=None)
+    pl.add_argument("--error-budget", type=_error_budget, default=None,
+                    help="RMSE against the reference that 'auto' must meet (default: 0.05)")
     b = sub.add_parser("bench", help="accuracy-versus-time study / per-phase timings")
     b.add_argument("--out", default=os.path.join("bench", "results"))
     b.add_argument("--scene", default=None, help="the .blend to time (default: sample grids)")
@@ -253,10 +267,10 @@ def cmd_render(args) -> int:
 
 def cmd_plan(args) -> int:
     from .core.planner import make_plan, resolve_passes
-    passes = resolve_passes(args.methods, _available_external())
+    passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     scene = load_scene(_check_blend(args.scene))
     lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
-    print(make_plan(scene, passes, lights).describe())
+    print(make_plan(scene, passes, lights, error_budget=args.error_budget).describe())
     return 0
 
 

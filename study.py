@@ -95,7 +95,8 @@ def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUT
                 m = producers[mid]
                 for label, params in (sweep[:2] if quick else sweep):
                     row = dict(scene=name, size=f"{res[0]}x{res[1]}", method=mid, setting=label,
-                               threads=numba.get_num_threads(), repeats=repeats, status="ok")
+                               threads=numba.get_num_threads(), repeats=repeats, status="ok",
+                               light_kind=light.kind, light_extent=light.extent)
                     try:
                         p, unknown = _apply(m, params, fb)
                         if unknown:
@@ -133,6 +134,9 @@ def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUT
                              rmse=0.0, max_abs=0.0, mean_signed=0.0, rmse_penumbra=0.0))
             sheets[(name, res)] = (sheet, refs["average"], mask)
             write_outputs(rows, sheets, out_dir)      # after every scene: a cut-short run keeps its rows
+    if not quick and set(SCENES) <= set(scenes):
+        # a full run is the planner's new measured table (core/auto_table.json)
+        print(f"auto table installed: {install_table(os.path.join(out_dir, 'auto_table.json'))}")
     return rows
 
 
@@ -157,11 +161,11 @@ def write_outputs(rows, sheets, out_dir):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    auto = {}
+    fronts = {}
     for scene in sorted({r["scene"] for r in rows}):
         fig, ax = plt.subplots(figsize=(7, 5))
         ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok" and "reference" not in r["method"]
-              and r["size"] == max(rr["size"] for rr in rows if rr["scene"] == scene)]
+              and r["size"] == _largest_size(rows, scene)]
         for mid in sorted({r["method"] for r in ok}):
             pts = [r for r in ok if r["method"] == mid]
             ax.scatter([r["seconds"] for r in pts], [max(r["rmse"], 1e-5) for r in pts], label=mid)
@@ -170,8 +174,8 @@ def write_outputs(rows, sheets, out_dir):
             front = pareto(pts)
             fr = sorted((pts[i] for i in front))
             ax.plot([p[0] for p in fr], [max(p[1], 1e-5) for p in fr], "k--", lw=1, label="Pareto front")
-            auto[scene] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=ok[i]["seconds"],
-                                rmse=ok[i]["rmse"]) for i in sorted(front, key=lambda i: pts[i][0])]
+            fronts[scene] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=ok[i]["seconds"],
+                                  rmse=ok[i]["rmse"]) for i in sorted(front, key=lambda i: pts[i][0])]
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("wall time per light (s, median of warm runs)")
@@ -199,8 +203,7 @@ def write_outputs(rows, sheets, out_dir):
         fig.tight_layout()
         fig.savefig(os.path.join(out_dir, f"sheet_{scene}.png"), dpi=100)
         plt.close(fig)
-    with open(os.path.join(out_dir, "auto_table.json"), "w") as f:
-        json.dump({"reference": f"embree {REFERENCE_SAMPLES} spp", "fronts": auto}, f, indent=2)
+    _write_json(os.path.join(out_dir, "auto_table.json"), auto_table(rows, fronts))
     lines = ["| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -211,3 +214,119 @@ def write_outputs(rows, sheets, out_dir):
                      f"{r['rmse']:.4f} | {r['max_abs']:.3f} | {r['mean_signed']:+.4f} | {r['rmse_penumbra']:.4f} |")
     with open(os.path.join(out_dir, "study.md"), "w") as f:
         f.write("\n".join(lines) + "\n")
+
+
+# --------------------------------------------------------------------------
+# The planner's table (core/auto_choice.py reads it; format penumbra-auto-table/1)
+AUTO_LIGHT_SAMPLES = 64      # a light's default Light Samples (addon/properties.py)
+
+
+def _pixels(size: str) -> int:
+    w, h = (int(x) for x in str(size).lower().split("x"))
+    return w * h
+
+
+def _largest_size(rows, scene) -> str:
+    return max((r["size"] for r in rows if r["scene"] == scene), key=_pixels)
+
+
+def default_setting(mid: str):
+    """The sweep label of ``mid`` at its default parameters (64 light samples
+    where it samples): what a light runs when ``auto`` picks the method."""
+    for label, params in SWEEPS.get(mid, ()):
+        if params in ({}, {"samples": AUTO_LIGHT_SAMPLES}):
+            return label
+    return None
+
+
+def auto_table(rows, fronts=None) -> dict:
+    """Per scene (largest measured size): its light and, per method, the
+    default setting's time and error. ``fronts``: the Pareto fronts, kept
+    for readers (the planner does not use them)."""
+    scenes = []
+    for scene in sorted({r["scene"] for r in rows}):
+        size = _largest_size(rows, scene)
+        here = [r for r in rows if r["scene"] == scene and r["size"] == size]
+        lit = next((r for r in here if r.get("light_kind")), None)
+        if lit is None:
+            continue                              # no light recorded: cannot be matched
+        methods = {}
+        for mid in SWEEPS:
+            label = default_setting(mid)
+            r = next((r for r in here if r["method"] == mid and r["setting"] == label), None)
+            if r is None or r["status"] != "ok":
+                continue
+            methods[mid] = {"setting": label, "visibility": r["visibility"], "seconds": float(r["seconds"]),
+                            "rmse": float(r["rmse"]), "rmse_penumbra": float(r["rmse_penumbra"])}
+        scenes.append({"scene": scene, "size": size, "light_kind": lit["light_kind"],
+                       "light_extent": float(lit["light_extent"]), "methods": methods})
+    out = {"format": "penumbra-auto-table/1", "reference": f"embree {REFERENCE_SAMPLES} spp",
+           "settings": f"each method at its default parameters, {AUTO_LIGHT_SAMPLES} light samples",
+           "threads": max((int(r.get("threads") or 0) for r in rows), default=0), "scenes": scenes}
+    if fronts:
+        out["fronts"] = fronts
+    return out
+
+
+def _write_json(path: str, data: dict) -> None:
+    """Atomically: a temporary file, then a rename."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump(data, f, indent=2)
+        f.write("\n")
+    os.replace(tmp, path)
+
+
+def install_table(src: str, dst: str = None) -> str:
+    """Check ``src`` the way the planner reads it, then copy it to
+    ``core/auto_table.json`` (shipped in the extension). Returns ``dst``."""
+    from penumbra.core.auto_choice import TABLE_PATH, load_table
+    dst = dst or TABLE_PATH
+    load_table(src)                               # TableError: not installed
+    with open(src) as f:
+        _write_json(dst, json.load(f))
+    from penumbra.core import auto_choice
+    auto_choice._packaged.cache_clear()
+    return dst
+
+
+def table_from_csv(csv_path: str, out: str) -> str:
+    """Rebuild the table from a study.csv written before rows carried their
+    light (the light's kind and size are read from the sample scenes)."""
+    with open(csv_path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    lights = {}
+    for name in {r["scene"] for r in rows}:
+        lt = _load(name, (16, 16)).lights[0]
+        lights[name] = (lt.kind, lt.extent)
+    fronts = {}
+    for r in rows:
+        if not r.get("light_kind"):
+            r["light_kind"], r["light_extent"] = lights[r["scene"]]
+    for name in sorted(lights):
+        ok = [r for r in rows if r["scene"] == name and r["status"] == "ok" and "reference" not in r["method"]
+              and r["size"] == _largest_size(rows, name)]
+        pts = [(float(r["seconds"]), float(r["rmse"])) for r in ok]
+        fronts[name] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=pts[i][0], rmse=pts[i][1])
+                        for i in sorted(pareto(pts), key=lambda i: pts[i][0])]
+    _write_json(out, auto_table(rows, fronts))
+    return out
+
+
+def main(argv=None) -> int:
+    """``python -m penumbra.study install-table [SRC]`` (default
+    bench/results/auto_table.json) or ``table-from-csv CSV OUT``."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["install-table"] and len(argv) <= 2:
+        src = argv[1] if len(argv) == 2 else os.path.join(ROOT, "bench", "results", "auto_table.json")
+        print(install_table(src))
+        return 0
+    if argv[:1] == ["table-from-csv"] and len(argv) == 3:
+        print(table_from_csv(argv[1], argv[2]))
+        return 0
+    print("usage: python -m penumbra.study install-table [SRC] | table-from-csv CSV OUT", file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

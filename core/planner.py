@@ -9,8 +9,13 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
+from . import auto_choice
 from . import methods as method_registry
 from .scene import Light, Scene
+
+#: the request "pick per light" (``core/auto_choice.py``): never a pass name;
+#: a light's pass is written under the method id ``auto`` resolved to
+AUTO = "auto"
 
 
 def layer_name(light_name: str) -> str:
@@ -27,6 +32,8 @@ class LightPlan:
     producers: List[str] = field(default_factory=list)
     buffers: List[str] = field(default_factory=list)
     decisions: List[str] = field(default_factory=list)   # further choices, with reasons
+    passes: List[str] = field(default_factory=list)      # this light's pass ids (``auto`` resolved)
+    auto: Optional[dict] = None                          # AutoChoice.to_json() when ``auto`` was asked
 
 
 @dataclass
@@ -54,10 +61,13 @@ class PlanError(ValueError):
     """Bad request (unknown method or light): the CLI turns it into exit 2."""
 
 
-def resolve_passes(spec: str | Sequence[str] | None, external: Sequence[str] = ()) -> List[str]:
+def resolve_passes(spec: str | Sequence[str] | None, external: Sequence[str] = (),
+                   allow_auto: bool = False) -> List[str]:
     """Method ids from ``spec`` ("all" or a comma list). ``external`` names the
     external passes the caller can produce (``cycles`` needs Blender): "all"
-    includes those, and asking for one the caller cannot produce is an error."""
+    includes those, and asking for one the caller cannot produce is an error.
+    ``allow_auto``: ``auto`` may be asked for (kept as is; ``make_plan``
+    resolves it per light)."""
     known = method_registry.pass_ids(external=False) + [e for e in method_registry.EXTERNAL_PASSES
                                                         if e in external]
     if spec is None or spec == "all" or spec == ["all"]:
@@ -70,13 +80,47 @@ def resolve_passes(spec: str | Sequence[str] | None, external: Sequence[str] = (
     for s in items:
         if method_registry.is_external(s) and s not in external:
             raise PlanError(f"method {s!r} needs Blender (the bpy module) and cannot run here")
-    bad = [s for s in items if s not in known]
+    if AUTO in items and not allow_auto:
+        raise PlanError("method 'auto' is not available here: give method ids "
+                        "(`penumbra plan --methods auto` shows what auto picks per light)")
+    bad = [s for s in items if s not in known and s != AUTO]
     if bad:
         raise PlanError(f"unknown method {bad[0]!r} (known: {', '.join(known)})")
     return list(dict.fromkeys(items))
 
 
-def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None) -> Plan:
+def producers_for(passes: Sequence[str]) -> List[str]:
+    """Producer ids (external passes as themselves) of ``passes``, in order."""
+    out: List[str] = []
+    for pid in passes:
+        p = pid if method_registry.is_external(pid) else method_registry.producer_of(pid).id
+        if p not in out:
+            out.append(p)
+    return out
+
+
+def buffers_for(producers: Sequence[str]) -> List[str]:
+    registry = method_registry.producers()
+    return sorted({b for pid in producers if pid in registry for b in registry[pid].needs})
+
+
+def record_auto(lp: LightPlan, choice: "auto_choice.AutoChoice") -> None:
+    """Put ``auto``'s decision for this light in the plan (its reason first
+    among the decisions)."""
+    lp.auto = choice.to_json()
+    if choice.reason not in lp.decisions:
+        lp.decisions.insert(0, choice.reason)
+
+
+def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
+              error_budget: Optional[float] = None, visibility: str = auto_choice.AVERAGE,
+              auto_table=auto_choice.PACKAGED) -> Plan:
+    """Per light: skip, hard or compute, with the reason; the light's passes
+    and the producers and buffers they need. ``auto`` among ``passes`` is
+    resolved per light (``core/auto_choice.py``) under ``error_budget``
+    (RMSE; default ``auto_choice.DEFAULT_BUDGET``) for the ``visibility``
+    definition, from ``auto_table`` (the packaged table by default; a path,
+    an AutoTable, or None for none)."""
     notes = []
     lights = list(scene.lights)
     if light_names:
@@ -85,17 +129,7 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
             if n not in names:
                 raise PlanError(f"unknown light {n!r} (scene has: {', '.join(sorted(names)) or 'none'})")
         lights = [lt for lt in lights if lt.name in set(light_names)]
-    producers = []
-    for pid in passes:
-        if method_registry.is_external(pid):
-            if pid not in producers:
-                producers.append(pid)
-            continue
-        p = method_registry.producer_of(pid)
-        if p.id not in producers:
-            producers.append(p.id)
-    registry = method_registry.producers()
-    buffers = sorted({b for pid in producers if pid in registry for b in registry[pid].needs})
+    budget = auto_choice.DEFAULT_BUDGET if error_budget is None else float(error_budget)
     used_layers: Dict[str, int] = {}
     out = []
     for lt in lights:
@@ -104,19 +138,32 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
             used_layers[layer] += 1
             layer = f"{layer}_{used_layers[layer]}"
         used_layers.setdefault(layer, 1)
+        choice = None
+        mine = list(passes)
+        if AUTO in passes:
+            try:
+                choice = auto_choice.choose_for_light(lt, visibility, budget, auto_table)
+            except ValueError as exc:                # bad budget / definition
+                raise PlanError(str(exc))
+            mine = list(dict.fromkeys(choice.method if p == AUTO else p for p in passes))
+        producers = producers_for(mine)
+        buffers = buffers_for(producers)
         if not lt.casts_shadow:
-            out.append(LightPlan(lt.name, layer, "skip", "the light's shadow is off (use_shadow): V = 1"))
+            lp = LightPlan(lt.name, layer, "skip", "the light's shadow is off (use_shadow): V = 1")
         elif lt.energy <= 0:
-            out.append(LightPlan(lt.name, layer, "skip", "the light has no energy: V = 1"))
+            lp = LightPlan(lt.name, layer, "skip", "the light has no energy: V = 1")
         elif not scene.tri_casts_shadow.any():
-            out.append(LightPlan(lt.name, layer, "skip", "no object casts shadows: V = 1"))
+            lp = LightPlan(lt.name, layer, "skip", "no object casts shadows: V = 1")
         elif lt.is_zero_size:
-            out.append(LightPlan(lt.name, layer, "hard",
-                                 "the light has size zero: hard shadows only, one sample",
-                                 list(producers), buffers))
+            lp = LightPlan(lt.name, layer, "hard", "the light has size zero: hard shadows only, one sample",
+                           producers, buffers)
         else:
-            out.append(LightPlan(lt.name, layer, "compute", f"{lt.kind} light of size {lt.extent:g}",
-                                 list(producers), buffers))
+            lp = LightPlan(lt.name, layer, "compute", f"{lt.kind} light of size {lt.extent:g}",
+                           producers, buffers)
+        lp.passes = mine
+        if choice is not None:
+            record_auto(lp, choice)
+        out.append(lp)
     if not out:
         notes.append("the scene has no lights: nothing to compute")
     elif all(lp.action == "skip" for lp in out):

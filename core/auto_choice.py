@@ -1,0 +1,249 @@
+"""``auto``: per light, the cheapest method whose measured error meets the
+scene's error budget (issue 6, "Only the effects a scene calls for").
+
+The measurements are the accuracy study's (``study.py``, issue 7): every
+method on the sample scenes against ``embree`` at 1024 samples. The study
+writes ``bench/results/auto_table.json``; a full run (``make bench``) also
+installs it here as ``core/auto_table.json`` (``python study.py
+install-table`` copies a chosen one), which ships inside the extension.
+
+The rules, in order (each decision says which one in its reason):
+
+1. A light of size zero casts a hard shadow: ``pcf``, whose size-zero path
+   is the plain shadow-map test (one depth comparison per pixel, no
+   filtering; DESIGN.md: every method equals the hard shadow there), so no
+   table is needed (``embree_irr`` for the irradiance ratio, see 4).
+2. No readable table: the documented fallback ``FALLBACK`` (``pcf`` for
+   average visibility, ``embree_irr`` for the irradiance ratio).
+3. Scene matching: the table's scenes lit by the same kind of light (area,
+   sphere, sun); when none is, every measured scene. The light's size is not
+   matched: the scenes' penumbra widths depend on size *relative to* their
+   distances, which a size alone does not give. A method counts with its
+   *worst* RMSE over the matched scenes (so it meets the budget only if it
+   did on every one) and its mean time; a method not measured (or failed) on
+   one of them is not a candidate.
+4. Candidates are the registered passes of the definition needed
+   (``average`` or ``irradiance``: errors are only measured against the
+   reference of the same definition, DESIGN.md), less the references
+   (``embree``, ``embree_irr``): ``auto`` picks which paper's method stands
+   in for the reference, never the reference it is compared with. The one
+   method writing the irradiance ratio (``depth_raytrace_irr``) is not in
+   the study, so that definition falls back to ``embree_irr``.
+5. The cheapest candidate with worst RMSE <= budget wins; when none meets
+   the budget, the most accurate one, and the reason says so.
+
+Table rows are each method at its default parameters with 64 light samples
+(a light's default Light Samples), which is what the light runs with when
+``auto`` picks it.
+"""
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from typing import Dict, List, Mapping, Optional, Sequence
+
+AVERAGE, IRRADIANCE = "average", "irradiance"
+#: RMSE against the reference of the same V definition. In the study, 0.05
+#: is met by the sampling methods at 64 samples on every scene (0.004-0.046)
+#: and by the depth-map methods on one occluder (sphere_plane, torus_plane:
+#: 0.02-0.05), but not by those on the overlapping penumbrae of ``grids``
+#: (0.15-0.24): it separates "looks right" from "visibly wrong" there.
+DEFAULT_BUDGET = 0.05
+#: without a table: the fast depth-map method (average), the reference
+#: estimator (irradiance: no measured method writes that definition)
+FALLBACK = {AVERAGE: "pcf", IRRADIANCE: "embree_irr"}
+#: a light of size zero: the plain shadow-map test (pcf's size-zero path)
+HARD = {AVERAGE: "pcf", IRRADIANCE: "embree_irr"}
+#: never candidates: what the picked method's error is measured against
+REFERENCES = ("embree", "embree_irr")
+TABLE_FORMAT = "penumbra-auto-table/1"
+TABLE_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "auto_table.json")
+LIGHT_KINDS = ("area", "sphere", "sun")
+
+
+class TableError(ValueError):
+    """The table is missing, unreadable or not in TABLE_FORMAT (one line)."""
+
+
+@dataclass
+class MeasuredScene:
+    scene: str
+    size: str                    # "WxH" of the measurement
+    light_kind: str
+    light_extent: float
+    methods: Dict[str, dict]     # pass id -> {"seconds", "rmse", "visibility", "setting", ...}
+
+
+@dataclass
+class AutoTable:
+    scenes: List[MeasuredScene]
+    reference: str = ""
+    path: str = ""
+
+
+@dataclass
+class AutoChoice:
+    """What ``auto`` resolved to, and why (``reason``: one sentence;
+    ``short``: a few words for the UI)."""
+    method: str
+    reason: str
+    short: str
+    rule: str                    # "hard" | "fallback" | "meets budget" | "most accurate"
+    budget: float
+    visibility: str = AVERAGE
+    rmse: Optional[float] = None         # worst measured RMSE over the matched scenes
+    seconds: Optional[float] = None      # mean measured time over the matched scenes
+    scenes: List[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+# --------------------------------------------------------------------------
+# the table
+def _number(x, what) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or x < 0:
+        raise TableError(f"{what}: expected a finite number >= 0, got {x!r}")
+    return float(x)
+
+
+def parse_table(data: Mapping, path: str = "") -> AutoTable:
+    """An AutoTable from the JSON object ``study.py`` writes."""
+    where = path or "auto table"
+    if not isinstance(data, Mapping) or data.get("format") != TABLE_FORMAT:
+        raise TableError(f"{where}: not a {TABLE_FORMAT} table")
+    scenes = []
+    for k, s in enumerate(data.get("scenes") or []):
+        try:
+            kind = s["light_kind"]
+            if kind not in LIGHT_KINDS:
+                raise TableError(f"{where}: scene {k}: unknown light kind {kind!r}")
+            methods = {}
+            for mid, m in s["methods"].items():
+                vis = m["visibility"]
+                if vis not in (AVERAGE, IRRADIANCE):
+                    raise TableError(f"{where}: {s['scene']}/{mid}: unknown visibility {vis!r}")
+                methods[str(mid)] = dict(m, seconds=_number(m["seconds"], f"{where}: {mid} seconds"),
+                                         rmse=_number(m["rmse"], f"{where}: {mid} rmse"))
+            scenes.append(MeasuredScene(str(s["scene"]), str(s["size"]), kind,
+                                        _number(s["light_extent"], f"{where}: light_extent"), methods))
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise TableError(f"{where}: scene {k} is malformed ({type(exc).__name__}: {exc})")
+    if not scenes:
+        raise TableError(f"{where}: no measured scenes")
+    return AutoTable(scenes, str(data.get("reference", "")), path)
+
+
+def load_table(path: str = TABLE_PATH) -> AutoTable:
+    """Read and check a table; TableError (one line) when it cannot be used."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise TableError(f"no accuracy table at {path}")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise TableError(f"cannot read the accuracy table {path}: {exc}")
+    return parse_table(data, path)
+
+
+@functools.lru_cache(maxsize=1)
+def _packaged():
+    try:
+        return load_table(TABLE_PATH), None
+    except TableError as exc:
+        return None, str(exc)
+
+
+def packaged_table() -> Optional[AutoTable]:
+    """The table shipped in ``core/`` (read once), or None."""
+    return _packaged()[0]
+
+
+# --------------------------------------------------------------------------
+# the choice
+#: the table shipped in core/ (the default of ``choose``)
+PACKAGED = object()
+
+
+def _fmt_s(seconds: float) -> str:
+    return f"{seconds * 1e3:.1f} ms" if seconds < 1.0 else f"{seconds:.2f} s"
+
+
+def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DEFAULT_BUDGET,
+           table=PACKAGED, known: Optional[Sequence[str]] = None) -> AutoChoice:
+    """The pass id ``auto`` runs for a light of ``kind`` ("area" | "sphere" |
+    "sun") and ``size`` (``Light.extent``) needing ``visibility``, under an
+    RMSE ``budget``. ``table``: an AutoTable, a path, None (no table) or,
+    by default, the packaged one. ``known``: the pass ids that can run (the
+    registry's, by default); others in the table are ignored."""
+    if visibility not in (AVERAGE, IRRADIANCE):
+        raise ValueError(f"auto: visibility must be {AVERAGE!r} or {IRRADIANCE!r}, not {visibility!r}")
+    budget = float(budget)
+    if not (math.isfinite(budget) and budget > 0):
+        raise ValueError(f"auto: the error budget must be a number > 0, not {budget!r}")
+    if not size > 0:
+        m = HARD[visibility]
+        how = ("one depth comparison per pixel, no filtering" if m == "pcf"
+               else "one shadow ray per pixel")
+        return AutoChoice(m, f"auto -> {m}: the light has size zero, so its shadow is hard: "
+                             f"{how} (no table needed)",
+                          f"{m}: size zero, hard shadow", "hard", budget, visibility)
+    why_none = None
+    if table is PACKAGED:
+        table, why_none = _packaged()
+    elif isinstance(table, str):
+        try:
+            table = load_table(table)
+        except TableError as exc:
+            table, why_none = None, str(exc)
+    if table is None:
+        m = FALLBACK[visibility]
+        return AutoChoice(m, f"auto -> {m}: documented fallback, the accuracy table is not available "
+                             f"({why_none or 'none given'})", f"{m}: fallback, no accuracy table",
+                          "fallback", budget, visibility)
+    if known is None:
+        from . import methods as registry
+        known = registry.pass_ids(external=False)
+    matched = [s for s in table.scenes if s.light_kind == kind]
+    scope = how = f"{kind}-light scenes"
+    if not matched:
+        matched, scope = list(table.scenes), "all scenes"
+        how = f"all measured scenes (none has a {kind} light)"
+    names = [f"{s.scene} {s.size}" for s in matched]
+    stats = {}
+    for mid in known:
+        if mid in REFERENCES:
+            continue
+        rows = [s.methods.get(mid) for s in matched]
+        if any(r is None or r.get("visibility") != visibility for r in rows):
+            continue
+        stats[mid] = (max(r["rmse"] for r in rows), sum(r["seconds"] for r in rows) / len(rows))
+    where = f"{how}: {', '.join(names)}"
+    if not stats:
+        m = FALLBACK[visibility]
+        return AutoChoice(m, f"auto -> {m}: documented fallback, the table measures no method of "
+                             f"{visibility} visibility on {where}", f"{m}: fallback, nothing measured",
+                          "fallback", budget, visibility, scenes=names)
+    meet = [mid for mid, (e, _t) in stats.items() if e <= budget]
+    if meet:
+        m = min(meet, key=lambda k: (stats[k][1], stats[k][0]))
+        e, t = stats[m]
+        return AutoChoice(m, f"auto -> {m}: cheapest measured method meeting the budget, worst RMSE "
+                             f"{e:.3f} <= {budget:g} in {_fmt_s(t)} on {where}",
+                          f"{m}: RMSE {e:.3f} <= {budget:g} ({scope})",
+                          "meets budget", budget, visibility, e, t, names)
+    m = min(stats, key=lambda k: (stats[k][0], stats[k][1]))
+    e, t = stats[m]
+    return AutoChoice(m, f"auto -> {m}: no measured method meets the budget {budget:g}; the most "
+                         f"accurate one, worst RMSE {e:.3f} in {_fmt_s(t)} on {where}",
+                      f"{m}: most accurate, RMSE {e:.3f} > {budget:g}",
+                      "most accurate", budget, visibility, e, t, names)
+
+
+def choose_for_light(light, visibility: str = AVERAGE, budget: float = DEFAULT_BUDGET,
+                     table=PACKAGED, known: Optional[Sequence[str]] = None) -> AutoChoice:
+    """``choose`` for a captured ``core.scene.Light``."""
+    return choose(light.kind, light.extent, visibility, budget, table, known)

@@ -1,0 +1,199 @@
+"""``auto`` (core/auto_choice.py): each rule on a table or scene built for
+it, the shipped table against the study it came from, and the planner
+recording the decision. No bpy."""
+import csv
+import json
+import os
+
+import pytest
+
+from penumbra.core import auto_choice as ac
+from penumbra.core import methods as registry
+from penumbra.core.planner import PlanError, make_plan, resolve_passes
+from synthetic import area_light, half_plane_scene, sphere_light
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _scene(name, kind, methods, size="64x64"):
+    return {"scene": name, "size": size, "light_kind": kind, "light_extent": 1.0,
+            "methods": {m: {"setting": "default", "visibility": registry.visibility_of(m),
+                            "seconds": t, "rmse": e} for m, (t, e) in methods.items()}}
+
+
+def _table(*scenes):
+    return ac.parse_table({"format": ac.TABLE_FORMAT, "reference": "test", "scenes": list(scenes)})
+
+
+# seconds, rmse: single_sample cheapest and worst, penumbra_casting dearest
+# and best; embree (the reference) cheaper still, but never a candidate
+AREA_A = _scene("a", "area", {"single_sample": (0.001, 0.20), "pcf": (0.002, 0.08),
+                              "irregular": (0.005, 0.03), "penumbra_casting": (0.05, 0.005),
+                              "embree": (0.004, 0.001)})
+AREA_B = _scene("b", "area", {"single_sample": (0.001, 0.05), "pcf": (0.002, 0.04),
+                              "irregular": (0.005, 0.06), "penumbra_casting": (0.05, 0.004),
+                              "embree": (0.004, 0.001)})
+SPHERE = _scene("s", "sphere", {"single_sample": (0.001, 0.01), "pcf": (0.002, 0.3),
+                                "penumbra_casting": (0.05, 0.004)})
+
+
+def test_tight_to_loose_budget_picks_cheaper_methods_in_order():
+    """Worst case over the two area scenes: single_sample 0.20, pcf 0.08,
+    irregular 0.06, penumbra_casting 0.005; embree (0.001) is the reference."""
+    t = _table(AREA_A, AREA_B, SPHERE)
+    picks = {b: ac.choose("area", 1.0, budget=b, table=t) for b in (0.01, 0.07, 0.1, 0.25)}
+    assert [picks[b].method for b in (0.01, 0.07, 0.1, 0.25)] == ["penumbra_casting", "irregular", "pcf",
+                                                                 "single_sample"]
+    for b, c in picks.items():
+        assert c.rule == "meets budget" and c.rmse <= b and c.scenes == ["a 64x64", "b 64x64"]
+        assert f"<= {b:g}" in c.reason and "a 64x64, b 64x64" in c.reason
+    assert picks[0.07].rmse == 0.06            # the worse of its two scenes, not the better (0.03)
+    # invariant over a fine sweep: a looser budget never costs more nor gets more accurate
+    prev = None
+    for b in [0.005 + 0.005 * k for k in range(60)]:
+        c = ac.choose("area", 1.0, budget=b, table=t)
+        if prev is not None:
+            assert c.seconds <= prev.seconds and c.rmse >= prev.rmse
+        prev = c
+
+
+def test_scenes_are_matched_by_light_kind_else_all():
+    t = _table(AREA_A, AREA_B, SPHERE)
+    sphere = ac.choose("sphere", 0.3, budget=0.05, table=t)
+    assert sphere.method == "single_sample" and sphere.scenes == ["s 64x64"]   # 0.01 there
+    assert "sphere-light scenes" in sphere.reason
+    sun = ac.choose("sun", 0.01, budget=0.05, table=t)
+    assert sun.scenes == ["a 64x64", "b 64x64", "s 64x64"] and "none has a sun light" in sun.reason
+    assert sun.method == "penumbra_casting"   # pcf is 0.3 on the sphere scene
+
+
+def test_no_method_meets_the_budget_picks_the_most_accurate():
+    c = ac.choose("area", 1.0, budget=0.001, table=_table(AREA_A, AREA_B))
+    assert c.method == "penumbra_casting" and c.rule == "most accurate" and c.rmse == 0.005
+    assert "no measured method meets the budget 0.001" in c.reason
+
+
+def test_zero_size_light_is_a_hard_shadow():
+    t = _table(AREA_A)
+    for vis, want in (("average", "pcf"), ("irradiance", "embree_irr")):
+        c = ac.choose("area", 0.0, vis, budget=0.5, table=t)
+        assert c.method == want and c.rule == "hard" and "size zero" in c.reason
+        assert registry.visibility_of(c.method) == vis
+
+
+def test_missing_or_bad_table_falls_back_and_says_why(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text(json.dumps({"fronts": {}}))
+    for path, why in ((str(tmp_path / "none.json"), "no accuracy table at"),
+                      (str(bad), "cannot read the accuracy table"),
+                      (str(wrong), "not a penumbra-auto-table/1 table")):
+        c = ac.choose("area", 1.0, budget=0.05, table=path)
+        assert c.method == ac.FALLBACK["average"] == "pcf" and c.rule == "fallback"
+        assert "documented fallback" in c.reason and why in c.reason
+    c = ac.choose("area", 1.0, "irradiance", table=None)
+    assert c.method == "embree_irr" and "not available" in c.reason
+
+
+def test_only_passes_of_the_needed_definition_count():
+    """Errors are measured against the reference of the pass's own V: an
+    irradiance request ignores average-visibility rows."""
+    t = _table(AREA_A)
+    c = ac.choose("area", 1.0, "irradiance", budget=0.5, table=t)
+    assert c.method == "embree_irr" and c.rule == "fallback" and "irradiance visibility" in c.reason
+    row = _scene("i", "area", {"depth_raytrace_irr": (0.1, 0.02), "embree_irr": (0.2, 0.01)})
+    c = ac.choose("area", 1.0, "irradiance", budget=0.05, table=_table(row))
+    assert c.method == "depth_raytrace_irr" and c.rule == "meets budget"
+
+
+def test_unregistered_or_unmeasured_methods_are_not_candidates():
+    partial = _scene("b", "area", {"penumbra_casting": (0.05, 0.004)})   # the others failed here
+    c = ac.choose("area", 1.0, budget=0.5, table=_table(AREA_A, partial))
+    assert c.method == "penumbra_casting"
+    c = ac.choose("area", 1.0, budget=0.5, table=_table(AREA_A), known=["pcf", "penumbra_casting"])
+    assert c.method == "pcf"
+    # the reference is never the pick, even when it is the cheapest and best
+    only_ref = _scene("r", "area", {"embree": (0.001, 0.0)})
+    c = ac.choose("area", 1.0, budget=0.5, table=_table(only_ref))
+    assert c.method == "pcf" and c.rule == "fallback"
+
+
+@pytest.mark.parametrize("budget", [0.0, -0.1, float("nan"), float("inf")])
+def test_bad_budget_is_an_error(budget):
+    with pytest.raises(ValueError, match="error budget"):
+        ac.choose("area", 1.0, budget=budget, table=None)
+
+
+# --------------------------------------------------------------------------
+# the shipped table
+def test_shipped_table_loads_and_names_registered_methods():
+    t = ac.load_table(ac.TABLE_PATH)
+    assert ac.packaged_table() is not None
+    known = registry.pass_ids(external=False)
+    kinds = set()
+    for s in t.scenes:
+        kinds.add(s.light_kind)
+        assert s.methods
+        for mid, m in s.methods.items():
+            assert mid in known, mid
+            assert m["visibility"] == registry.visibility_of(mid)
+    assert {"area", "sphere"} <= kinds
+
+
+def test_shipped_table_is_the_studys_measurement():
+    """Every entry is the study's row (bench/results/study.csv) of that scene,
+    size, method and default setting, at the scene's largest size."""
+    t = ac.load_table(ac.TABLE_PATH)
+    with open(os.path.join(ROOT, "bench", "results", "study.csv"), newline="") as f:
+        rows = list(csv.DictReader(f))
+    for s in t.scenes:
+        sizes = {r["size"] for r in rows if r["scene"] == s.scene}
+        area = lambda z: int(z.split("x")[0]) * int(z.split("x")[1])   # noqa: E731
+        assert s.size == max(sizes, key=area)
+        for mid, m in s.methods.items():
+            (r,) = [r for r in rows if (r["scene"], r["size"], r["method"], r["setting"])
+                    == (s.scene, s.size, mid, m["setting"])]
+            assert r["status"] == "ok"
+            assert float(r["rmse"]) == m["rmse"] and float(r["seconds"]) == m["seconds"]
+    with open(os.path.join(ROOT, "bench", "results", "auto_table.json")) as f:
+        bench = json.load(f)
+    assert ac.parse_table(bench).scenes == t.scenes          # installed = the study's output
+
+
+# --------------------------------------------------------------------------
+# the planner records the decision
+def test_plan_resolves_auto_per_light_with_its_reason():
+    sc = half_plane_scene(area_light(1.0), res=16)
+    sc.lights = [area_light(1.0, name="Big"), sphere_light(0.3, name="Ball"), area_light(0.0, name="Point")]
+    t = _table(AREA_A, AREA_B, SPHERE)
+    plan = make_plan(sc, ["auto", "embree"], error_budget=0.1, auto_table=t)
+    by = {lp.name: lp for lp in plan.lights}
+    assert by["Big"].passes == ["pcf", "embree"] and by["Big"].producers == ["pcf", "embree"]
+    assert by["Ball"].passes == ["single_sample", "embree"]
+    assert by["Point"].action == "hard" and by["Point"].passes == ["pcf", "embree"]
+    for lp in plan.lights:
+        assert lp.auto["method"] == lp.passes[0] and lp.decisions[0] == lp.auto["reason"]
+    rec = json.loads(json.dumps(plan.to_json()))
+    assert rec["lights"][0]["auto"]["rule"] == "meets budget" and rec["lights"][0]["auto"]["budget"] == 0.1
+    text = plan.describe()
+    assert "auto -> pcf" in text and "auto -> single_sample" in text and "size zero" in text
+    # a tighter budget moves the area light to the accurate method
+    tight = make_plan(sc, ["auto"], ["Big"], error_budget=0.01, auto_table=t)
+    assert tight.lights[0].passes == ["penumbra_casting"]
+    # auto and an explicit id naming the same method: one pass
+    assert make_plan(sc, ["auto", "pcf"], ["Big"], error_budget=0.1, auto_table=t).lights[0].passes == ["pcf"]
+    # no table: the fallback, and the plan says so
+    none = make_plan(sc, ["auto"], ["Big"], auto_table=None)
+    assert none.lights[0].passes == ["pcf"] and "documented fallback" in none.lights[0].decisions[0]
+    # without auto nothing is decided
+    assert make_plan(sc, ["pcf"], ["Big"]).lights[0].auto is None
+
+
+def test_auto_is_asked_for_explicitly():
+    assert resolve_passes("auto,embree", allow_auto=True) == ["auto", "embree"]
+    assert "auto" not in resolve_passes("all", allow_auto=True)
+    with pytest.raises(PlanError, match="'auto' is not available here"):
+        resolve_passes("auto")
+    with pytest.raises(PlanError, match="error budget"):
+        make_plan(half_plane_scene(area_light(1.0), res=8), ["auto"], error_budget=0.0)
