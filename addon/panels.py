@@ -78,8 +78,9 @@ class PENUMBRA_PT_light(bpy.types.Panel):
         layout.prop(s, "light_samples")
         layout.prop(s, "map_size")
         if s.method == props.AUTO:
-            from ..operators.compute import AUTO_FALLBACK
-            layout.label(text=f"Auto uses {AUTO_FALLBACK} for now", icon="INFO")
+            from ..operators.compute import auto_choice_for
+            choice = auto_choice_for(s, context.light, context.scene)
+            layout.label(text=f"Auto: {choice.short}", icon="INFO")
         op = layout.operator("penumbra.preview", text="Preview This Light", icon="IMAGE_RGB")
         op.only_active = True
 
@@ -102,7 +103,7 @@ class PENUMBRA_PT_light_quality(bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         layout.active = s.enabled
-        draw_knobs(layout, s, resolve_method(s))
+        draw_knobs(layout, s, resolve_method(s, context.light, context.scene))
 
 
 class PENUMBRA_PT_render(bpy.types.Panel):
@@ -124,6 +125,7 @@ class PENUMBRA_PT_render(bpy.types.Panel):
         layout.prop(s, "render_passes")
         layout.prop(s, "output_folder")
         layout.prop(s, "seed")
+        layout.prop(s, "error_budget")
         row = layout.row(heading="References")
         row.prop(s, "references")
         sub = layout.row()

@@ -274,8 +274,9 @@ def knob_overrides(knobs_group, method) -> Dict[str, object]:
 def method_items():
     from ..core import methods as registry
     used: set = set()
-    items = [(AUTO, "Auto", "Pick per light the cheapest method that meets the scene's error "
-              "budget (until the accuracy study lands: pcf)", "AUTO", _enum_number(AUTO, used))]
+    items = [(AUTO, "Auto", "Pick per light the cheapest method whose error measured by the accuracy "
+              "study meets the scene's error budget (Render properties > Penumbra)", "AUTO",
+              _enum_number(AUTO, used))]
     for pid in registry.pass_ids(external=False):
         m = registry.producer_of(pid)
         paper = getattr(m, "paper", "") or ""
@@ -305,6 +306,7 @@ def _on_render_passes(self, context):
 # groups
 def _make_classes():
     from ..core import methods as registry
+    from ..core.auto_choice import DEFAULT_BUDGET
     knob_classes = {}
     for mid, m in registry.producers().items():
         knob_classes[mid] = _make_knob_group(m)
@@ -345,6 +347,11 @@ def _make_classes():
             name="References", items=_reference_items(), options={"ENUM_FLAG"},
             default={"embree", "embree_irr"},
             description="Reference passes computed beside each light's method"),
+        "error_budget": bpy.props.FloatProperty(
+            name="Error Budget", default=DEFAULT_BUDGET, min=0.001, max=1.0, precision=3, step=0.5,
+            description="RMSE against the ray-traced reference that a light's Auto method must meet: "
+                        "Auto picks the cheapest method the accuracy study measured within it "
+                        "(smaller: more accurate, slower methods)"),
         "cycles_samples": bpy.props.IntProperty(
             name="Cycles Samples", default=64, min=1, max=1 << 16,
             description="Samples of the Cycles shadow reference: less noise at proportional cost"),

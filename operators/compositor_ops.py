@@ -10,8 +10,6 @@ import bpy
 
 from ..addon import compositor
 
-AUTO_FALLBACK = "pcf"       # what a light's "auto" method resolves to (as Compute Passes)
-
 
 def exr_layers(path: str) -> Dict[str, List[str]]:
     """layer -> pass ids of a multilayer EXR written by ``penumbra render``
@@ -46,17 +44,17 @@ def scene_lights(scene) -> List[Tuple[str, str]]:
     return out
 
 
-def light_method(light_name: str, requested: str = "") -> str:
+def light_method(light_name: str, requested: str = "", scene=None) -> str:
     """The pass shown as "the method" for a light: ``requested``, else the
-    light's Penumbra method (``auto`` -> pcf)."""
+    light's Penumbra method (``auto`` resolved as Compute Passes resolves it,
+    ``compute.resolve_method``)."""
+    from .compute import resolve_method
     if requested:
         return requested
     ob = bpy.data.objects.get(light_name)
-    s = getattr(ob.data, "penumbra", None) if ob is not None and ob.type == "LIGHT" else None
-    m = getattr(s, "method", "") or ""
-    if not m or m.lower() == "auto":
-        return AUTO_FALLBACK
-    return m
+    is_light = ob is not None and ob.type == "LIGHT"
+    s = getattr(ob.data, "penumbra", None) if is_light else None
+    return resolve_method(s, ob.data if is_light else None, scene)
 
 
 def _fallback_method(method: str, available: List[str]) -> str:
@@ -90,12 +88,12 @@ def plan_lights(scene, source: str, exr_path: Optional[str] = None,
         names = {layer: name for name, layer in scene_lights(scene)}
         for layer, passes in exr_layers(exr_path).items():
             name = names.get(layer, layer)
-            lights.append((name, layer, _fallback_method(light_method(name, method), passes)))
+            lights.append((name, layer, _fallback_method(light_method(name, method, scene), passes)))
         return lights
     for name, layer in scene_lights(scene):
         have = [p for p in known if bpy.data.images.get(compositor.pass_image_name(layer, p))]
         if have:
-            lights.append((name, layer, _fallback_method(light_method(name, method), have)))
+            lights.append((name, layer, _fallback_method(light_method(name, method, scene), have)))
     return lights
 
 

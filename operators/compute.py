@@ -1,7 +1,9 @@
 """Compute Shadow Passes: capture -> core -> write back, per-light settings.
 
 Each light's pass list is its own method (``light.penumbra.method``; ``auto``
-resolves in :func:`resolve_method`) plus the scene's references; its knobs,
+resolves per light in :func:`auto_choice_for`, from the accuracy study's
+table under the scene's error budget, and the decision with its reason goes
+into the frame's plan) plus the scene's references; its knobs,
 light samples and depth-map size become ``render_frame``'s overrides. Lights
 with the same settings share one ``render_frame`` call (and its buffers).
 
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import bpy
@@ -26,8 +28,6 @@ from ..addon import compositor
 from ..addon import properties as props
 from .capture import capture_scene, render_resolution
 
-#: ``auto`` until the planner can choose per light from the accuracy table
-AUTO_FALLBACK = "pcf"
 #: methods fast enough for the preview (others fall back to pcf there)
 FAST_METHODS = ("pcf", "single_sample")
 IMAGE_PREFIX = "Penumbra "
@@ -43,6 +43,7 @@ class LightJob:
     overrides: Dict[str, object]
     method_overrides: Dict[str, Dict[str, object]]
     map_size: Optional[int]
+    auto: Optional[object] = None          # core.auto_choice.AutoChoice when the light asks for auto
 
     def key(self) -> str:
         return json.dumps([self.passes, self.overrides, self.method_overrides, self.map_size],
@@ -56,6 +57,7 @@ class Step:
     overrides: Dict[str, object]
     method_overrides: Dict[str, Dict[str, object]]
     map_size: Optional[int]
+    auto: Dict[str, object] = field(default_factory=dict)   # light name -> AutoChoice
 
 
 def light_object(captured_name: str):
@@ -69,13 +71,50 @@ def light_object(captured_name: str):
     return ob
 
 
-def resolve_method(settings) -> str:
-    """The pass id a light's settings ask for (``auto`` -> AUTO_FALLBACK)."""
+def light_kind_size(light) -> Tuple[str, float]:
+    """(kind, size) of a captured ``core.scene.Light`` or of Blender light
+    data (as ``operators/capture.py`` reads it, without the object's scale:
+    ``auto`` only tells zero from non-zero sizes)."""
+    if hasattr(light, "extent"):
+        return light.kind, float(light.extent)
+    t = getattr(light, "type", "")
+    if t == "AREA":
+        wide = str(light.shape) in ("RECTANGLE", "ELLIPSE")
+        return "area", float(max(light.size, light.size_y if wide else light.size))
+    if t in ("POINT", "SPOT"):
+        return "sphere", 2.0 * float(light.shadow_soft_size)
+    if t == "SUN":
+        return "sun", float(light.angle)
+    raise ValueError(f"not a light: {light!r}")
+
+
+def error_budget(scene) -> float:
+    from ..core.auto_choice import DEFAULT_BUDGET
+    ss = props.scene_settings(scene) if scene is not None else None
+    return float(getattr(ss, "error_budget", DEFAULT_BUDGET)) if ss is not None else DEFAULT_BUDGET
+
+
+def auto_choice_for(settings, light, scene):
+    """``auto``'s decision (``core.auto_choice.AutoChoice``) for a light
+    whose settings ask for it (or name no registered method), else None.
+    ``light``: the captured light or the Blender light data; ``scene``: the
+    Blender scene (its error budget)."""
+    from ..core import auto_choice
     from ..core import methods as registry
     method = settings.method if settings is not None else props.AUTO
-    if method == props.AUTO or method not in registry.pass_ids(external=False):
-        return AUTO_FALLBACK
-    return method
+    if method != props.AUTO and method in registry.pass_ids(external=False):
+        return None
+    if light is None:
+        return auto_choice.choose("area", 1.0, table=None)       # documented fallback
+    kind, size = light_kind_size(light)
+    return auto_choice.choose(kind, size, budget=error_budget(scene))
+
+
+def resolve_method(settings, light=None, scene=None) -> str:
+    """The pass id a light's settings ask for; ``auto`` resolves per light
+    (:func:`auto_choice_for`; without a light: the documented fallback)."""
+    choice = auto_choice_for(settings, light, scene)
+    return settings.method if choice is None else choice.method
 
 
 def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
@@ -102,12 +141,17 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
         if s is not None and not s.enabled:
             notes.append(f"{lt.name}: Penumbra is off for this light")
             continue
+        choice = None
         if methods:
             passes = list(methods)
         else:
-            m = resolve_method(s)
+            choice = auto_choice_for(s, lt, scene)
+            m = s.method if choice is None else choice.method
             if fast and m not in FAST_METHODS:
                 m = FAST_METHODS[0]
+                if choice is not None:
+                    choice = replace(choice, method=m, reason=f"{choice.reason}; the preview runs {m} "
+                                                              f"instead (fast methods only)")
             passes = list(dict.fromkeys([m] + refs))
         ov = {"seed": seed}
         n = samples or (int(s.light_samples) if s is not None else None)
@@ -124,7 +168,7 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
                 if knobs:
                     mo[m.id] = knobs
         ms = int(s.map_size) if s is not None and s.map_size else None
-        jobs.append(LightJob(lt.name, passes, ov, mo, ms))
+        jobs.append(LightJob(lt.name, passes, ov, mo, ms, choice))
     return jobs, notes
 
 
@@ -137,8 +181,11 @@ def make_steps(jobs: Sequence[LightJob], per_light: bool) -> List[Step]:
         k = j.key()
         if not per_light and k in by_key:
             by_key[k].names.append(j.name)
+            if j.auto is not None:
+                by_key[k].auto[j.name] = j.auto
             continue
-        st = Step([j.name], list(j.passes), dict(j.overrides), dict(j.method_overrides), j.map_size)
+        st = Step([j.name], list(j.passes), dict(j.overrides), dict(j.method_overrides), j.map_size,
+                  {j.name: j.auto} if j.auto is not None else {})
         steps.append(st)
         by_key[k] = st
     return steps
@@ -183,11 +230,18 @@ def check_out_dir(path: str) -> Tuple[Optional[str], Optional[str]]:
 # --------------------------------------------------------------------------
 # running
 def run_step(captured, step: Step, external=None, progress=None):
+    """``render_frame`` for the step's lights; ``auto``'s decisions go into
+    the result's plan (printed and stored in the JSON like the planner's)."""
     from ..core.frame import render_frame
+    from ..core.planner import record_auto
     passes = [p for p in step.passes if p != "cycles" or (external and "cycles" in external)]
-    return render_frame(captured, passes, step.names, overrides=step.overrides,
-                        method_overrides=step.method_overrides, map_size=step.map_size,
-                        progress=progress, external=external)
+    result = render_frame(captured, passes, step.names, overrides=step.overrides,
+                          method_overrides=step.method_overrides, map_size=step.map_size,
+                          progress=progress, external=external)
+    for lp in result.plan.lights:
+        if lp.name in step.auto:
+            record_auto(lp, step.auto[lp.name])
+    return result
 
 
 def merge_results(captured, results):
@@ -282,7 +336,8 @@ class ComputeJob:
                 self.warnings.append(f"light {n!r} was deleted during the run: skipped")
         if not alive:
             return not self.done
-        st = Step(alive, st.passes, st.overrides, st.method_overrides, st.map_size)
+        st = Step(alive, st.passes, st.overrides, st.method_overrides, st.map_size,
+                  {n: c for n, c in st.auto.items() if n in alive})
         try:
             self.results.append(run_step(self.captured, st, self.external, progress))
         except Exception as exc:           # a report, not a traceback

@@ -242,6 +242,7 @@ def test_compute_with_cycles_reference(registered):
     """The scene's references may include Cycles: it comes through the
     external producer of operators/cycles_reference.py."""
     scene = _open_sphere_plane(24, 16)
+    bpy.data.objects["Key.Light"].data.penumbra.method = "pcf"     # not auto: a fixed pass name
     scene.penumbra.references = {"embree_irr", "cycles"}
     scene.penumbra.cycles_samples = 2
     assert bpy.ops.penumbra.compute_passes(samples=4) == {"FINISHED"}
@@ -364,6 +365,8 @@ def test_light_deleted_mid_way(registered):
     spot = bpy.context.object
     spot.name = "Second"
     spot.data.shadow_soft_size = 0.2
+    for lt in bpy.data.lights:
+        lt.penumbra.method = "pcf"                # not auto: a fixed pass name
     captured = capture_scene(scene, resolution=(W, H))
     jobs, _ = compute.light_jobs(scene, captured, samples=4)
     steps = compute.make_steps(jobs, per_light=True)

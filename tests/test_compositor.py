@@ -258,6 +258,7 @@ def test_setup_operator_from_exr_and_bad_input(registered, tmp_path):
     g = _gradient()
     path = str(tmp_path / "shot.0001.exr")
     exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "cycles": g}})
+    scene.objects["Key.Light"].data.penumbra.method = "pcf"        # not auto: a fixed pass name
     assert bpy.ops.penumbra.setup_compositor(source="EXR", filepath=path) == {"FINISHED"}
     node = scene.compositing_node_group.nodes[f"{C.SETUP_PREFIX}Penumbra"]
     assert [s.name for s in node.outputs][:4] == ["Image", "Key_Light: pcf", "Key_Light: embree",

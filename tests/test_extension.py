@@ -209,6 +209,7 @@ def test_exclusions_and_platform_split_match_blenders_builder(blender_ext):
     ours = build.source_files(ROOT, patterns)
     assert sorted(ours) == blender_files
     assert "__init__.py" in ours and "core/frame.py" in ours and "operators/compute.py" in ours
+    assert "core/auto_table.json" in ours          # auto's measured table ships with the code
     for rel in ours:
         assert not rel.startswith(("tests/", "sample_blends/", "scripts/", "bench/", "wheels/",
                                    "dist/", ".venv/", ".git/", "demo_out/")), rel
@@ -259,6 +260,11 @@ def test_linux_zip_layout_and_wheels(linux_zip):
         assert zipped_wheels == sorted(linux_wheels)
         assert set(names) == {"blender_manifest.toml", *(w[2:] for w in linux_wheels),
                               *build.source_files(ROOT)}
+        # the accuracy table ``auto`` reads is in the zip, byte for byte, and loads
+        from penumbra.core import auto_choice
+        with open(auto_choice.TABLE_PATH, "rb") as f:
+            assert zf.read("core/auto_table.json") == f.read()
+        assert auto_choice.parse_table(json.loads(zf.read("core/auto_table.json"))).scenes
         excluded = ("tests/", "sample_blends/", "scripts/", "bench/", ".venv/", ".git/", "dist/")
         assert not [n for n in names if n.startswith(excluded) or "__pycache__" in n
                     or n in ("Makefile", "pyproject.toml")]
@@ -297,6 +303,9 @@ scene = bpy.context.scene
 scene.render.resolution_x, scene.render.resolution_y = 32, 24
 scene.render.resolution_percentage = 100
 out["op"] = sorted(bpy.ops.penumbra.compute_passes(samples=4, methods="pcf,embree"))
+ac = sys.modules["bl_ext.user_default.penumbra.core.auto_choice"]
+out["auto_table"] = ac.TABLE_PATH
+out["auto_choice"] = ac.choose("area", 1.0).rule
 out["images"] = sorted(i.name for i in bpy.data.images if i.name.startswith("Penumbra"))
 import OpenEXR
 out["modules"] = {m: sys.modules[m].__file__ for m in ("numba", "llvmlite", "embreex", "OpenEXR")}
@@ -354,6 +363,9 @@ def test_zip_installs_and_runs_in_a_fresh_bpy_session(linux_zip, tmp_path):
     assert second["op"] == ["FINISHED"], log
     assert [n for n in second["images"] if n.endswith(" pcf")]
     assert [n for n in second["images"] if n.endswith(" embree")]
+    # auto reads the table installed with the extension, not a fallback
+    assert second["auto_table"] == os.path.join(ext_dir, "core", "auto_table.json")
+    assert second["auto_choice"] in ("meets budget", "most accurate")
     for mod, path in second["modules"].items():
         assert path.startswith(site + os.sep), (mod, path)
     # the Numba cache lives in the extension's user folder, not beside its code

@@ -1,0 +1,133 @@
+"""``auto`` in Blender (bpy, background mode): Compute Passes, the panel and
+Set up compositor all resolve a light's ``auto`` with core/auto_choice.py
+under the scene's error budget, and the frame's JSON carries the decision."""
+import json
+
+import bpy
+import pytest
+
+import penumbra
+from penumbra.addon import compositor
+from penumbra.core import auto_choice as ac
+from scenes import sample_path
+
+
+@pytest.fixture
+def registered():
+    penumbra.register()
+    yield
+    penumbra.unregister()
+
+
+def _sphere_plane(w=32, h=24):
+    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = w, h
+    scene.render.resolution_percentage = 100
+    return scene, bpy.data.objects["Key.Light"]
+
+
+def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
+    scene, light = _sphere_plane()
+    assert light.data.penumbra.method == "auto"
+    assert scene.penumbra.error_budget == pytest.approx(ac.DEFAULT_BUDGET)
+    scene.penumbra.references = set()
+    scene.penumbra.output_folder = str(tmp_path)
+    picked = []
+    for budget in (0.04, 0.3):
+        scene.penumbra.error_budget = budget
+        want = ac.choose("area", light.data.size, budget=scene.penumbra.error_budget)
+        assert want.rule == "meets budget"
+        assert bpy.ops.penumbra.compute_passes(samples=4) == {"FINISHED"}
+        rec = json.loads((tmp_path / "sphere_plane.0001.json").read_text())
+        (lp,) = rec["plan"]["lights"]
+        assert lp["auto"]["method"] == want.method and lp["decisions"][0] == want.reason
+        assert lp["auto"]["budget"] == pytest.approx(budget)
+        # the pass is written under the method id auto resolved to, never "auto"
+        assert list(rec["lights"][0]["methods"]) == [want.method]
+        assert bpy.data.images.get(compositor.pass_image_name("Key_Light", want.method)) is not None
+        picked.append(want)
+    # a looser budget picks a cheaper, less accurate method
+    assert picked[0].method != picked[1].method
+    assert picked[1].seconds < picked[0].seconds and picked[1].rmse > picked[0].rmse
+    # Set up compositor shows the same pick as the light's method
+    from penumbra.operators.compositor_ops import light_method
+    assert light_method("Key.Light", scene=scene) == picked[1].method
+
+
+def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
+    from penumbra.operators import compute
+    from penumbra.operators.capture import capture_scene
+    scene, light = _sphere_plane(16, 12)
+    light.data.size = 0.0
+    jobs, _ = compute.light_jobs(scene, capture_scene(scene, resolution=(16, 12)), references=())
+    (job,) = jobs
+    assert job.passes == ["pcf"] and job.auto.rule == "hard"
+    assert compute.resolve_method(light.data.penumbra, light.data, scene) == "pcf"
+    # no light to go by (a cycles-only run): the documented fallback
+    assert compute.resolve_method(None) == ac.FALLBACK["average"]
+
+
+def test_panel_says_what_auto_picks_and_why(registered):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    labels, knobs_of = [], []
+
+    class Layout:
+        use_property_split = use_property_decorate = active = enabled = True
+
+        def prop(self, data, name, **kw):
+            if hasattr(data, "bl_rna") and data.bl_rna.identifier.startswith("PENUMBRA_PG_knobs_"):
+                knobs_of.append(data.bl_rna.identifier[len("PENUMBRA_PG_knobs_"):])
+
+        def operator(self, *a, **kw):
+            return type("Props", (), {})()
+
+        def label(self, text="", **kw):
+            labels.append(text)
+
+        def row(self, **kw):
+            return self
+
+        column = row
+
+    class Ctx:
+        pass
+
+    from penumbra.addon import panels
+    ctx = Ctx()
+    ctx.scene = bpy.context.scene
+    ctx.scene.penumbra.error_budget = 0.3
+    for kind, size_attr in (("AREA", "size"), ("SPOT", "shadow_soft_size")):
+        light = bpy.data.lights.new(kind, kind)
+        setattr(light, size_attr, 0.5)
+        ctx.light = light
+        labels.clear()
+        knobs_of.clear()
+        panels.PENUMBRA_PT_light.draw(type("P", (), {"layout": Layout()})(), ctx)
+        panels.PENUMBRA_PT_light_quality.draw(type("P", (), {"layout": Layout()})(), ctx)
+        want = ac.choose("area" if kind == "AREA" else "sphere", 1.0, budget=0.3)
+        assert labels == [f"Auto: {want.short}"]
+        assert want.method.split("_irr")[0] in knobs_of           # the picked method's knobs
+
+
+def test_cli_plan_prints_autos_pick_under_the_budget(capsys, tmp_path):
+    """``penumbra plan --methods auto`` resolves per light; ``render`` takes
+    method ids only (exit 2, one line) until ``core/frame.py`` runs per-light
+    pass lists."""
+    from penumbra.cli import main
+    blend = sample_path("torus_plane")                      # a spot light: sphere kind
+    picks = []
+    for budget in ("0.02", "0.3"):
+        assert main(["plan", blend, "--methods", "auto,embree", "--error-budget", budget]) == 0
+        out = capsys.readouterr().out
+        want = ac.choose("sphere", 0.8, budget=float(budget))
+        assert want.reason in out and f"methods: {want.method}, embree" in out
+        picks.append(want.method)
+    assert picks[0] != picks[1]                     # the budget changes the pick
+    for argv, msg in ((["plan", blend, "--methods", "auto", "--error-budget", "0"], "bad --error-budget"),
+                      (["plan", blend, "--methods", "auto", "--error-budget", "nan"], "bad --error-budget"),
+                      (["render", blend, "--methods", "auto", "--out", str(tmp_path)], "'auto' is not available")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and msg in err[0]
+    assert not list(tmp_path.iterdir())
