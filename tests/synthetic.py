@@ -54,3 +54,150 @@ def pixel_world_y(scene: Scene, row):
     W, H = scene.resolution
     half = scene.camera.ortho_scale / 2
     return half - (row + 0.5) / H * 2 * half
+
+
+# --------------------------------------------------------------------------
+# stress-suite builders (issue 7): DESIGN.md's "Numerical robustness" hard cases
+def box(x0, x1, y0, y1, z0, z1):
+    """A closed axis-aligned box: 12 triangles."""
+    t = quad(x0, x1, y0, y1, z0) + quad(x0, x1, y0, y1, z1)
+    v = [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+    for k in range(4):
+        (ax, ay), (bx, by) = v[k], v[(k + 1) % 4]
+        A, B, C, D = [ax, ay, z0], [bx, by, z0], [bx, by, z1], [ax, ay, z1]
+        t += [[A, B, C], [A, C, D]]
+    return t
+
+
+def grid_quad(x0, x1, y0, y1, z, nx, ny):
+    """The rectangle [x0,x1] x [y0,y1] at height z tessellated into nx x ny cells
+    (2 nx ny triangles): a surface made of many small triangles."""
+    xs = np.linspace(x0, x1, nx + 1)
+    ys = np.linspace(y0, y1, ny + 1)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    a = np.stack([X[:-1, :-1], Y[:-1, :-1]], -1).reshape(-1, 2)
+    b = np.stack([X[1:, :-1], Y[1:, :-1]], -1).reshape(-1, 2)
+    c = np.stack([X[1:, 1:], Y[1:, 1:]], -1).reshape(-1, 2)
+    d = np.stack([X[:-1, 1:], Y[:-1, 1:]], -1).reshape(-1, 2)
+    zz = np.full((len(a), 1), float(z))
+    a, b, c, d = (np.concatenate([p, zz], 1) for p in (a, b, c, d))
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).tolist()
+
+
+def persp_camera(eye, target, lens=35.0, clip_start=1e-3, clip_end=100.0):
+    """A perspective camera at ``eye`` looking at ``target``."""
+    eye = np.asarray(eye, float)
+    m = light_matrix(eye, np.asarray(target, float) - eye)
+    return Camera(m, kind="PERSP", lens=lens, clip_start=clip_start, clip_end=clip_end)
+
+
+def make_scene(tris, ids, lights, res=48, camera=None, names=("ground", "occluder"), camera_sees=None):
+    """A Scene from triangle lists; object k is ``names[k]``. ``camera_sees``
+    (bool per object, default all) sets ``visible_camera``."""
+    sees = camera_sees or [True] * len(names)
+    objs = [ObjectInfo(n, i, visible_camera=sees[i]) for i, n in enumerate(names)]
+    tris = np.asarray(tris, np.float32).reshape(-1, 3, 3)
+    return Scene(tris, np.asarray(ids, np.int32), objs, camera or top_ortho_camera(2.0),
+                 list(lights), (res, res))
+
+
+def scaled_scene(scene: Scene, s: float) -> Scene:
+    """The whole scene (geometry, camera, lights, clip range) scaled by ``s``
+    about the origin: every V is unchanged."""
+    cam = scene.camera
+    cm = np.array(cam.world_from_camera, float)
+    cm[:3, 3] *= s
+    cam2 = Camera(cm, kind=cam.kind, lens=cam.lens, ortho_scale=cam.ortho_scale * s,
+                  clip_start=cam.clip_start * s, clip_end=cam.clip_end * s)
+    lights = []
+    for lt in scene.lights:
+        lm = np.array(lt.world_from_light, float)
+        lm[:3, 3] *= s
+        lights.append(Light(lt.name, lt.kind, lm, blender_type=lt.blender_type, shape=lt.shape,
+                            size=lt.size * s, size_y=lt.size_y * s, radius=lt.radius * s,
+                            spot_size=lt.spot_size, angle=lt.angle))
+    return Scene((scene.triangles.astype(np.float64) * s).astype(np.float32), scene.tri_object,
+                 scene.objects, cam2, lights, scene.resolution, name=scene.name)
+
+
+def stress_cases(res=48):
+    """DESIGN.md's hard cases as (name, Scene); every scene has one light."""
+    g = quad(-10, 10, -10, 10, 0.0)
+    cases = {}
+    # light 2 degrees above the horizon, a box on the ground: long grazing shadows
+    cases["grazing_area"] = make_scene(
+        g + box(-0.5, 0.5, -0.5, 0.5, 0.0, 0.5), [0, 0] + [1] * 12,
+        [Light("A", "area", light_matrix((10, 0, 0.35), (-1, 0, -0.035)), shape="SQUARE", size=1.0)], res)
+    cases["grazing_sun"] = make_scene(
+        g + box(-0.5, 0.5, -0.5, 0.5, 0.0, 0.5), [0, 0] + [1] * 12,
+        [Light("S", "sun", light_matrix((0, 0, 5), (-1, 0, -0.035)), angle=0.05)], res)
+    # a box standing on the ground: receiver touches its occluder
+    cases["contact"] = make_scene(g + box(-0.5, 0.5, -0.5, 0.5, 0.0, 1.0), [0, 0] + [1] * 12,
+                                  [area_light(1.0)], res)
+    # an occluder lying in the receiver's plane (shadows nothing), plus a real one above
+    cases["coplanar"] = make_scene(g + quad(-1, 1, -1, 1, 0.0) + quad(-10, 10, -10, 0.0, 2.0),
+                                   [0, 0, 1, 1, 2, 2], [area_light(1.0)], res,
+                                   names=("ground", "coplanar", "occluder"), camera_sees=[True, True, False])
+    # an occluder above a sphere light: behind it, shadows nothing
+    cases["behind_light"] = make_scene(g + quad(-3, 3, -3, 3, 6.0), [0, 0, 1, 1], [sphere_light(0.3)], res)
+    # a closed box around the light: everything the camera sees is in shadow
+    cases["light_in_box"] = make_scene(g + box(-1, 1, -1, 1, 3.0, 5.0), [0, 0] + [1] * 12,
+                                       [area_light(1.0)], res)
+    # the camera inside a closed box lit from outside: every visible point in shadow
+    cases["camera_inside"] = make_scene(g + box(-1, 1, -1, 1, 0.0, 1.0), [0, 0] + [1] * 12,
+                                        [area_light(1.0)], res,
+                                        camera=persp_camera((0.3, -0.2, 0.5), (0, 0.2, 0.0), lens=16.0))
+    cases["scale_1e-3"] = scaled_scene(half_plane_scene(area_light(1.0), res=res), 1e-3)
+    cases["scale_1e4"] = scaled_scene(half_plane_scene(area_light(1.0), res=res), 1e4)
+    # near clip 1e-3, far clip 1e3; geometry from 1e-2 to 1e3 away in the light's view too
+    cases["near_far_1e6"] = make_scene(
+        quad(-1e3, 1e3, -1e3, 1e3, 0.0) + quad(-1.0, 1.0, -1.0, 0.0, 0.5), [0, 0, 1, 1],
+        [sphere_light(0.1, z=1.0)], res,
+        camera=persp_camera((0.0, -1.5, 1.2), (0.0, 0.0, 0.0), clip_start=1e-3, clip_end=1e3))
+    # degenerate (zero-area, collinear) triangles and an occluder made of
+    # sub-pixel triangles (cells of 1/16 unit; a pixel is 1/12 unit)
+    degenerate = [[[0, 0, 1], [0, 0, 1], [0, 0, 1]], [[0, 0, 1], [1, 1, 1], [2, 2, 1]],
+                  [[-1, -1, 1.5], [-1, -1, 1.5], [1, 1, 1.5]], [[0, 0, 2], [0, 0, 2], [0, 0, 2]]]
+    fine = grid_quad(-3.0, 3.0, -3.0, 0.0, 2.0, 96, 48)
+    rest = quad(-10, 10, -10, -3.0, 2.0) + quad(-10, -3.0, -3.0, 0.0, 2.0) + quad(3.0, 10, -3.0, 0.0, 2.0)
+    cases["degenerate_subpixel"] = make_scene(
+        g + degenerate + fine + rest, [0, 0] + [1] * (len(degenerate) + len(fine) + len(rest)),
+        [area_light(1.0)], res, camera_sees=[True, False])
+    # sub-pixel triangles scattered as dust between light and ground
+    rng = np.random.default_rng(7)
+    c = rng.uniform([-2, -2, 1.0], [2, 2, 3.0], (400, 1, 3))
+    dust = (c + rng.normal(0, 0.01, (400, 3, 3))).tolist()
+    cases["subpixel_dust"] = make_scene(g + dust, [0, 0] + [1] * 400, [area_light(1.0)], res,
+                                        camera_sees=[True, False])
+    # the light's view holds no receiver: a spot cone aimed away from all the camera sees
+    spot = Light("Spot", "sphere", light_matrix((0, 0, 4.0), (0, 1.0, 0.0)), blender_type="SPOT",
+                 radius=0.2, spot_size=0.5)
+    cases["empty_light_view"] = half_plane_scene(spot, res=res)
+    cases["camera_sees_nothing"] = make_scene(g + quad(-10, 10, -10, 0, 2.0), [0, 0, 1, 1], [area_light(1.0)],
+                                              res, camera=persp_camera((0, 0, 1.0), (0, 0, 5.0)))
+    cases["huge_area_light"] = half_plane_scene(area_light(50.0), res=res)
+    cases["huge_sphere_light"] = half_plane_scene(sphere_light(3.5), res=res)
+    cases["huge_sun"] = half_plane_scene(sun_light(2.5), res=res)
+    # every light type and area shape on the half-plane scene
+    cases["square"] = half_plane_scene(area_light(1.0), res=res)
+    cases["rectangle"] = half_plane_scene(area_light(1.5, 0.5, "RECTANGLE"), res=res)
+    cases["disk"] = half_plane_scene(area_light(1.2, shape="DISK"), res=res)
+    cases["ellipse"] = half_plane_scene(area_light(1.5, 0.6, "ELLIPSE"), res=res)
+    cases["point_radius"] = half_plane_scene(sphere_light(0.5), res=res)
+    cases["spot_radius"] = half_plane_scene(sphere_light(0.4, spot_size=2.0), res=res)
+    cases["sun"] = half_plane_scene(sun_light(0.3), res=res)
+    return cases
+
+
+def zero_size_cases(res=48):
+    """Lights of size zero (hard shadows) of every type, on the half-plane scene
+    and on a box standing on the ground."""
+    lights = {"area": area_light(0.0), "point": sphere_light(0.0), "spot": sphere_light(0.0, spot_size=2.0),
+              "sun": Light("Sun", "sun", light_matrix((0, 0, 10.0), (0.3, 0.2, -1.0)), blender_type="SUN",
+                           angle=0.0)}
+    out = {}
+    for k, lt in lights.items():
+        out[f"half_plane_{k}"] = half_plane_scene(lt, res=res)
+    out["box_point"] = make_scene(quad(-10, 10, -10, 10, 0.0) + box(-0.6, 0.4, -0.5, 0.5, 0.0, 0.8),
+                                  [0, 0] + [1] * 12, [sphere_light(0.0, z=2.5)], res)
+    return out

@@ -1,0 +1,210 @@
+"""Issue 7's stress suite: DESIGN.md's hard cases ("Numerical robustness")
+through every registered method.
+
+Each case is a scene built in code (``synthetic.stress_cases``), run once per
+method on buffers shared per case. Every method's raw pass (before
+``render_frame`` clips it) must be float32 of the image's shape, finite and in
+[0, 1]. The methods that claim to converge to the physical answer must stay
+within a per-case RMSE bound of ``embree`` (256 stratified shadow rays per
+pixel) over the pixels the light can reach (``metrics.reach_mask``; elsewhere V
+has no meaning). A light of size zero gives the hard shadow for every method.
+
+Bounds (RMSE over the reach mask). Both the method (64 samples) and the
+reference (256 samples) are Monte Carlo estimates with stratified samples; in
+a penumbra pixel an unstratified estimate of N samples has standard deviation
+at most 0.5 / sqrt(N) (0.0625 at 64, 0.031 at 256), stratification lowers it,
+and lit / umbra pixels have none, so the pure noise part of the RMSE over a
+scene whose penumbra covers a fraction f of the pixels is below
+sqrt(f) * 0.07. The half-plane scenes have f about 1/4: noise < 0.035.
+``NOISE`` = 0.04 is that bound; ``BIAS`` adds what each method's documented
+approximation costs (LDI texel splatting for ``layered``, the depth images'
+sampling for ``depth_raytrace``, the additive edge occlusion of
+``irregular``), measured here and kept with margin, per case, where a case
+departs from the method's ordinary error.
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from penumbra.core import methods as registry
+from penumbra.core.buffers import FrameBuffers
+from penumbra.core.metrics import reach_mask
+from synthetic import stress_cases, zero_size_cases
+
+RES = 48
+SAMPLES = 64          # every method's light samples
+REF_SAMPLES = 256     # the reference's
+CASES = stress_cases(RES)
+ZERO = zero_size_cases(RES)
+METHODS = list(registry.producers())
+PHYSICAL = ("layered", "depth_raytrace", "penumbra_casting", "irregular")
+
+NOISE = 0.04
+# per-method error of the approximation on ordinary scenes (the half-plane
+# scenes of each method's own tests): layered splats each sample into LDI
+# texels (about one texel of shadow-edge shift: ~0.03), depth_raytrace traces
+# depth images (~0.02), penumbra_casting is exact per sample (0), irregular's
+# penumbra is analytic but adds edge occlusions of separate objects (0.01)
+BASE = {"layered": 0.03, "depth_raytrace": 0.02, "penumbra_casting": 0.0, "irregular": 0.01}
+# cases where a method's own documented approximation costs more, with why
+EXTRA = {
+    # irregular computes silhouettes from the light's centre (Johnson et al.
+    # 2.1) and sums the occlusion of overlapping silhouette edges additively,
+    # clamped: a box's faces overlap in the penumbra next to its base
+    ("contact", "irregular"): 0.08,
+    ("contact", "layered"): 0.04,
+    # a 2-degree light sees the ground edge-on: every depth image from the
+    # light has a handful of texels across the whole receiver (Agrawala et
+    # al. 6.1, "Sampling"); the paper gives no bound, the methods' own tests
+    # measured 0.1 for depth_raytrace; irregular's light-space grid degenerates
+    ("grazing_area", "depth_raytrace"): 0.10,
+    ("grazing_area", "irregular"): 0.18,
+    # a light 50x its height above the occluder: its corners see the
+    # occluder's edge at grazing angles, depth images leak there (the
+    # method's own test measured +0.19)
+    ("huge_area_light", "depth_raytrace"): 0.22,
+    ("huge_sphere_light", "depth_raytrace"): 0.05,
+    # a sun of 143 degrees: the cone's rim directions are grazing
+    ("huge_sun", "depth_raytrace"): 0.16,
+    ("huge_sun", "irregular"): 0.11,
+}
+# cases where the reference is exact, not estimated: V = 1 (nothing between
+# light and receiver) or V = 0 (a closed box between them)
+EXACT = {"behind_light": 1.0, "light_in_box": 0.0, "camera_inside": 0.0}
+
+
+def bound(case: str, method: str) -> float:
+    return NOISE + BASE[method] + EXTRA.get((case, method), 0.0)
+
+
+def _reference(fb, light, samples):
+    m = registry.producers()["embree"]
+    return m.run(fb, light, m.make_params({"samples": samples, "seed": 99})).passes["embree"]
+
+
+@functools.lru_cache(maxsize=None)
+def prepared(group: str, case: str):
+    """(scene, buffers, reach mask, embree reference) for one case, shared by every method."""
+    scene = (CASES if group == "stress" else ZERO)[case]
+    W, H = scene.resolution
+    fb = FrameBuffers(scene, W, H)
+    light = scene.lights[0]
+    mask = reach_mask(fb.gbuffer, light)
+    ref = _reference(fb, light, 1 if group == "zero" else REF_SAMPLES)
+    return scene, fb, mask, ref
+
+
+def run_method(fb, light, method):
+    m = registry.producers()[method]
+    return m.run(fb, light, m.make_params({"samples": SAMPLES, "seed": 5}))
+
+
+def check_pass(v, shape):
+    assert v.dtype == np.float32 and v.shape == shape
+    assert np.isfinite(v).all(), "NaN or inf in the pass"
+    assert v.min() >= 0.0 and v.max() <= 1.0, (float(v.min()), float(v.max()))
+
+
+def rmse(v, ref, mask):
+    d = (v.astype(np.float64) - ref)[mask]
+    return float(np.sqrt(np.mean(d * d))) if d.size else 0.0
+
+
+def test_the_cases_exercise_what_they_name():
+    """The scenes are what their names say (so a passing case means something)."""
+    for name in ("square", "grazing_area", "contact", "scale_1e4", "near_far_1e6", "degenerate_subpixel"):
+        _, fb, mask, ref = prepared("stress", name)
+        pen = mask & (ref > 0.02) & (ref < 0.98)
+        assert mask.sum() > 500 and ((ref[mask] < 0.02).sum() > 20 or pen.sum() > 20), name
+    for name in ("empty_light_view", "camera_sees_nothing"):
+        assert not prepared("stress", name)[2].any(), name
+    assert prepared("stress", "camera_sees_nothing")[1].gbuffer.hit.sum() < RES * RES
+    assert (prepared("stress", "light_in_box")[3][prepared("stress", "light_in_box")[2]] == 0).all()
+    sc = CASES["near_far_1e6"]
+    assert sc.camera.clip_end / sc.camera.clip_start == pytest.approx(1e6)
+    lo, hi = sc.bounds()
+    assert (hi - lo).max() / 0.5 > 1e3       # the occluder's height above the ground vs the scene
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("case", list(CASES))
+def test_hard_case(case, method):
+    scene, fb, mask, ref = prepared("stress", case)
+    light = scene.lights[0]
+    res = run_method(fb, light, method)
+    shape = (scene.resolution[1], scene.resolution[0])
+    for pid, v in res.passes.items():
+        check_pass(v, shape)
+        # where nothing is seen there is no receiver: every method leaves V = 1
+        assert (v[~fb.gbuffer.hit] == 1.0).all(), pid
+    v = res.passes[method] if method in res.passes else next(iter(res.passes.values()))
+    if case in EXACT:
+        if method in PHYSICAL or method == "embree":
+            # the answer is exact, so is every physical method's (up to the
+            # few texels depth images blur at the box's inner corners)
+            d = np.abs(v.astype(np.float64) - EXACT[case])[mask]
+            assert d.mean() < 0.01 and np.mean(d > 0.05) < 0.02, (d.mean(), np.mean(d > 0.05))
+        assert (ref[mask] == EXACT[case]).all()
+    elif method in PHYSICAL:
+        err = rmse(v, ref, mask)
+        assert err < bound(case, method), f"{method} on {case}: RMSE {err:.4f} >= {bound(case, method):.3f}"
+        if method == "depth_raytrace":
+            err_irr = rmse(res.passes["depth_raytrace_irr"], _irr_reference(case), mask)
+            assert err_irr < bound(case, method) + 0.03, err_irr
+
+
+@functools.lru_cache(maxsize=None)
+def _irr_reference(case):
+    scene, fb, _, _ = prepared("stress", case)
+    m = registry.producers()["embree"]
+    return m.run(fb, scene.lights[0], m.make_params({"samples": REF_SAMPLES, "seed": 99})).passes["embree_irr"]
+
+
+def hard_edge_band(ref, hit, width=2):
+    """Pixels within ``width`` pixels of a change of the hard-shadow reference
+    (or of the silhouette of what the camera sees): where a depth map's texels
+    (one map texel per camera pixel here) may place the edge differently."""
+    edge = np.zeros(ref.shape, bool)
+    edge[:, 1:] |= ref[:, 1:] != ref[:, :-1]
+    edge[:, :-1] |= ref[:, 1:] != ref[:, :-1]
+    edge[1:] |= ref[1:] != ref[:-1]
+    edge[:-1] |= ref[1:] != ref[:-1]
+    edge[:, 1:] |= hit[:, 1:] != hit[:, :-1]
+    edge[1:] |= hit[1:] != hit[:-1]
+    band = edge.copy()
+    for _ in range(width):
+        b = band.copy()
+        b[1:] |= band[:-1]
+        b[:-1] |= band[1:]
+        b[:, 1:] |= band[:, :-1]
+        b[:, :-1] |= band[:, 1:]
+        band = b
+    return band
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("case", list(ZERO))
+def test_zero_size_light_is_the_hard_shadow(case, method):
+    """A light of size zero: the exact hard shadow (embree's single ray per
+    pixel) for every method. Ray-traced and analytic methods must match it on
+    every pixel; shadow-map methods sample a depth map, so within two pixels
+    of the shadow's edge a texel may fall either way (and a filter may blend):
+    there V may differ, everywhere else it must match."""
+    scene, fb, mask, ref = prepared("zero", case)
+    assert scene.lights[0].is_zero_size
+    assert ((ref[mask] == 0).sum() > 50) and ((ref[mask] == 1).sum() > 50)
+    assert set(np.unique(ref[mask])) <= {0.0, 1.0}
+    res = run_method(fb, scene.lights[0], method)
+    v = res.passes[method]
+    check_pass(v, ref.shape)
+    d = np.abs(v.astype(np.float64) - ref) > 1e-6
+    d &= mask
+    exact_methods = ("embree", "penumbra_casting", "irregular")
+    if method in exact_methods:
+        assert d.sum() <= 2, np.argwhere(d)[:10]          # a ray grazing the occluder's edge
+    else:
+        band = hard_edge_band(ref, fb.gbuffer.hit)
+        assert not (d & ~band).any(), np.argwhere(d & ~band)[:10]
