@@ -327,7 +327,7 @@ def test_penumbra_volume_contains_every_hard_volume():
     whenever a sample in the polygon blocks r (exact hard volume test), r is
     inside the penumbra volume (no slack), and both hard volume forms agree."""
     rng = np.random.default_rng(3)
-    out = np.zeros((MAXP, 4))
+    out = np.zeros((4, MAXP))
     hv = np.zeros((4, 4))
     ef = np.zeros((3, 4))
     tn = np.zeros(4)

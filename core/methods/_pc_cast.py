@@ -142,7 +142,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
     st_node = np.empty(2 * L + 4, np.int64)
     st_lev = np.empty(2 * L + 4, np.int64)
     st_state = np.empty(2 * L + 4, np.int64)
-    VG = np.zeros((G, MAXP, 4))
+    VG = np.zeros((G, 4, MAXP))
     nVG = np.zeros(G, np.int64)
     hsets = nsets if planes else 1
     HV = np.zeros((hsets, S if planes else 1, 4, 4))

@@ -41,7 +41,9 @@ def _cross(ax, ay, az, bx, by, bz):
 def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
     """Separating planes between light polygon/polytope ``DV[:nv]`` (homogeneous
     vertices, edges ``DE[:ne]`` as vertex index pairs) and triangle ``tri``
-    (float64[3,3]); unit normals, T's side >= 0. Writes ``out[:k]`` and returns
+    (float64[3,3]); unit normals, T's side >= 0. Writes ``out[:, :k]`` (rows
+    nx, ny, nz, o: structure of arrays, so the tests below vectorize over the
+    planes) and returns
     k (0 = no plane: the whole space), or -1 for a degenerate triangle (it
     blocks nothing)."""
     ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
@@ -70,10 +72,10 @@ def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
                 neg = False
         if pos or neg:
             s = -1.0 if pos else 1.0
-            out[k, 0] = s * tnx
-            out[k, 1] = s * tny
-            out[k, 2] = s * tnz
-            out[k, 3] = s * to
+            out[0, k] = s * tnx
+            out[1, k] = s * tny
+            out[2, k] = s * tnz
+            out[3, k] = s * to
             k += 1
     # candidate planes: (edge of T, vertex of light) and (vertex of T, edge of light)
     n_cand = 3 * nv + 3 * ne
@@ -125,10 +127,10 @@ def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
             s = -1.0
         else:
             continue
-        out[k, 0] = s * nx
-        out[k, 1] = s * ny
-        out[k, 2] = s * nz
-        out[k, 3] = s * o
+        out[0, k] = s * nx
+        out[1, k] = s * ny
+        out[2, k] = s * nz
+        out[3, k] = s * o
         k += 1
     return k
 
@@ -188,36 +190,38 @@ def in_hard_volume(hv, x, y, z):
 def box_vs_volume(bb, planes, n, active, use_b, tol):
     """INTERSECTS(B_N, V, P, P'): False if the box lies outside one active
     plane; otherwise the new active set P' (optimization B drops the planes
-    the box lies entirely inside of). Centre / half-extent form."""
-    out = active
+    the box lies entirely inside of). Centre / half-extent form; every plane
+    is evaluated (no early exit, unsigned indices) so the loop vectorizes."""
     cx = 0.5 * (bb[0] + bb[3])
     cy = 0.5 * (bb[1] + bb[4])
     cz = 0.5 * (bb[2] + bb[5])
     hx = 0.5 * (bb[3] - bb[0])
     hy = 0.5 * (bb[4] - bb[1])
     hz = 0.5 * (bb[5] - bb[2])
-    for j in range(n):
-        bit = np.int64(1) << j
-        if (active & bit) == 0:
-            continue
-        nx, ny, nz = planes[j, 0], planes[j, 1], planes[j, 2]
-        d = nx * cx + ny * cy + nz * cz - planes[j, 3]
+    outside = np.uint64(0)
+    inside = np.uint64(0)
+    for j in range(np.uint64(n)):
+        nx, ny, nz = planes[0, j], planes[1, j], planes[2, j]
+        d = nx * cx + ny * cy + nz * cz - planes[3, j]
         rr = abs(nx) * hx + abs(ny) * hy + abs(nz) * hz
-        if d + rr < -tol:
-            return False, out
-        if use_b and d - rr >= -tol:
-            out &= ~bit
-    return True, out
+        outside |= np.uint64(d + rr < -tol) << j
+        inside |= np.uint64(d - rr >= -tol) << j
+    act = np.uint64(active)
+    if outside & act:
+        return False, active
+    if use_b:
+        return True, np.int64(act & ~inside)
+    return True, active
 
 
 @njit(cache=True, inline="always")
 def point_in_volume(planes, n, active, x, y, z, tol):
     """POINT-IN-VOLUME(r, V, P) over the active planes, with slack ``tol``."""
-    for j in range(n):
-        if (active >> j) & 1:
-            if planes[j, 0] * x + planes[j, 1] * y + planes[j, 2] * z - planes[j, 3] < -tol:
-                return False
-    return True
+    outside = np.uint64(0)
+    for j in range(np.uint64(n)):
+        v = planes[0, j] * x + planes[1, j] * y + planes[2, j] * z - planes[3, j]
+        outside |= np.uint64(v < -tol) << j
+    return (outside & np.uint64(active)) == 0
 
 
 @njit(cache=True, inline="always")

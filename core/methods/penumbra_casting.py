@@ -415,19 +415,19 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         blocker_parts = []
         for a in range(0, len(cand), _VL_BATCH):
             cb = np.ascontiguousarray(cand[a:a + _VL_BATCH])
-            VLb = np.zeros((len(cb), MAXP, 4))
+            VLb = np.zeros((len(cb), 4, MAXP))
             nVLb = np.zeros(len(cb), np.int64)
             keep = np.zeros(len(cb), np.bool_)
             _light_volumes(cb, L.DVL, L.nvl, L.DEL, L.nel, setup.eps, root_bb, setup.tol, VLb, nVLb, keep)
             w = int(nVLb[keep].max()) if keep.any() else 0
             widest = max(widest, w)
-            parts.append(VLb[keep, :max(w, 1)])
+            parts.append(VLb[keep, :, :max(w, 1)])
             nparts.append(nVLb[keep])
             blocker_parts.append(cb[keep])
-        VL = np.zeros((sum(len(q) for q in parts), widest, 4))
+        VL = np.zeros((sum(len(q) for q in parts), 4, widest))
         o = 0
         for q in parts:
-            VL[o:o + len(q), :q.shape[1]] = q
+            VL[o:o + len(q), :, :q.shape[2]] = q
             o += len(q)
         nVL = np.concatenate(nparts) if nparts else np.zeros(0, np.int64)
         blockers = np.ascontiguousarray(np.concatenate(blocker_parts)) if blocker_parts \
