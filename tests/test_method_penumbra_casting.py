@@ -352,7 +352,7 @@ def test_penumbra_volume_contains_every_hard_volume():
         uv = rng.uniform(0, 1, (24, 2))
         for r in rng.normal(0, 2.5, (80, 3)):
             rho = receiver_edge_functions(tri, r[0], r[1], r[2], ef)
-            inside = point_in_volume(out, k, -1, r[0], r[1], r[2], 0.0)
+            inside = point_in_volume(out[None], 0, k, -1, r[0], r[1], r[2], 0.0)
             for u, v in uv:
                 p = (DV[0] * (1 - u) * (1 - v) + DV[1] * u * (1 - v) + DV[2] * u * v + DV[3] * (1 - u) * v)
                 blk = hard_volume(tri, p[0], p[1], p[2], p[3], hv) and in_hard_volume(hv, r[0], r[1], r[2])

@@ -9,11 +9,20 @@ what is stored; the relation ``l_i -> r_j`` is marked blocked by one exact
 test (``in_hard_volume``), so the output does not depend on the switches.
 
 Per-chunk counters ``st`` (int64):
-  0 free mask slots, 1 live masks, 2 peak live masks, 3 points of the current
+  0 released mask slots (on the free stack), 1 live masks, 2 peak live
+  masks, 3 points of the current
   hierarchy in full umbra, 4 points in the current hierarchy, 5 triangle stamp,
   6 nodes visited, 7 point-vs-V_L tests, 8 hard shadow volume tests,
   9 triangles whose group volumes were built, 10 hard volumes built,
-  11 mask slots capacity, 12 triangles culled at the root.
+  11 mask slots handed out (pool rows ever touched), 12 triangles culled at
+  the root.
+
+Mask memory (D): ``pool`` has a row for every receiver of the chunk, but it
+is allocated zeroed (calloc: the operating system commits a page on first
+touch) and rows are handed out in order, released rows reused first, so the
+memory in use follows the peak of live masks. The kernel never reallocates
+an array: a reassigned array variable in a Numba loop costs atomic
+reference count updates on every iteration.
 """
 from __future__ import annotations
 
@@ -28,8 +37,8 @@ ALLP = np.int64(-1)
 
 
 @njit(cache=True, inline="always")
-def _bits_full(mask, a, b):
-    """Every bit in [a, b) set."""
+def _bits_full(pool, sl, a, b):
+    """Every bit in [a, b) of mask ``pool[sl]`` set."""
     i = a
     while i < b:
         w = i >> 6
@@ -39,7 +48,7 @@ def _bits_full(mask, a, b):
             want = np.uint64(0xFFFFFFFFFFFFFFFF)
         else:
             want = ((np.uint64(1) << np.uint64(n)) - np.uint64(1)) << np.uint64(o)
-        if (mask[w] & want) != want:
+        if (pool[sl, w] & want) != want:
             return False
         i += n
     return True
@@ -86,10 +95,6 @@ def _word_tests(T4, j, a, e, base, co):
     u1x, u1y, u1z, c1 = co[4], co[5], co[6], co[7]
     u2x, u2y, u2z, c2 = co[8], co[9], co[10], co[11]
     tx, ty, tz, tc = co[12], co[13], co[14], co[15]
-    X = T4[j, 0]
-    Y = T4[j, 1]
-    Z = T4[j, 2]
-    W = T4[j, 3]
     # unsigned indices and shifts: no negative-index wraparound or
     # out-of-range-shift selects in the loop body, so LLVM vectorizes it
     ua = np.uint64(a)
@@ -97,7 +102,7 @@ def _word_tests(T4, j, a, e, base, co):
     acc = np.uint64(0)
     for k in range(np.uint64(e - a)):
         i = ua + k
-        px, py, pz, pw = X[i], Y[i], Z[i], W[i]
+        px, py, pz, pw = T4[j, 0, i], T4[j, 1, i], T4[j, 2, i], T4[j, 3, i]
         v0 = u0x * px + u0y * py + u0z * pz - c0 * pw
         v1 = u1x * px + u1y * py + u1z * pz - c1 * pw
         v2 = u2x * px + u2y * py + u2z * pz - c2 * pw
@@ -169,13 +174,12 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
     for ti in range(t0, tri_sel.shape[0]):
         # line 29 (A): rebuild when enough points of the hierarchy are in umbra
         if optA and st[4] > 2 * leaf_size and st[3] > rebuild_frac * st[4]:
-            return ti, pool, free
+            return ti
         if st[4] == 0:
-            return tri_sel.shape[0], pool, free
+            return tri_sel.shape[0]
         k = tri_sel[ti]
         nL = nVL[k]
         tri = tris[k]
-        VLk = VL[k]
         triangle_plane(tri, tn)
         st[5] += 1
         stamp = st[5]
@@ -219,7 +223,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
             st[6] += 1
             if optA and node_fu[node]:                                   # line 35
                 continue
-            ok, pl = box_vs_volume(bb[node], VLk, nL, PLv[lev], optB, tol)  # line 36
+            ok, pl = box_vs_volume(bb, node, VL, k, nL, PLv[lev], optB, tol)  # line 36
             if first:
                 first = False
                 if not ok:
@@ -235,7 +239,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                 if optA and node_gu[node, g]:                            # line 39
                     continue
                 if vol_built:                                            # lines 40-43
-                    ok2, a2 = box_vs_volume(bb[node], VG[g], nVG[g], act[lev, g], optB, tol)
+                    ok2, a2 = box_vs_volume(bb, node, VG, g, nVG[g], act[lev, g], optB, tol)
                     if not ok2:
                         continue
                     act[nl, g] = a2
@@ -267,22 +271,15 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                     continue
                 x, y, z = pts[r, 0], pts[r, 1], pts[r, 2]
                 st[7] += 1
-                if not point_in_volume(VLk, nL, PLv[nl], x, y, z, tol):  # line 58
+                if not point_in_volume(VL, k, nL, PLv[nl], x, y, z, tol):  # line 58
                     continue
                 if slot[r] < 0:                                          # line 59 (D)
-                    if st[0] == 0:
-                        cap = pool.shape[0]
-                        ncap = 2 * cap
-                        np2 = np.zeros((ncap, nwords), np.uint64)
-                        np2[:cap] = pool
-                        pool = np2
-                        free = np.empty(ncap, np.int64)
-                        for q2 in range(ncap - cap):
-                            free[q2] = ncap - 1 - q2
-                        st[0] = ncap - cap
-                        st[11] = ncap
-                    st[0] -= 1
-                    sl = free[st[0]]
+                    if st[0] > 0:
+                        st[0] -= 1
+                        sl = free[st[0]]
+                    else:
+                        sl = st[11]
+                        st[11] += 1
                     for w in range(nwords):
                         pool[sl, w] = np.uint64(0)
                     slot[r] = sl
@@ -304,7 +301,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                         continue
                     if optA and gu[r, g]:                                # line 66
                         continue
-                    if not point_in_volume(VG[g], nVG[g], act[nl, g], x, y, z, tol):  # line 67
+                    if not point_in_volume(VG, g, nVG[g], act[nl, g], x, y, z, tol):  # line 67
                         continue
                     if planes and hv_stamp[j, g] != stamp:
                         # C: the hard volumes of this group of this set, on first need
@@ -349,7 +346,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                             pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co)
                             st[8] += e - a
                     if optA:                                             # line 72
-                        if _bits_full(pool[sl], g_start[g], g_start[g + 1]):
+                        if _bits_full(pool, sl, g_start[g], g_start[g + 1]):
                             gu[r, g] = 1
                 if optA:                                                 # line 74
                     allg = True
@@ -361,7 +358,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                         fu[r] = 1
                         st[3] += 1
                 if optD:                                                 # line 75
-                    full = fu[r] == 1 if optA else _bits_full(pool[sl], 0, S)
+                    full = fu[r] == 1 if optA else _bits_full(pool, sl, 0, S)
                     if full:
                         fu[r] = 1
                         free[st[0]] = sl
@@ -378,4 +375,4 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                     for g in range(G):
                         node_gu[node, g] &= gu[r, g]
                 node_fu[node] = lf
-    return tri_sel.shape[0], pool, free
+    return tri_sel.shape[0]

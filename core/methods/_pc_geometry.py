@@ -187,22 +187,25 @@ def in_hard_volume(hv, x, y, z):
 
 
 @njit(cache=True, inline="always")
-def box_vs_volume(bb, planes, n, active, use_b, tol):
-    """INTERSECTS(B_N, V, P, P'): False if the box lies outside one active
-    plane; otherwise the new active set P' (optimization B drops the planes
-    the box lies entirely inside of). Centre / half-extent form; every plane
-    is evaluated (no early exit, unsigned indices) so the loop vectorizes."""
-    cx = 0.5 * (bb[0] + bb[3])
-    cy = 0.5 * (bb[1] + bb[4])
-    cz = 0.5 * (bb[2] + bb[5])
-    hx = 0.5 * (bb[3] - bb[0])
-    hy = 0.5 * (bb[4] - bb[1])
-    hz = 0.5 * (bb[5] - bb[2])
+def box_vs_volume(bb, i, planes, p, n, active, use_b, tol):
+    """INTERSECTS(B_N, V, P, P'): box ``bb[i]`` (lo, hi) against volume
+    ``planes[p]``; False if the box lies outside one active plane; otherwise
+    the new active set P' (optimization B drops the planes the box lies
+    entirely inside of). Centre / half-extent form; every plane is evaluated
+    (no early exit, unsigned indices) so the loop vectorizes. Arrays and
+    indices rather than row views: a view in a Numba loop costs two atomic
+    reference count updates."""
+    cx = 0.5 * (bb[i, 0] + bb[i, 3])
+    cy = 0.5 * (bb[i, 1] + bb[i, 4])
+    cz = 0.5 * (bb[i, 2] + bb[i, 5])
+    hx = 0.5 * (bb[i, 3] - bb[i, 0])
+    hy = 0.5 * (bb[i, 4] - bb[i, 1])
+    hz = 0.5 * (bb[i, 5] - bb[i, 2])
     outside = np.uint64(0)
     inside = np.uint64(0)
     for j in range(np.uint64(n)):
-        nx, ny, nz = planes[0, j], planes[1, j], planes[2, j]
-        d = nx * cx + ny * cy + nz * cz - planes[3, j]
+        nx, ny, nz = planes[p, 0, j], planes[p, 1, j], planes[p, 2, j]
+        d = nx * cx + ny * cy + nz * cz - planes[p, 3, j]
         rr = abs(nx) * hx + abs(ny) * hy + abs(nz) * hz
         outside |= np.uint64(d + rr < -tol) << j
         inside |= np.uint64(d - rr >= -tol) << j
@@ -215,11 +218,12 @@ def box_vs_volume(bb, planes, n, active, use_b, tol):
 
 
 @njit(cache=True, inline="always")
-def point_in_volume(planes, n, active, x, y, z, tol):
-    """POINT-IN-VOLUME(r, V, P) over the active planes, with slack ``tol``."""
+def point_in_volume(planes, p, n, active, x, y, z, tol):
+    """POINT-IN-VOLUME(r, V, P) over the active planes of ``planes[p]``, with
+    slack ``tol``."""
     outside = np.uint64(0)
     for j in range(np.uint64(n)):
-        v = planes[0, j] * x + planes[1, j] * y + planes[2, j] * z - planes[3, j]
+        v = planes[p, 0, j] * x + planes[p, 1, j] * y + planes[p, 2, j] * z - planes[p, 3, j]
         outside |= np.uint64(v < -tol) << j
     return (outside & np.uint64(active)) == 0
 

@@ -127,7 +127,7 @@ def _light_volumes(tris, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
         if k < 0:
             keep[t] = False
             continue
-        ok, _ = box_vs_volume(root_bb, VL[t], k, np.int64(-1), False, tol)
+        ok, _ = box_vs_volume(root_bb, 0, VL, t, k, np.int64(-1), False, tol)
         keep[t] = ok
 
 
@@ -391,7 +391,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
     with timer("cull"):
         lo = setup.pts.min(0)
         hi = setup.pts.max(0)
-        root_bb = np.concatenate([lo, hi])
+        root_bb = np.concatenate([lo, hi])[None, :]
         blo, bhi = lo.copy(), hi.copy()
         verts = L.DVL[:L.nvl]
         fin = verts[verts[:, 3] != 0.0, :3]
@@ -479,18 +479,15 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         c.node_gu = np.zeros((nn, L.G), np.uint8)
         c.node_fu = np.zeros(nn, np.uint8)
         c.st = np.zeros(16, np.int64)
+        # zeroed on allocation: pages are committed on first touch (see _pc_cast)
+        c.pool = np.zeros((m, nwords), np.uint64)
         if optD:
-            cap = max(16, min(m, 1024))
-            c.pool = np.zeros((cap, nwords), np.uint64)
-            c.free = np.arange(cap - 1, -1, -1, dtype=np.int64)
+            c.free = np.empty(m, np.int64)
             c.slot = np.full(m, -1, np.int64)
-            c.st[0] = cap
         else:
-            c.pool = np.zeros((m, nwords), np.uint64)
             c.free = np.zeros(1, np.int64)
             c.slot = np.arange(m, dtype=np.int64)
-            c.st[1] = c.st[2] = m
-        c.st[11] = len(c.pool)
+            c.st[1] = c.st[2] = c.st[11] = m
         c.st[4] = m
         c.build_s = time.perf_counter() - t
 
@@ -499,7 +496,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         t0 = 0
         while True:
             perm, bb, left, right, start, count, depth = c.hier
-            t0, c.pool, c.free = cast_chunk(
+            t0 = cast_chunk(
                 t0, order, blockers, VL, nVL, L.DVg, L.nvg, L.DEg, L.neg, L.g_start,
                 L.mode, L.SP, L.Q, c.M, L.centre, L.lp, setup.seed, c.pix, c.Pg, L.bit2s, L.nx, L.ny,
                 c.pts, c.set_id, perm, bb, left, right, start, count, depth, c.node_gu, c.node_fu,
