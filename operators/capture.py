@@ -81,6 +81,8 @@ def capture_scene(scene=None, depsgraph=None, frame=None, resolution=None, *,
     scene = scene if scene is not None else bpy.context.scene
     if resolution is not None:
         resolution = _check_resolution(resolution)
+    else:
+        _check_resolution(render_resolution(scene), "the scene's render resolution")
     if frame is not None:
         scene.frame_set(int(frame))
     if depsgraph is not None:
@@ -124,13 +126,20 @@ def blend_stem(scene=None) -> str:
 
 # --------------------------------------------------------------------------
 # depsgraph sources
-def _check_resolution(resolution) -> Tuple[int, int]:
+# Largest image side Penumbra computes (the CLI's --resolution limit): a
+# 16384^2 G-buffer alone takes about 12 GB; Blender allows 65536^2.
+MAX_SIDE = 16384
+
+
+def _check_resolution(resolution, what="resolution") -> Tuple[int, int]:
     try:
         w, h = (int(v) for v in resolution)
     except (TypeError, ValueError):
-        raise ValueError(f"resolution must be (width, height), got {resolution!r}") from None
+        raise ValueError(f"{what} must be (width, height), got {resolution!r}") from None
     if w < 1 or h < 1:
-        raise ValueError(f"resolution must be positive, got {w}x{h}")
+        raise ValueError(f"{what} must be positive, got {w}x{h}")
+    if w > MAX_SIDE or h > MAX_SIDE:
+        raise ValueError(f"{what} {w}x{h} is too large: each side must be at most {MAX_SIDE}")
     return w, h
 
 
