@@ -91,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="the .blend file (never modified)")
     r.add_argument("--out", default="penumbra_out", help="output folder (default: penumbra_out)")
     r.add_argument("--methods", default="pcf,embree,embree_irr",
-                   help="comma-separated method ids, or 'all'")
+                   help="comma-separated method ids, 'all', or 'auto' (picked per light, written under "
+                        "the picked id)")
     r.add_argument("--lights", default=None, help="comma-separated light names (default: all)")
     fr = r.add_mutually_exclusive_group()
     fr.add_argument("--frame", type=_positive("--frame", -1048574, 1048574), default=None,
@@ -107,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="light depth-map resolution (larger side)")
     r.add_argument("--threads", type=_positive("--threads", 1, 1024), default=None)
     r.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
+    r.add_argument("--error-budget", type=_error_budget, default=None,
+                   help="RMSE against the reference that 'auto' must meet (default: 0.05)")
     pl = sub.add_parser("plan", help="print what the scene calls for, and why")
     pl.add_argument("scene")
     pl.add_argument("--methods", default="all",
@@ -223,7 +226,7 @@ def cmd_render(args) -> int:
     from .core.planner import PlanError, resolve_passes
     from .core.frame import render_frame
     from .core.output import write_frame
-    passes = resolve_passes(args.methods, _available_external())
+    passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     path = _check_blend(args.scene)
     out = os.path.abspath(args.out)
     try:
@@ -256,7 +259,7 @@ def cmd_render(args) -> int:
         ext = _external_producers(passes, bpy_scene, scene.resolution, args.samples, args.seed)
         label = f"frame {frame} ({k + 1}/{len(frames)}) " if len(frames) > 1 else ""
         result = render_frame(scene, passes, lights, overrides, map_size=args.map_size,
-                              progress=_ProgressBar(label), external=ext)
+                              progress=_ProgressBar(label), external=ext, error_budget=args.error_budget)
         for n in result.plan.notes:
             print(f"penumbra: {n}")
         paths = write_frame(result, out, previews=not args.no_previews)

@@ -70,8 +70,12 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                  method_overrides: Optional[Mapping[str, Mapping[str, object]]] = None,
                  map_size: Optional[int] = None,
                  progress: Optional[Callable[[str, float], None]] = None,
-                 external: Optional[Mapping[str, Callable]] = None) -> FrameResult:
-    """Compute ``passes`` for every planned light of ``scene``.
+                 external: Optional[Mapping[str, Callable]] = None,
+                 error_budget: Optional[float] = None) -> FrameResult:
+    """Compute ``passes`` for every planned light of ``scene``. ``auto`` among
+    them becomes, per light, the method the planner chose under
+    ``error_budget`` (``core/auto_choice.py``): the pass is written under that
+    method's id.
 
     ``overrides`` apply to every method's Params where the field exists
     (``samples``, ``seed``); ``method_overrides[producer_id]`` to one method.
@@ -80,7 +84,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     """
     t0 = time.perf_counter()
     W, H = scene.resolution
-    plan = make_plan(scene, passes, light_names)
+    plan = make_plan(scene, passes, light_names, error_budget=error_budget)
     buffers = FrameBuffers(scene, W, H, map_size)
     registry = method_registry.producers()
     reach = {}
@@ -94,7 +98,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         light = scene.light(lp.name)
         lr = LightResult(lp.name, lp.layer)
         if lp.action == "skip":
-            for pid in passes:
+            for pid in lp.passes:
                 lr.passes[pid] = np.ones((H, W), np.float32)
                 lr.record[pid] = {"time_s": {"total": 0.0}, "visibility": method_registry.visibility_of(pid),
                                   "params": {}, "skipped": lp.reason}
@@ -130,7 +134,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         lp.decisions.append(f"{int(mask.sum())} of {int(buffers.gbuffer.hit.sum())} visible pixels can be "
                             f"lit by this light; the others get V = 1")
         unreached = ~mask
-        for pid in passes:
+        for pid in lp.passes:
             ext = method_registry.is_external(pid)
             m, params, res, phases = done[pid if ext else method_registry.producer_of(pid).id]
             v = np.nan_to_num(res.passes[pid], nan=1.0, posinf=1.0, neginf=0.0)
@@ -144,7 +148,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
             if res.stats:
                 rec["stats"] = res.stats
             lr.record[pid] = rec
-        for pid in passes:
+        for pid in lp.passes:
             ref = REFERENCE_FOR[lr.record[pid]["visibility"]]
             if ref in lr.passes and ref != pid:
                 lr.record[pid]["error"] = {"reference": ref, **errors(lr.passes[pid], lr.passes[ref], mask)}

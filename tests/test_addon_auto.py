@@ -111,9 +111,8 @@ def test_panel_says_what_auto_picks_and_why(registered):
 
 
 def test_cli_plan_prints_autos_pick_under_the_budget(capsys, tmp_path):
-    """``penumbra plan --methods auto`` resolves per light; ``render`` takes
-    method ids only (exit 2, one line) until ``core/frame.py`` runs per-light
-    pass lists."""
+    """``penumbra plan --methods auto`` resolves per light; a bad budget
+    exits 2 with one line and writes nothing."""
     from penumbra.cli import main
     blend = sample_path("torus_plane")                      # a spot light: sphere kind
     picks = []
@@ -126,8 +125,31 @@ def test_cli_plan_prints_autos_pick_under_the_budget(capsys, tmp_path):
     assert picks[0] != picks[1]                     # the budget changes the pick
     for argv, msg in ((["plan", blend, "--methods", "auto", "--error-budget", "0"], "bad --error-budget"),
                       (["plan", blend, "--methods", "auto", "--error-budget", "nan"], "bad --error-budget"),
-                      (["render", blend, "--methods", "auto", "--out", str(tmp_path)], "'auto' is not available")):
+                      (["render", blend, "--methods", "auto", "--out", str(tmp_path), "--error-budget", "2"],
+                       "bad --error-budget")):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and msg in err[0]
     assert not list(tmp_path.iterdir())
+
+
+def test_cli_render_auto_writes_the_picked_method_under_its_id(tmp_path):
+    """``penumbra render --methods auto,embree``: the light's pass is the
+    method auto picked for the budget, under that id (never ``auto``), with
+    its error against the reference and the decision in the plan."""
+    import json
+    import OpenEXR
+    from penumbra.cli import main
+    blend = sample_path("torus_plane")
+    want = ac.choose("sphere", 0.8, budget=0.3)
+    assert main(["render", blend, "--methods", "auto,embree", "--out", str(tmp_path), "--resolution", "48x48",
+                 "--samples", "16", "--error-budget", "0.3", "--no-previews"]) == 0
+    rec = json.load(open(next(tmp_path.glob("*.json"))))
+    (light,) = rec["lights"]
+    assert set(light["methods"]) == {want.method, "embree"}
+    assert light["methods"][want.method]["error"]["reference"] == "embree"
+    plan = rec["plan"]["lights"][0]
+    assert plan["auto"]["method"] == want.method and plan["decisions"][0] == want.reason
+    exr = OpenEXR.File(str(next(tmp_path.glob("*.exr"))), separate_channels=True)
+    names = {c for part in exr.parts for c in part.channels}
+    assert f"Spot.{want.method}.V" in names and not any(".auto." in c for c in names)
