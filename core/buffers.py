@@ -70,6 +70,27 @@ class FrameBuffers:
                 "gbuffer", lambda: raycast.camera_gbuffer(self.scene, self.width, self.height, cs))
         return self._gbuffer
 
+    def light_extent(self, light: Light) -> float:
+        """Largest side of the box around the visible receivers and the
+        light (a sun: the receivers only), at most the scene's
+        largest side: the box every shadow ray of a visible receiver stays in.
+        Depth tolerances scaled by it (``pcf``'s bias, ``layered``'s epsilon)
+        do not grow with far geometry the light's view never holds (a 1e3
+        ground under a 0.5-unit gap: near/far 1e6)."""
+        lo, hi = self.scene.bounds()
+        e = float(np.max(hi - lo))
+        e = e if e > 0 and np.isfinite(e) else 1.0
+        pts = self.receivers()
+        if len(pts):
+            if light.kind != "sun":
+                r = 0.5 * np.hypot(light.size, light.size_y) if light.kind == "area" else light.radius
+                c = light.position
+                pts = np.vstack([pts, (c - r)[None], (c + r)[None]])
+            local = float(np.max(pts.max(0) - pts.min(0)))
+            if 0 < local < e:
+                e = local
+        return e
+
     def receivers(self) -> np.ndarray:
         """World positions of the visible receivers (subsampled for fitting)."""
         g = self.gbuffer

@@ -79,8 +79,9 @@ Beyond the paper (each switchable; the defaults marked):
     depth <= map + epsilon".
   * A point outside the LDI's window (outside a spot cone) is lit (1).
 
-epsilon: ``EPSILON_PER_EXTENT`` (0.002) times the scene's largest bounding
-box side when not given (the ``pcf`` method's rule, Reeves et al.'s 0.3 in a
+epsilon: ``EPSILON_PER_EXTENT`` (0.002) times the largest side of the box
+around the visible receivers and the light (at most the scene's bounding
+box side; ``FrameBuffers.light_extent``) when not given (the ``pcf`` method's rule, Reeves et al.'s 0.3 in a
 100-unit world, scaled down since depths are compared at pixel centres: on
 torus_plane and sphere_plane 0.0005 to 0.01 of the extent changed RMSE by
 < 0.002). It
@@ -675,10 +676,12 @@ def scene_extent(scene) -> float:
     return e if e > 0 and np.isfinite(e) else 1.0
 
 
-def resolved_epsilon(params: LayeredParams, scene) -> float:
+def resolved_epsilon(params: LayeredParams, scene, extent: Optional[float] = None) -> float:
+    """``epsilon``, or EPSILON_PER_EXTENT times ``extent`` (default: the
+    scene's largest side; ``precompute`` passes ``FrameBuffers.light_extent``)."""
     if params.epsilon is not None:
         return float(params.epsilon)
-    return EPSILON_PER_EXTENT * scene_extent(scene)
+    return EPSILON_PER_EXTENT * (scene_extent(scene) if extent is None else float(extent))
 
 
 def _inside_face(face: ViewFace, pts: np.ndarray) -> np.ndarray:
@@ -803,7 +806,7 @@ def precompute(buffers, light: Light, params: LayeredParams) -> Optional[LDI]:
     receivers = buffers.receivers()
     bounds = scene.bounds()
     centre = centre_faces(light, receivers, bounds, ms)
-    eps = resolved_epsilon(params, scene)
+    eps = resolved_epsilon(params, scene, buffers.light_extent(light))
     N = 1 if light.is_zero_size else max(1, int(params.samples))
     if not centre:
         return None

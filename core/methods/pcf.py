@@ -62,8 +62,8 @@ class PCFParams:
     ResFactor: float = 3.0        # paper: between 2 and 4 (figure 4 uses 3)
     MinSamples: int = 2           # paper: "typically ... 2 or 3"
     MinSize: float = 2.0          # paper: "MinSize to 2" (texels)
-    Bias0: Optional[float] = None # scene units; None = 0.003 x scene extent
-    Bias1: Optional[float] = None # scene units; None = 0.004 x scene extent
+    Bias0: Optional[float] = None # scene units; None = 0.003 x FrameBuffers.light_extent
+    Bias1: Optional[float] = None # scene units; None = 0.004 x FrameBuffers.light_extent
     map_size: Optional[int] = None  # depth map's larger side; None = output's larger side
     MaxSize: float = 64.0         # cap on the region's half size (texels), for grazing views
     receiver_plane: bool = True   # beyond the paper: compare each sample with the receiver's
@@ -399,7 +399,7 @@ class PercentageCloserFiltering(Method):
         with timer("filter"):
             out = np.ones(H * W, np.float32)
             if len(lv.faces) and g.hit.any():
-                b0, b1 = resolved_bias(params, scene_extent(buffers.scene))
+                b0, b1 = resolved_bias(params, buffers.light_extent(light))
                 res, minsize, minsamp = float(params.ResFactor), float(params.MinSize), int(params.MinSamples)
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
