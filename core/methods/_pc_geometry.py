@@ -37,6 +37,44 @@ def _cross(ax, ay, az, bx, by, bz):
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
+@njit(cache=True, inline="always")
+def _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
+    """Candidate plane with normal n through point s: append it to ``out``
+    at column k, oriented with T's side >= 0, when it separates T and the
+    light (all of T on one side, all light vertices on the other, not both
+    in the plane); returns the new plane count."""
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not (ln > 1e-300):
+        return k
+    nx /= ln
+    ny /= ln
+    nz /= ln
+    o = nx * sx + ny * sy + nz * sz
+    tmin = 1e300
+    tmax = -1e300
+    for t in range(3):
+        h = nx * tri[t, 0] + ny * tri[t, 1] + nz * tri[t, 2] - o
+        tmin = min(tmin, h)
+        tmax = max(tmax, h)
+    dmin = 1e300
+    dmax = -1e300
+    for v in range(nv):
+        h = nx * DV[v, 0] + ny * DV[v, 1] + nz * DV[v, 2] - o * DV[v, 3]
+        dmin = min(dmin, h)
+        dmax = max(dmax, h)
+    if tmin >= -eps and dmax <= eps and (tmax > eps or dmin < -eps):
+        s = 1.0
+    elif tmax <= eps and dmin >= -eps and (tmin < -eps or dmax > eps):
+        s = -1.0
+    else:
+        return k
+    out[0, k] = s * nx
+    out[1, k] = s * ny
+    out[2, k] = s * nz
+    out[3, k] = s * o
+    return k + 1
+
+
 @njit(cache=True)
 def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
     """Separating planes between light polygon/polytope ``DV[:nv]`` (homogeneous
@@ -77,61 +115,31 @@ def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
             out[2, k] = s * tnz
             out[3, k] = s * to
             k += 1
-    # candidate planes: (edge of T, vertex of light) and (vertex of T, edge of light)
-    n_cand = 3 * nv + 3 * ne
-    for q in range(n_cand):
-        if k >= MAXP:
-            break
-        if q < 3 * nv:
-            e = q // nv
-            v = q % nv
-            i0 = e
-            i1 = (e + 1) % 3
+    # candidate planes: (edge of T, vertex of light) and (vertex of T, edge of
+    # light), in that order (nested loops: no integer division per candidate)
+    for e in range(3):
+        i0 = e
+        i1 = (e + 1) % 3
+        sx, sy, sz = tri[i0, 0], tri[i0, 1], tri[i0, 2]
+        for v in range(nv):
+            if k >= MAXP:
+                return k
             px, py, pz, pw = DV[v, 0], DV[v, 1], DV[v, 2], DV[v, 3]
-            sx, sy, sz = tri[i0, 0], tri[i0, 1], tri[i0, 2]
             nx, ny, nz = _cross(tri[i1, 0] - sx, tri[i1, 1] - sy, tri[i1, 2] - sz,
                                 px - pw * sx, py - pw * sy, pz - pw * sz)
-        else:
-            qq = q - 3 * nv
-            t = qq // ne
-            e = qq % ne
-            sx, sy, sz = tri[t, 0], tri[t, 1], tri[t, 2]
+            k = _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k)
+    for t in range(3):
+        sx, sy, sz = tri[t, 0], tri[t, 1], tri[t, 2]
+        for e in range(ne):
+            if k >= MAXP:
+                return k
             v0 = DE[e, 0]
             v1 = DE[e, 1]
             nx, ny, nz = _cross(DV[v0, 0] - DV[v0, 3] * sx, DV[v0, 1] - DV[v0, 3] * sy,
                                 DV[v0, 2] - DV[v0, 3] * sz,
                                 DV[v1, 0] - DV[v1, 3] * sx, DV[v1, 1] - DV[v1, 3] * sy,
                                 DV[v1, 2] - DV[v1, 3] * sz)
-        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if not (ln > 1e-300):
-            continue
-        nx /= ln
-        ny /= ln
-        nz /= ln
-        o = nx * sx + ny * sy + nz * sz
-        tmin = 1e300
-        tmax = -1e300
-        for t in range(3):
-            h = nx * tri[t, 0] + ny * tri[t, 1] + nz * tri[t, 2] - o
-            tmin = min(tmin, h)
-            tmax = max(tmax, h)
-        dmin = 1e300
-        dmax = -1e300
-        for v in range(nv):
-            h = nx * DV[v, 0] + ny * DV[v, 1] + nz * DV[v, 2] - o * DV[v, 3]
-            dmin = min(dmin, h)
-            dmax = max(dmax, h)
-        if tmin >= -eps and dmax <= eps and (tmax > eps or dmin < -eps):
-            s = 1.0
-        elif tmax <= eps and dmin >= -eps and (tmin < -eps or dmax > eps):
-            s = -1.0
-        else:
-            continue
-        out[0, k] = s * nx
-        out[1, k] = s * ny
-        out[2, k] = s * nz
-        out[3, k] = s * o
-        k += 1
+            k = _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k)
     return k
 
 
@@ -195,6 +203,8 @@ def box_vs_volume(bb, i, planes, p, n, active, use_b, tol):
     (no early exit, unsigned indices) so the loop vectorizes. Arrays and
     indices rather than row views: a view in a Numba loop costs two atomic
     reference count updates."""
+    if active == 0:
+        return True, active          # B: inside every plane already
     cx = 0.5 * (bb[i, 0] + bb[i, 3])
     cy = 0.5 * (bb[i, 1] + bb[i, 4])
     cz = 0.5 * (bb[i, 2] + bb[i, 5])
@@ -221,6 +231,8 @@ def box_vs_volume(bb, i, planes, p, n, active, use_b, tol):
 def point_in_volume(planes, p, n, active, x, y, z, tol):
     """POINT-IN-VOLUME(r, V, P) over the active planes of ``planes[p]``, with
     slack ``tol``."""
+    if active == 0:
+        return True
     outside = np.uint64(0)
     for j in range(np.uint64(n)):
         v = planes[p, 0, j] * x + planes[p, 1, j] * y + planes[p, 2, j] * z - planes[p, 3, j]
