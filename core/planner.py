@@ -75,17 +75,18 @@ def resolve_passes(spec: str | Sequence[str] | None, external: Sequence[str] = (
     items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec) if s.strip()]
     if not items:
         raise PlanError("no methods given")
-    if "all" in items:
-        return known
+    bad = [s for s in items if s not in known and s != AUTO and s != "all"
+           and not method_registry.is_external(s)]
+    if bad:
+        raise PlanError(f"unknown method {bad[0]!r} (known: {', '.join(known)})")
     for s in items:
         if method_registry.is_external(s) and s not in external:
             raise PlanError(f"method {s!r} needs Blender (the bpy module) and cannot run here")
     if AUTO in items and not allow_auto:
         raise PlanError("method 'auto' is not available here: give method ids "
                         "(`penumbra plan --methods auto` shows what auto picks per light)")
-    bad = [s for s in items if s not in known and s != AUTO]
-    if bad:
-        raise PlanError(f"unknown method {bad[0]!r} (known: {', '.join(known)})")
+    if "all" in items:
+        return known
     return list(dict.fromkeys(items))
 
 
