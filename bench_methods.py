@@ -87,7 +87,7 @@ def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
         lt = sc.lights[0]
         for ns in ((16, 64) if quick else (64, 256, 1024)):
             none = {"samples": ns, "coherence": False, "hierarchical_connectedness": False, "minmax_clipping": False,
-                    "rank_images": False, "clear_miss": False, "carry_intervals": False}
+                    "rank_images": False, "clear_miss": False, "occlusion_intervals": False}
             acc = {"samples": ns, "coherence": False}
             coh = {"samples": ns, "coherence": True}
             t0, _ = _median(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else repeats)

@@ -231,6 +231,24 @@ def test_fully_lit_points_trace_only_the_border_cells():
     n_tiles = 4
     expect = (60 * (32 * 32 - n_tiles) + 256 * n_tiles) / (32 * 32)
     assert r.stats["rays_per_pixel"] == pytest.approx(expect)
+    # the sampler's own account of where the rays went
+    st = r.stats
+    assert st["full_trace_points"] == n_tiles
+    assert st["full_trace_rays_per_pixel"] == pytest.approx(256 * n_tiles / (32 * 32))
+    assert st["predicted_rays_per_pixel"] == pytest.approx(60 * (32 * 32 - n_tiles) / (32 * 32))
+    assert st["flood_fill_rays_per_pixel"] == 0 and st["prediction_errors_per_pixel"] == 0
+    assert st["blockers_per_pixel"] == 0
+
+
+def test_sampler_ray_account(sample_runs):
+    """Every traced ray was queued exactly once: by a full trace (no
+    prediction), by Predict (edge and border cells) or by the flood fill."""
+    st = sample_runs["grids"]["coh"].stats
+    parts = st["full_trace_rays_per_pixel"] + st["predicted_rays_per_pixel"] + st["flood_fill_rays_per_pixel"]
+    assert parts == pytest.approx(st["rays_per_pixel"], rel=1e-12)
+    assert 0 < st["prediction_errors_per_pixel"] < st["rays_per_pixel"]
+    assert st["flood_fill_rays_per_pixel"] > 0 and st["blockers_per_pixel"] > 0
+    assert 1 <= st["full_trace_points"] < st["pixels"]
 
 
 # ---------------------------------------------------------------------------

@@ -19,7 +19,9 @@ serpentine scan order:
   light's border and cells whose prediction differs from one of their 8
   neighbours go to cellsToDo; the others to cellsUsePrev. With the sub-grid
   shortcut, a cell whose own jittered sample falls in a sub-cell holding a
-  blocker goes straight to cellsDone as blocked.
+  blocker goes straight to cellsDone as blocked. (The per-point part of the
+  projection - the light's frame seen from p_i - is computed once per point,
+  ``light_frame``, and the kept blockers are compacted in place.)
   Trace: cells are dequeued and traced; a result that differs from the
   prediction moves the cell's 8 neighbours still in cellsUsePrev to cellsToDo
   (8-connected flood fill of the prediction errors).
@@ -58,7 +60,11 @@ USEPREV, QUEUED, DONE = 0, 1, 2
 
 # misc slots
 M_NBLK, M_QH, M_QT, M_GEN, M_HAVEPREV, M_RAYS = 0, 1, 2, 3, 4, 5
-M_SIZE = 8
+# sampler statistics: points traced in full (no prediction), their rays,
+# cells queued by Predict (edges + border), cells added by the flood fill,
+# prediction errors (traced verdict != prediction), blocker points projected
+M_FULL, M_FULLRAYS, M_SEEDED, M_FLOOD, M_ERR, M_BLK = 6, 7, 8, 9, 10, 11
+M_SIZE = 16
 
 
 @njit(cache=True, inline="always")
@@ -86,67 +92,54 @@ def inv_concentric(x, y):
     return 0.5 * (a + 1.0), 0.5 * (b + 1.0)
 
 
-@njit(cache=True)
-def project_to_light(lp, px, py, pz, bx, by, bz):
-    """Blocker point b seen from p -> (inside, u, v) on the light's unit square."""
-    kind = lp[0]
-    dx, dy, dz = bx - px, by - py, bz - pz
-    if kind == 2.0:   # sun: the direction p -> b inside the cone
-        d = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if d == 0.0:
-            return False, 0.0, 0.0
-        dx /= d
-        dy /= d
-        dz /= d
-        cos_t = dx * lp[10] + dy * lp[11] + dz * lp[12]
-        omc = 1.0 - cos_t
-        span = 1.0 - lp[17]
-        if span <= 0.0:
-            return False, 0.0, 0.0
-        r2 = omc / span
-        if r2 > 1.0 or cos_t <= 0.0:
-            return False, 0.0, 0.0
-        sin_t = math.sqrt(max(0.0, omc * (2.0 - omc)))
-        sx = dx * lp[4] + dy * lp[5] + dz * lp[6]
-        sy = dx * lp[7] + dy * lp[8] + dz * lp[9]
-        if sin_t > 0.0:
-            rr = math.sqrt(r2)
-            X, Y = sx / sin_t * rr, sy / sin_t * rr
-        else:
-            X, Y = 0.0, 0.0
-        u, v = inv_concentric(X, Y)
-        return True, u, v
+@njit(cache=True, inline="always")
+def light_frame(lp, px, py, pz):
+    """The per-point part of the projection onto a planar light (area: its
+    plane; sphere: the disk through the centre facing p), computed once per
+    surface point instead of once per blocker point: (ok, n, e1, e2, half
+    sizes, (c - p).n, centre, square?) as a flat tuple. Not for a sun."""
     cx, cy, cz = lp[1], lp[2], lp[3]
+    kind = lp[0]
     if kind == 0.0:
         nx_, ny_, nz_ = lp[10], lp[11], lp[12]
         e1x, e1y, e1z = lp[4], lp[5], lp[6]
         e2x, e2y, e2z = lp[7], lp[8], lp[9]
         hx, hy = lp[13], lp[14]
+        square = lp[15] != 1.0
     else:
+        square = False
         wx, wy, wz = cx - px, cy - py, cz - pz
         wl = math.sqrt(wx * wx + wy * wy + wz * wz)
         if wl == 0.0 or lp[16] == 0.0:
-            return False, 0.0, 0.0
+            return (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False)
         nx_, ny_, nz_ = wx / wl, wy / wl, wz / wl
         b1, b2 = orthonormal_basis(nx_, ny_, nz_)
         e1x, e1y, e1z = b1[0], b1[1], b1[2]
         e2x, e2y, e2z = b2[0], b2[1], b2[2]
         hx, hy = lp[16], lp[16]
-    if hx <= 0.0 or hy <= 0.0:
-        return False, 0.0, 0.0
-    den = dx * nx_ + dy * ny_ + dz * nz_
+    ok = hx > 0.0 and hy > 0.0
     num = (cx - px) * nx_ + (cy - py) * ny_ + (cz - pz) * nz_
+    return (ok, nx_, ny_, nz_, e1x, e1y, e1z, e2x, e2y, e2z, hx, hy, num, cx, cy, cz, square)
+
+
+@njit(cache=True, inline="always")
+def project_planar(fr, px, py, pz, bx, by, bz):
+    """Blocker point b seen from p -> (inside, u, v), ``fr`` = light_frame(p)."""
+    if not fr[0]:
+        return False, 0.0, 0.0
+    dx, dy, dz = bx - px, by - py, bz - pz
+    den = dx * fr[1] + dy * fr[2] + dz * fr[3]
     if den == 0.0:
         return False, 0.0, 0.0
-    s = num / den
+    s = fr[12] / den
     if not (s >= 1.0):          # the blocker is not between p and the light
         return False, 0.0, 0.0
-    qx = px + s * dx - cx
-    qy = py + s * dy - cy
-    qz = pz + s * dz - cz
-    X = (qx * e1x + qy * e1y + qz * e1z) / hx
-    Y = (qx * e2x + qy * e2y + qz * e2z) / hy
-    if kind == 0.0 and lp[15] != 1.0:
+    qx = px + s * dx - fr[13]
+    qy = py + s * dy - fr[14]
+    qz = pz + s * dz - fr[15]
+    X = (qx * fr[4] + qy * fr[5] + qz * fr[6]) / fr[10]
+    Y = (qx * fr[7] + qy * fr[8] + qz * fr[9]) / fr[11]
+    if fr[16]:
         if abs(X) > 1.0 or abs(Y) > 1.0:
             return False, 0.0, 0.0
         return True, 0.5 * (X + 1.0), 0.5 * (Y + 1.0)
@@ -154,6 +147,44 @@ def project_to_light(lp, px, py, pz, bx, by, bz):
         return False, 0.0, 0.0
     u, v = inv_concentric(X, Y)
     return True, u, v
+
+
+@njit(cache=True, inline="always")
+def project_sun(lp, px, py, pz, bx, by, bz):
+    """Sun: the direction p -> b inside the cone -> (inside, u, v)."""
+    dx, dy, dz = bx - px, by - py, bz - pz
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if d == 0.0:
+        return False, 0.0, 0.0
+    dx /= d
+    dy /= d
+    dz /= d
+    cos_t = dx * lp[10] + dy * lp[11] + dz * lp[12]
+    omc = 1.0 - cos_t
+    span = 1.0 - lp[17]
+    if span <= 0.0:
+        return False, 0.0, 0.0
+    r2 = omc / span
+    if r2 > 1.0 or cos_t <= 0.0:
+        return False, 0.0, 0.0
+    sin_t = math.sqrt(max(0.0, omc * (2.0 - omc)))
+    sx = dx * lp[4] + dy * lp[5] + dz * lp[6]
+    sy = dx * lp[7] + dy * lp[8] + dz * lp[9]
+    if sin_t > 0.0:
+        rr = math.sqrt(r2)
+        X, Y = sx / sin_t * rr, sy / sin_t * rr
+    else:
+        X, Y = 0.0, 0.0
+    u, v = inv_concentric(X, Y)
+    return True, u, v
+
+
+@njit(cache=True)
+def project_to_light(lp, px, py, pz, bx, by, bz):
+    """Blocker point b seen from p -> (inside, u, v) on the light's unit square."""
+    if lp[0] == 2.0:
+        return project_sun(lp, px, py, pz, bx, by, bz)
+    return project_planar(light_frame(lp, px, py, pz), px, py, pz, bx, by, bz)
 
 
 @njit(cache=True, inline="always")
@@ -169,7 +200,7 @@ def _cell_of(u, v, nx, ny, S):
 
 @njit(cache=True)
 def begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, tol, big, noff,
-                origin, tgt, wts, subi, back, blk, blk2, stamp, vis, cst, queue, pred, prevp, misc):
+                origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue, pred, prevp, misc):
     """Samples for point i (rays start at the offset origin moved a further
     ``noff`` along the normal), then Predict (or a full trace without
     information). Fills ``origin``, ``tgt`` (ray end per cell), ``wts``,
@@ -221,17 +252,27 @@ def begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, 
                 queue[qt] = s
                 qt += 1
         misc[M_QT] = qt
+        misc[M_FULL] += 1
+        misc[M_FULLRAYS] += qt
         return
     # Predict: project and prune the blocker list (newest first), one per sub-cell
+    misc[M_BLK] += misc[M_NBLK]
     gen = misc[M_GEN] + 1
     misc[M_GEN] = gen
     for s in range(C):
         pred[s] = 0
         cst[s] = USEPREV
     S2 = S * S
-    m = 0
-    for j in range(misc[M_NBLK] - 1, -1, -1):
-        ok, u, v = project_to_light(lp, px, py, pz, blk[j, 0], blk[j, 1], blk[j, 2])
+    sun = lp[0] == 2.0
+    fr = light_frame(lp, px, py, pz)
+    n = misc[M_NBLK]
+    w = n                          # kept points are compacted in place towards the end
+    for j in range(n - 1, -1, -1):
+        bx, by, bz = blk[j, 0], blk[j, 1], blk[j, 2]
+        if sun:
+            ok, u, v = project_sun(lp, px, py, pz, bx, by, bz)
+        else:
+            ok, u, v = project_planar(fr, px, py, pz, bx, by, bz)
         if not ok:
             continue
         c, sub = _cell_of(u, v, nx, ny, S)
@@ -239,17 +280,19 @@ def begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, 
         if stamp[slot] == gen:
             continue
         stamp[slot] = gen
-        blk2[m, 0] = blk[j, 0]
-        blk2[m, 1] = blk[j, 1]
-        blk2[m, 2] = blk[j, 2]
-        m += 1
+        w -= 1                     # w >= j: never overwrites an unread point
+        blk[w, 0] = bx
+        blk[w, 1] = by
+        blk[w, 2] = bz
         pred[c] = 1
         if shortcut and sub == subi[c]:
             cst[c] = DONE
-    for j in range(m):             # back to oldest-first
-        blk[j, 0] = blk2[m - 1 - j, 0]
-        blk[j, 1] = blk2[m - 1 - j, 1]
-        blk[j, 2] = blk2[m - 1 - j, 2]
+    m = n - w
+    if w > 0:
+        for j in range(m):         # oldest-first at the front again
+            blk[j, 0] = blk[w + j, 0]
+            blk[j, 1] = blk[w + j, 1]
+            blk[j, 2] = blk[w + j, 2]
     misc[M_NBLK] = m
     for s in range(C):
         if back[s] == 1:
@@ -274,6 +317,7 @@ def begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, 
             queue[qt] = s
             qt += 1
     misc[M_QT] = qt
+    misc[M_SEEDED] += qt
 
 
 @njit(cache=True, inline="always")
@@ -290,6 +334,7 @@ def absorb(c, blocked, bx, by, bz, nx, ny, coherent, blk, vis, cst, queue, misc)
             blk[n, 2] = bz
             misc[M_NBLK] = n + 1
     if b != vis[c]:
+        misc[M_ERR] += 1
         vis[c] = b
         cu = c % nx
         cv = c // nx
@@ -304,6 +349,7 @@ def absorb(c, blocked, bx, by, bz, nx, ny, coherent, blk, vis, cst, queue, misc)
                         cst[k] = QUEUED
                         queue[qt] = k
                         qt += 1
+        misc[M_FLOOD] += qt - misc[M_QT]
         misc[M_QT] = qt
 
 

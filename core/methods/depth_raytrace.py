@@ -30,7 +30,31 @@ of all tiles per wave, so the two ideas can be measured apart.
 
 Stats: ``rays_per_pixel`` (rays actually traced, averaged over the shaded
 pixels; the paper reports 79.86 of 256 on its dragon), reference map count
-and texels, and the time split ``reference_maps`` / ``trace``.
+and texels, and the time split ``reference_maps`` / ``trace``. The
+depth-image tracer also accounts for its rays (per shaded pixel): traced in
+full for lack of a prediction (``full_trace_points`` - first point of a tile
+or a reset - and ``full_trace_rays_per_pixel``), queued by Predict (edge and
+border cells, ``predicted_rays_per_pixel``) or by the flood fill
+(``flood_fill_rays_per_pixel``); the three add up to ``rays_per_pixel``.
+``prediction_errors_per_pixel`` and ``blockers_per_pixel`` (blocker points
+projected by Predict) complete the picture.
+
+Why rays grow faster than the perimeter argument (section 6: "in the limit"
+4x samples -> 2x rays; the paper measured "a little more than 3x"): on
+``grids`` at 512^2, 1024 vs 256 samples, rays per pixel grow 2.85x: the
+border cells 2.07x (4N - 4), the full traces 4x (they are area), the interior
+cells Predict queues 3.6x, the flood fill 3.1x, prediction errors 3.2x. A
+blocker's projection on the light moves by (H / h - 1) x the step between
+neighbouring points: for the lowest lattice (h = 1.2, light at 7.5) 0.17
+light units per pixel, 3.7 cells of a 32 x 32 grid (1.8 of 16 x 16). The
+cells a shadow edge sweeps between two points hold no blocker yet, and the
+blockers that do exist were traced at one jittered sample per cell, so the
+predicted edges lag and are ragged by about the step - a band whose width is
+fixed in light units, i.e. area, not perimeter. Section 5.2.1's remedy is
+denser surface sampling (the paper's REYES micropolygons, about 3 per pixel);
+at this image size the asymptotic regime is not reached for that lattice.
+(Tried and left out: closing one-cell holes in the predicted image, 4 %
+fewer rays at 1024 samples, a departure for little.)
 
 Departures / choices, each documented where it is made:
   * bias: a floor is the texel depth plus a bias in texel footprints and a
@@ -73,8 +97,8 @@ from .. import sampling, views
 from ..kernels import face_project, pick_face
 from ..sampling import strata
 from . import register
-from ._drt_coherence import (M_QH, M_QT, M_RAYS, M_SIZE, absorb, begin_point, blocker_capacity,
-                             finish_point)
+from ._drt_coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
+                             absorb, begin_point, blocker_capacity, finish_point)
 from ._drt_maps import ReferenceMaps, build_reference_maps
 from ._drt_trace import LN, MAXI, trace_ray
 from .base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method,
@@ -153,7 +177,6 @@ def _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, seed, scale, big,
         subi = np.empty(C, np.int32)
         back = np.zeros(C, np.uint8)
         blk = np.empty((cap, 3))
-        blk2 = np.empty((cap, 3))
         stamp = np.zeros(C * S * S, np.int64)
         vis = np.zeros(C, np.uint8)
         cst = np.zeros(C, np.uint8)
@@ -168,7 +191,7 @@ def _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, seed, scale, big,
         U2 = np.empty((MAXI, 2))
         for i in range(tile_ptr[ti], tile_ptr[ti + 1]):
             begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, tol[i], big,
-                        noff[i], origin, tgt, wts, subi, back, blk, blk2, stamp, vis, cst, queue, pred, prevp, misc)
+                        noff[i], origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue, pred, prevp, misc)
             ox, oy, oz = origin[0], origin[1], origin[2]
             while misc[M_QH] < misc[M_QT]:
                 c = queue[misc[M_QH]]
@@ -186,7 +209,7 @@ def _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, seed, scale, big,
             a, r = finish_point(P, i, nx, ny, wts, vis, prevp, misc)
             out_avg[i] = a
             out_irr[i] = r
-        rays[ti] = misc[M_RAYS]
+        rays[ti, :] = misc[:]
 
 
 @njit(cache=True, parallel=True)
@@ -230,7 +253,7 @@ def normal_offsets(P, Nrm, lp, faces, factor):
 # Embree wave driver: the same sampler, the queued rays of every tile per call
 @njit(cache=True, parallel=True)
 def _wave_emit(tile_ptr, cursor, phase, P, Nrm, pix, tol, lp, nx, ny, seed, scale, big,
-               coherent, S, shortcut, origin, tgt, wts, subi, back, blk, blk2, stamp, vis, cst, queue,
+               coherent, S, shortcut, origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue,
                pred, prevp, misc, r_cell, cnt):
     nt = tile_ptr.shape[0] - 1
     for ti in prange(nt):
@@ -239,7 +262,7 @@ def _wave_emit(tile_ptr, cursor, phase, P, Nrm, pix, tol, lp, nx, ny, seed, scal
             continue
         if phase[ti] == 0:
             begin_point(lp, P, Nrm, pix, cursor[ti], seed, scale, nx, ny, S, coherent, shortcut,
-                        tol[cursor[ti]], big, 0.0, origin[ti], tgt[ti], wts[ti], subi[ti], back[ti], blk[ti], blk2[ti],
+                        tol[cursor[ti]], big, 0.0, origin[ti], tgt[ti], wts[ti], subi[ti], back[ti], blk[ti],
                         stamp[ti], vis[ti], cst[ti], queue[ti], pred[ti], prevp[ti], misc[ti])
             phase[ti] = 1
         j = 0
@@ -317,7 +340,6 @@ def _embree_waves(tri_scene, tile_ptr, P, Nrm, pix, tol, lp, nx, ny, seed, scale
     subi = np.zeros((nt, C), np.int32)
     back = np.zeros((nt, C), np.uint8)
     blk = np.zeros((nt, cap, 3))
-    blk2 = np.zeros((nt, cap, 3))
     stamp = np.zeros((nt, C * S * S), np.int64)
     vis = np.zeros((nt, C), np.uint8)
     cst = np.zeros((nt, C), np.uint8)
@@ -334,7 +356,7 @@ def _embree_waves(tri_scene, tile_ptr, P, Nrm, pix, tol, lp, nx, ny, seed, scale
     try:
         while (cursor < tile_ptr[1:]).any():
             _wave_emit(tile_ptr, cursor, phase, P, Nrm, pix, tol, lp, nx, ny, seed, scale, big,
-                       coherent, S, shortcut, origin, tgt, wts, subi, back, blk, blk2, stamp, vis, cst,
+                       coherent, S, shortcut, origin, tgt, wts, subi, back, blk, stamp, vis, cst,
                        queue, pred, prevp, misc, r_cell, cnt)
             off = np.zeros(nt, np.int64)
             np.cumsum(cnt[:-1], out=off[1:])
@@ -474,7 +496,7 @@ class DepthRaytrace(Method):
             hier = bool(params.hierarchical_connectedness) and not coherent
             va = np.ones(len(sel))
             vi = np.ones(len(sel))
-            rays_t = np.zeros(len(tile_ptr) - 1, np.int64)
+            rays_t = np.zeros((len(tile_ptr) - 1, M_SIZE), np.int64)
             chunk = numba.get_parallel_chunksize()
             numba.set_parallel_chunksize(1)   # tiles differ widely in cost: hand them out one by one
             try:
@@ -488,7 +510,14 @@ class DepthRaytrace(Method):
                                  bool(params.occlusion_intervals), va, vi, rays_t)
             finally:
                 numba.set_parallel_chunksize(chunk)
-            rays = int(rays_t.sum())
+            rays = int(rays_t[:, M_RAYS].sum())
+            n_pts = max(1, len(sel))
+            stats["full_trace_points"] = int(rays_t[:, M_FULL].sum())
+            stats["full_trace_rays_per_pixel"] = float(rays_t[:, M_FULLRAYS].sum() / n_pts)
+            stats["predicted_rays_per_pixel"] = float(rays_t[:, M_SEEDED].sum() / n_pts)
+            stats["flood_fill_rays_per_pixel"] = float(rays_t[:, M_FLOOD].sum() / n_pts)
+            stats["prediction_errors_per_pixel"] = float(rays_t[:, M_ERR].sum() / n_pts)
+            stats["blockers_per_pixel"] = float(rays_t[:, M_BLK].sum() / n_pts)
             stats["hierarchical_connectedness_used"] = hier
         else:
             raise ValueError(f"depth_raytrace: unknown tracer {params.tracer!r}")
