@@ -141,6 +141,9 @@ class LightModel:
         return not (self.rL > 0.0)
 
 
+LINE_ASPECT = 1e-6
+
+
 def light_model(light, rect_kernel: bool = True) -> LightModel:
     if light.kind == "sun":
         half = 0.5 * min(float(light.angle), math.radians(179.0))
@@ -150,6 +153,9 @@ def light_model(light, rect_kernel: bool = True) -> LightModel:
     if light.kind == "sphere":
         return LightModel(False, SHAPE_DISK, c, float(light.radius))
     hx, hy = 0.5 * float(light.size), 0.5 * float(light.size_y)
+    # a line light (one side 0): a rectangle / ellipse of relative width
+    # LINE_ASPECT, so the kernels' divisions by the half sizes stay finite
+    hx, hy = max(hx, LINE_ASPECT * hy), max(hy, LINE_ASPECT * hx)
     if light.shape in ("DISK", "ELLIPSE"):
         return LightModel(False, SHAPE_DISK, c, max(hx, hy), hx, hy)
     if rect_kernel:
