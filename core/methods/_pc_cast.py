@@ -9,13 +9,19 @@ what is stored; the relation ``l_i -> r_j`` is marked blocked by one exact
 test (``in_hard_volume``), so the output does not depend on the switches.
 
 Per-chunk counters ``st`` (int64):
-  0 released mask slots (on the free stack), 1 live masks, 2 peak live
-  masks, 3 points of the current
-  hierarchy in full umbra, 4 points in the current hierarchy, 5 triangle stamp,
-  6 nodes visited, 7 point-vs-V_L tests, 8 hard shadow volume tests,
-  9 triangles whose group volumes were built, 10 hard volumes built,
-  11 mask slots handed out (pool rows ever touched), 12 triangles culled at
-  the root.
+  0 released mask slots (on the free stack), 1 live masks, 2 peak live masks,
+  3 points of the current hierarchy in full umbra, 4 points in the current
+  hierarchy, 5 triangle stamp, 6 nodes visited, 7 point-vs-V_L tests, 8 hard
+  shadow volume tests, 9 triangles whose group volumes were built, 10 hard
+  volumes built, 11 mask slots handed out (pool rows ever touched),
+  12 triangles culled at the root.
+
+Speed (what the profile showed, not the paper): line 70 runs 64 samples of a
+mask word at a time with unsigned indices and shifts, which LLVM turns into
+SIMD code (signed indices keep Numba's negative-index wraparound in the loop
+and block it); the plane tests read structure-of-arrays planes and evaluate
+every plane without early exit, for the same reason; no loop creates an
+array view or reassigns an array (each costs atomic reference counting).
 
 Mask memory (D): ``pool`` has a row for every receiver of the chunk, but it
 is allocated zeroed (calloc: the operating system commits a page on first
