@@ -186,6 +186,8 @@ def stress_cases(res=48):
     cases["point_radius"] = half_plane_scene(sphere_light(0.5), res=res)
     cases["spot_radius"] = half_plane_scene(sphere_light(0.4, spot_size=2.0), res=res)
     cases["sun"] = half_plane_scene(sun_light(0.3), res=res)
+    # a line light: a rectangle with one side 0 (not a light of size zero)
+    cases["line_light"] = half_plane_scene(area_light(0.0, 1.2, "RECTANGLE"), res=res)
     return cases
 
 
