@@ -146,7 +146,7 @@ from . import register
 from .base import AVERAGE, GBUFFER, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
 EPSILON_PER_EXTENT = 0.002   # default depth tolerance, x the scene's largest side
-MAX_SLOPE = 10.0             # |d depth / d lateral| beyond which depths stay raw (84 degrees)
+MAX_SLOPE = 30.0             # |d depth / d lateral| beyond which depths stay raw (88 degrees)
 SPLAT_MIN_WEIGHT = 1e-6      # a neighbour with a smaller bilinear weight gets no splat
 MAX_FOOTPRINT = 2.0          # longest side (texels) of a warped pixel's footprint splat
 SILHOUETTE_EXTENT = 1.5      # footprint reach past a silhouette (neighbour steps; 1/2 inside)
