@@ -138,28 +138,27 @@ def to_view(fp, x, y, z):
 
 
 @njit(cache=True, inline="always")
+def _cell_span(edge0, edge1, n, lo, hi):
+    """Cells 0..n-1 of an axis whose cell 0 starts at ``edge0`` and cell n
+    ends at ``edge1`` that cover [lo, hi] measured from ``edge0`` (clamped;
+    first > last if none)."""
+    a = (lo - edge0) / (edge1 - edge0) * n - 1e-6
+    b = (hi - edge0) / (edge1 - edge0) * n + 1e-6
+    if b < 0.0 or a >= n or not (a <= b):
+        return 1, 0
+    return int(math.floor(max(a, 0.0))), int(math.floor(min(b, n - 1.0)))
+
+
+@njit(cache=True, inline="always")
 def col_range(fp, xmin, xmax):
     """Columns covering face-plane x in [xmin, xmax] (clamped; c0 > c1 if none)."""
-    l, r, gw = fp[17], fp[18], fp[21]
-    a = (xmin - l) / (r - l) * gw - 1e-6
-    b = (xmax - l) / (r - l) * gw + 1e-6
-    if b < 0.0 or a >= gw or not (a <= b):
-        return 1, 0
-    c0 = int(math.floor(max(a, 0.0)))
-    c1 = int(math.floor(min(b, gw - 1.0)))
-    return c0, c1
+    return _cell_span(fp[17], fp[18], fp[21], xmin, xmax)
 
 
 @njit(cache=True, inline="always")
 def row_range(fp, ymin, ymax):
-    bt, tp, gh = fp[19], fp[20], fp[22]
-    a = (tp - ymax) / (tp - bt) * gh - 1e-6
-    b = (tp - ymin) / (tp - bt) * gh + 1e-6
-    if b < 0.0 or a >= gh or not (a <= b):
-        return 1, 0
-    r0 = int(math.floor(max(a, 0.0)))
-    r1 = int(math.floor(min(b, gh - 1.0)))
-    return r0, r1
+    """Rows covering face-plane y in [ymin, ymax]; row 0 is the top (y = t)."""
+    return _cell_span(fp[20], fp[19], fp[22], ymax, ymin)
 
 
 @njit(cache=True, inline="always")
