@@ -93,6 +93,29 @@ def connected_depths(za, zb, persp, foot, gap_abs, gap_tex):
 
 
 @njit(cache=True, inline="always")
+def _enter_side(side, state, crossed, s, occ0, zp, o0, W, piu, piv, iu, iv, persp, foot, gap_abs, gap_tex,
+                Lf, ivs, niv):
+    """The walk enters, at s, a stretch where the ray is on ``side`` of the
+    floors (0 in front, 1 behind; ``state`` the side so far, -1 unknown). A
+    change of side inside a texel, or across the edge (``crossed``) between
+    connected texels, is a floor or wall hit; across a silhouette gap it
+    opens (behind) or closes (in front) an occlusion interval, appended to
+    ``ivs``. Returns (hit, state, occ0, niv)."""
+    if state < 0:
+        return False, side, (s if side == 1 else occ0), niv
+    if side == state:
+        return False, state, occ0, niv
+    if not crossed or connected_depths(np.float64(zp[o0 + piv * W + piu]), np.float64(zp[o0 + iv * W + iu]),
+                                       persp, foot, gap_abs, gap_tex):
+        return True, state, occ0, niv
+    if side == 1:
+        occ0 = s
+    else:
+        niv = _push(ivs, niv, s_to_t(Lf, occ0), s_to_t(Lf, s))
+    return False, side, occ0, niv
+
+
+@njit(cache=True, inline="always")
 def _clampi(x, lo, hi):
     if not (x == x):       # nan
         return lo
@@ -335,23 +358,10 @@ def trace_face(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, sA, sB, hier, clip, iv
                         if sn > se:
                             sn = se
                         # region Sc over [s, sn]
-                        if state < 0:
-                            state = Sc
-                            if Sc == 1:
-                                occ0 = s
-                        elif Sc != state:
-                            if crossed:
-                                if connected_depths(np.float64(zp[o0 + piv * W + piu]),
-                                                    np.float64(zp[o0 + iv * W + iu]),
-                                                    persp, foot, gap_abs, gap_tex):
-                                    return True, s_to_t(Lf, s), niv
-                            else:
-                                return True, s_to_t(Lf, s), niv
-                            if Sc == 1:
-                                occ0 = s
-                            else:
-                                niv = _push(ivs, niv, s_to_t(Lf, occ0), s_to_t(Lf, s))
-                            state = Sc
+                        hit, state, occ0, niv = _enter_side(Sc, state, crossed, s, occ0, zp, o0, W, piu, piv,
+                                                            iu, iv, persp, foot, gap_abs, gap_tex, Lf, ivs, niv)
+                        if hit:
+                            return True, s_to_t(Lf, s), niv
                         crossed = False
                         s = sn
                         iu = _clampi(math.floor(u0 + s * du), nu0, nu1 - 1)
@@ -359,22 +369,10 @@ def trace_face(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, sA, sB, hier, clip, iv
                 k -= 1
                 continue
         # region S over [s, se]
-        if state < 0:
-            state = S
-            if S == 1:
-                occ0 = s
-        elif S != state:
-            if crossed:
-                if connected_depths(np.float64(zp[o0 + piv * W + piu]), np.float64(zp[o0 + iv * W + iu]),
-                                    persp, foot, gap_abs, gap_tex):
-                    return True, s_to_t(Lf, s), niv
-            else:
-                return True, s_to_t(Lf, s), niv
-            if S == 1:
-                occ0 = s
-            else:
-                niv = _push(ivs, niv, s_to_t(Lf, occ0), s_to_t(Lf, s))
-            state = S
+        hit, state, occ0, niv = _enter_side(S, state, crossed, s, occ0, zp, o0, W, piu, piv, iu, iv,
+                                            persp, foot, gap_abs, gap_tex, Lf, ivs, niv)
+        if hit:
+            return True, s_to_t(Lf, s), niv
         crossed = False
         # advance to the next node
         if ex == 0 or se >= sB:
