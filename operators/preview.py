@@ -12,6 +12,7 @@ import numpy as np
 import bpy
 
 from ..addon import properties as props
+from ..addon.compositor import fill_grey
 from .capture import capture_scene
 from .compute import (_first_line, light_jobs, light_object, make_steps, merge_results, run_step,
                       scaled_resolution)
@@ -46,14 +47,7 @@ def show_preview(v: np.ndarray) -> bpy.types.Image:
         img = bpy.data.images.new(PREVIEW_IMAGE, w, h, alpha=False, float_buffer=True)
     elif tuple(img.size) != (w, h):
         img.scale(w, h)
-    rgba = np.empty((h, w, 4), np.float32)
-    g = v[::-1]
-    rgba[..., 0] = g
-    rgba[..., 1] = g
-    rgba[..., 2] = g
-    rgba[..., 3] = 1.0
-    img.pixels.foreach_set(rgba.ravel())
-    img.update()
+    fill_grey(img, v)
     return img
 
 
