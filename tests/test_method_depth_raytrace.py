@@ -21,7 +21,7 @@ from penumbra.core.methods.depth_raytrace import benchmark_table, format_table
 from penumbra.core.metrics import errors, reach_mask
 from penumbra.core.sampling import concentric_disk, light_sample, pack_light
 from penumbra.core.scene import Camera, Light, ObjectInfo, Scene
-from synthetic import (area_light, half_plane_scene, light_matrix, pixel_world_y, quad, sphere_light,
+from synthetic import (area_light, box, half_plane_scene, light_matrix, pixel_world_y, quad, sphere_light,
                        sun_light, top_ortho_camera)
 
 HL, HO = 4.0, 2.0     # light and occluder heights of half_plane_scene
@@ -395,16 +395,6 @@ def _scaled(scene, s):
     return Scene(scene.triangles * s, scene.tri_object, scene.objects, cam2, lts, scene.resolution)
 
 
-def _box(x0, x1, y0, y1, z0, z1):
-    t = quad(x0, x1, y0, y1, z0) + quad(x0, x1, y0, y1, z1)
-    v = [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
-    for k in range(4):
-        (ax, ay), (bx, by) = v[k], v[(k + 1) % 4]
-        A, B, C, D = [ax, ay, z0], [bx, by, z0], [bx, by, z1], [ax, ay, z1]
-        t += [[A, B, C], [A, C, D]]
-    return t
-
-
 def _scene(tris, ids, lights, res=32, cam=None, names=("ground", "occ")):
     objs = [ObjectInfo(n, i) for i, n in enumerate(names)]
     return Scene(np.array(tris, np.float32), np.array(ids, np.int32), objs,
@@ -413,12 +403,12 @@ def _scene(tris, ids, lights, res=32, cam=None, names=("ground", "occ")):
 
 def hard_cases():
     g = quad(-10, 10, -10, 10, 0.0)
-    yield "grazing", _scene(g + _box(-0.5, 0.5, -0.5, 0.5, 0.0, 0.5), [0, 0] + [1] * 12,
+    yield "grazing", _scene(g + box(-0.5, 0.5, -0.5, 0.5, 0.0, 0.5), [0, 0] + [1] * 12,
                             [Light("A", "area", light_matrix((10, 0, 0.4), (-1, 0, -0.02)), size=1.0, size_y=1.0)])
-    yield "contact", _scene(g + _box(-0.5, 0.5, -0.5, 0.5, 0.0, 1.0), [0, 0] + [1] * 12, [area_light(1.0)])
+    yield "contact", _scene(g + box(-0.5, 0.5, -0.5, 0.5, 0.0, 1.0), [0, 0] + [1] * 12, [area_light(1.0)])
     yield "coplanar", _scene(g + quad(-1, 1, -1, 1, 0.0), [0, 0, 1, 1], [area_light(1.0)])
     yield "behind_light", _scene(g + quad(-1, 1, -1, 1, 6.0), [0, 0, 1, 1], [area_light(1.0)])
-    yield "light_in_box", _scene(g + _box(-1, 1, -1, 1, 3.0, 5.0), [0, 0] + [1] * 12, [area_light(1.0)])
+    yield "light_in_box", _scene(g + box(-1, 1, -1, 1, 3.0, 5.0), [0, 0] + [1] * 12, [area_light(1.0)])
     yield "huge_light", half_plane_scene(area_light(50.0), res=32)
     yield "tiny_scene", _scaled(half_plane_scene(area_light(1.0), res=32), 1e-3)
     yield "huge_scene", _scaled(half_plane_scene(area_light(1.0), res=32), 1e4)
@@ -430,7 +420,7 @@ def hard_cases():
     yield "facing_away", _scene(g, [0, 0], [Light("A", "area", light_matrix((0, 0, 4), (0, 0, 1)),
                                                   size=1.0, size_y=1.0)], names=("ground",))
     cam_inside = Camera(light_matrix((0, 0, 0.5)), kind="PERSP", clip_start=1e-3, clip_end=100)
-    yield "camera_inside", _scene(g + _box(-1, 1, -1, 1, 0.0, 1.0), [0, 0] + [1] * 12, [area_light(1.0)],
+    yield "camera_inside", _scene(g + box(-1, 1, -1, 1, 0.0, 1.0), [0, 0] + [1] * 12, [area_light(1.0)],
                                   cam=cam_inside)
 
 
