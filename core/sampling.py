@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .scene import Light
 
@@ -233,6 +233,22 @@ def offset_origin(px, py, pz, nx, ny, nz, scale):
     oy = py + fs * ny if abs(py) < origin else _nudge(py, iy)
     oz = pz + fs * nz if abs(pz) < origin else _nudge(pz, iz)
     return ox, oy, oz
+
+
+@njit(cache=True, parallel=True)
+def offset_points(P, Nrm, scale, to_float32):
+    """``offset_origin`` for every point P[i] with normal Nrm[i] (float64[n,3]);
+    ``to_float32``: rounded to float32, as the Embree reference's own ray
+    origins are (methods that must meet its rays exactly)."""
+    out = np.empty((P.shape[0], 3), np.float64)
+    for i in prange(P.shape[0]):
+        ox, oy, oz = offset_origin(P[i, 0], P[i, 1], P[i, 2], Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], scale)
+        if to_float32:
+            ox, oy, oz = np.float64(np.float32(ox)), np.float64(np.float32(oy)), np.float64(np.float32(oz))
+        out[i, 0] = ox
+        out[i, 1] = oy
+        out[i, 2] = oz
+    return out
 
 
 def scene_scale(lo, hi) -> float:

@@ -234,9 +234,10 @@ def _edge_threshold(fb):
     """Receivers are the G-buffer points moved off the ground by
     ``offset_origin`` (height h): from (y, h) the occluder edge (height 2,
     light at 4) covers the light's y < -2 y / (2 - h)."""
-    from penumbra.core.methods.irregular import offset_points
+    from penumbra.core.sampling import offset_points
     g = fb.gbuffer
-    P = offset_points(g.position.reshape(-1, 3), g.normal.reshape(-1, 3).astype(np.float64), fb.scale)
+    P = offset_points(g.position.reshape(-1, 3).astype(np.float64), g.normal.reshape(-1, 3).astype(np.float64),
+                      fb.scale, False)
     y, h = P[:, 1], P[:, 2]
     return (-2.0 * y / (2.0 - h)).reshape(g.shape)
 

@@ -68,10 +68,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
 
 from .. import views
-from ..sampling import offset_origin
+from ..sampling import offset_points
 from . import register
 from ._ism_geom import SHAPE_DISK, SHAPE_SQUARE
 from ._ism_grid import (assign_faces, bin_entries_from_ranges, bin_quads, counting_sort_cells,
@@ -103,17 +102,6 @@ class IrregularParams:
 
 
 # --------------------------------------------------------------------------
-@njit(cache=True, parallel=True)
-def offset_points(P, Nrm, scale):
-    out = np.empty_like(P)
-    for i in prange(P.shape[0]):
-        ox, oy, oz = offset_origin(P[i, 0], P[i, 1], P[i, 2], Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], scale)
-        out[i, 0] = ox
-        out[i, 1] = oy
-        out[i, 2] = oz
-    return out
-
-
 def _basis(n: np.ndarray):
     """Duff et al. orthonormal basis around unit vectors n[..., 3]."""
     nx, ny, nz = n[..., 0], n[..., 1], n[..., 2]
@@ -338,7 +326,7 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
     pen = np.zeros(n, np.float64)
     if n == 0:
         return np.ones(0, np.float32), umbra, pen, stats
-    Poff = offset_points(P, Nrm, float(scale))
+    Poff = offset_points(P, Nrm, float(scale), False)
     cx, cy, cz = (float(v) for v in lm.centre)
     with timer("silhouettes"):
         tv = tris.astype(np.float64)

@@ -72,7 +72,6 @@ import numpy as np
 from numba import njit, prange
 
 from .. import sampling
-from ..sampling import offset_origin
 from . import register
 from ._pc_cast import cast_chunk, chunk_visibility
 from ._pc_geometry import MAXP, box_vs_volume, penumbra_volume
@@ -107,16 +106,6 @@ _VL_BATCH = 1 << 16
 
 # --------------------------------------------------------------------------
 # small kernels
-@njit(cache=True, parallel=True)
-def _offset_points(P, Nrm, scale, out):
-    """The reference's ray origins: offset_origin, rounded to float32."""
-    for i in prange(P.shape[0]):
-        ox, oy, oz = offset_origin(P[i, 0], P[i, 1], P[i, 2], Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], scale)
-        out[i, 0] = np.float64(np.float32(ox))
-        out[i, 1] = np.float64(np.float32(oy))
-        out[i, 2] = np.float64(np.float32(oz))
-
-
 @njit(cache=True, parallel=True)
 def _light_volumes(tris, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
     """V_L of every candidate triangle and the test against the receivers'
@@ -312,9 +301,7 @@ class Setup:
 def prepare(buffers, light, params: PenumbraCastingParams) -> Setup:
     g = buffers.gbuffer
     idx, Pg, Nrm = g.hit_points()
-    pts = np.empty_like(Pg)
-    if len(idx):
-        _offset_points(Pg, Nrm, float(buffers.scale), pts)
+    pts = sampling.offset_points(Pg, Nrm, float(buffers.scale), True) if len(idx) else np.empty_like(Pg)
     mag = float(np.abs(pts).max()) if len(pts) else 1.0
     mag = max(mag, float(np.abs(light.position).max()), float(buffers.scale), 1e-30)
     tol = 1e-9 * mag
