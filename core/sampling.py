@@ -44,13 +44,26 @@ def pack_light(light: Light) -> np.ndarray:
     return out
 
 
-def strata(n: int):
-    """(nx, ny) with nx * ny == n and nx as close to sqrt(n) as divides n."""
-    n = max(1, int(n))
-    nx = int(math.isqrt(n))
+@njit(cache=True)
+def strata(n):
+    """(nx, ny) with nx * ny == n and nx the largest divisor of n not above
+    sqrt(n): the stratification of n light samples (every method's)."""
+    n = max(1, n)
+    nx = int(math.sqrt(n))
+    while nx * nx > n:
+        nx -= 1
+    while (nx + 1) * (nx + 1) <= n:
+        nx += 1
     while n % nx:
         nx -= 1
     return nx, n // nx
+
+
+@njit(cache=True, inline="always")
+def stratum_uv(seed, key, s, nx, ny):
+    """A jittered point of stratum s (row-major, nx x ny) of the unit
+    square, the jitter from rand01(seed, key, s, 0 / 1)."""
+    return ((s % nx) + rand01(seed, key, s, 0)) / nx, ((s // nx) + rand01(seed, key, s, 1)) / ny
 
 
 # --------------------------------------------------------------------------
@@ -175,8 +188,7 @@ def reference_sample(lp, seed, pixel, s, nx, ny, px, py, pz, ox, oy, oz, n0, n1,
     the irradiance weight (cos at the light / d^2; 1 for a sun). Every method
     that traces "the reference's own samples" goes through here, so they
     cannot drift apart."""
-    u = ((s % nx) + rand01(seed, pixel, s, 0)) / nx
-    v = ((s // nx) + rand01(seed, pixel, s, 1)) / ny
+    u, v = stratum_uv(seed, pixel, s, nx, ny)
     x, y, z, is_dir, cos_l = light_sample(lp, px, py, pz, u, v)
     if is_dir:
         return u, v, x, y, z, True, x, y, z, 1e30, 1.0
@@ -261,12 +273,8 @@ def scene_scale(lo, hi) -> float:
 def light_sample_set(lp, n, seed):
     """The same ``n`` stratified jittered unit-square points for every pixel
     (the layered method's sampling, Agrawala et al. section 3), float64[n, 2]."""
-    nx = int(math.sqrt(n))
-    while n % nx:
-        nx -= 1
-    ny = n // nx
+    nx, ny = strata(n)
     out = np.empty((n, 2))
     for s in range(n):
-        out[s, 0] = ((s % nx) + rand01(seed, 0, s, 0)) / nx
-        out[s, 1] = ((s // nx) + rand01(seed, 0, s, 1)) / ny
+        out[s, 0], out[s, 1] = stratum_uv(seed, 0, s, nx, ny)
     return out

@@ -43,7 +43,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..sampling import concentric_disk, light_sample, rand01, strata
+from ..sampling import concentric_disk, light_sample, rand01, strata, stratum_uv
 
 MAXV = 16
 MAXE = 16
@@ -225,8 +225,7 @@ def fixed_sample_table(lp, nsets, nx, ny, bit2s, seed, key):
     for j in range(nsets):
         for i in range(S):
             s = bit2s[i]
-            u = ((s % nx) + rand01(seed, key + j, s, 0)) / nx
-            v = ((s // nx) + rand01(seed, key + j, s, 1)) / ny
+            u, v = stratum_uv(seed, key + j, s, nx, ny)
             x, y, z, is_dir, _ = light_sample(lp, 0.0, 0.0, 0.0, u, v)
             out[j, i, 0] = x
             out[j, i, 1] = y
@@ -243,8 +242,7 @@ def sphere_disk_table(nsets, nx, ny, bit2s, seed, key, radius, e1, e2):
     for j in range(nsets):
         for i in range(S):
             s = bit2s[i]
-            u = ((s % nx) + rand01(seed, key + j, s, 0)) / nx
-            v = ((s // nx) + rand01(seed, key + j, s, 1)) / ny
+            u, v = stratum_uv(seed, key + j, s, nx, ny)
             dx, dy = concentric_disk(u, v)
             for a in range(3):
                 out[j, i, a] = radius * (dx * e1[a] + dy * e2[a])
@@ -320,8 +318,7 @@ def sample_point(mode, i, r, set_id, SP, Q, M, centre, lp, seed, pix, Pg, bit2s,
                 centre[1] + M[r, 3] * qx + M[r, 4] * qy + M[r, 5] * qz,
                 centre[2] + M[r, 6] * qx + M[r, 7] * qy + M[r, 8] * qz, 1.0)
     s = bit2s[i]
-    u = ((s % nx) + rand01(seed, pix[r], s, 0)) / nx
-    v = ((s // nx) + rand01(seed, pix[r], s, 1)) / ny
+    u, v = stratum_uv(seed, pix[r], s, nx, ny)
     x, y, z, is_dir, _ = light_sample(lp, Pg[r, 0], Pg[r, 1], Pg[r, 2], u, v)
     return x, y, z, (0.0 if is_dir else 1.0)
 

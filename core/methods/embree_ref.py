@@ -30,13 +30,12 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import math
 import numba
 import numpy as np
 from numba import njit
 
 from .. import sampling
-from ..sampling import offset_origin, reference_sample
+from ..sampling import offset_origin, reference_sample, strata
 from . import register
 from .base import AVERAGE, GBUFFER, IRRADIANCE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
@@ -54,10 +53,7 @@ class EmbreeParams:
 def generate_shadow_rays(P, Nrm, pix, lp, ns, seed, scale, org, dirs, tfar, w):
     """Fill float32 ray arrays for pixels ``P`` (float64[n,3]) with normals
     ``Nrm`` and global pixel ids ``pix``: ray i*ns+s goes to stratum s."""
-    nx = int(math.sqrt(ns))
-    while ns % nx:
-        nx -= 1
-    ny = ns // nx
+    nx, ny = strata(ns)
     for i in range(P.shape[0]):
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         n0, n1, n2 = Nrm[i, 0], Nrm[i, 1], Nrm[i, 2]
