@@ -1,10 +1,28 @@
 """Small Numba helpers shared by the image-space methods: projecting a world
-point into a packed ``ViewFace``, picking the face that holds it, and the
-bounding box of a map's finite depths."""
+point into a packed ``ViewFace``, picking the face that holds it, the
+bounding box of a map's finite depths, and the prange chunk size."""
 from __future__ import annotations
 
+from contextlib import contextmanager
+
+import numba
 import numpy as np
 from numba import njit
+
+
+@contextmanager
+def parallel_chunks(size: int):
+    """Kernels called inside hand their ``prange`` iterations to the threads
+    ``size`` at a time (dynamic), for loops whose iterations differ widely in
+    cost; the previous size is restored after. (Numba's own
+    ``with numba.parallel_chunksize(n)`` inside a ``cache=True`` kernel
+    breaks caching, so it is set here, around the call.)"""
+    prev = numba.get_parallel_chunksize()
+    numba.set_parallel_chunksize(size)
+    try:
+        yield
+    finally:
+        numba.set_parallel_chunksize(prev)
 
 
 @njit(cache=True, inline="always")

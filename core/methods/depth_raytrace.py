@@ -107,7 +107,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import sampling, views
-from ..kernels import face_project, pick_face
+from ..kernels import face_project, parallel_chunks, pick_face
 from ..sampling import strata
 from . import register
 from ._drt_coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
@@ -516,19 +516,15 @@ class DepthRaytrace(Method):
             va = np.ones(len(sel))
             vi = np.ones(len(sel))
             rays_t = np.zeros((len(tile_ptr) - 1, M_SIZE), np.int64)
-            chunk = numba.get_parallel_chunksize()
-            numba.set_parallel_chunksize(1)   # tiles differ widely in cost: hand them out one by one
-            try:
-                with timer("trace"):
-                    noff = normal_offsets(P, Nrm, lp, maps.faces, float(params.normal_offset))
-                    _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, int(params.seed),
-                                 float(buffers.scale), big, box[0], box[1], coherent, S,
-                                 bool(params.subgrid_shortcut), maps.faces, maps.offs, maps.dims,
-                                 maps.mn, maps.mx, maps.conn, maps.zp, hier, bool(params.minmax_clipping),
-                                 bool(params.rank_images), bool(params.clear_miss),
-                                 bool(params.occlusion_intervals), va, vi, rays_t)
-            finally:
-                numba.set_parallel_chunksize(chunk)
+            # tiles differ widely in cost: hand them out one by one
+            with parallel_chunks(1), timer("trace"):
+                noff = normal_offsets(P, Nrm, lp, maps.faces, float(params.normal_offset))
+                _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, int(params.seed),
+                             float(buffers.scale), big, box[0], box[1], coherent, S,
+                             bool(params.subgrid_shortcut), maps.faces, maps.offs, maps.dims,
+                             maps.mn, maps.mx, maps.conn, maps.zp, hier, bool(params.minmax_clipping),
+                             bool(params.rank_images), bool(params.clear_miss),
+                             bool(params.occlusion_intervals), va, vi, rays_t)
             rays = int(rays_t[:, M_RAYS].sum())
             n_pts = max(1, len(sel))
             stats["full_trace_points"] = int(rays_t[:, M_FULL].sum())

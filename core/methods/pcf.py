@@ -36,12 +36,11 @@ import math
 from dataclasses import dataclass
 from typing import Optional
 
-import numba
 import numpy as np
 from numba import njit, prange
 
 from .. import views
-from ..kernels import face_project, finite_bbox, pick_face
+from ..kernels import face_project, finite_bbox, parallel_chunks, pick_face
 from ..sampling import stream_next, stream_start
 from . import register
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
@@ -311,8 +310,7 @@ def pcf_kernel(P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor
     out[i] = V; other pixels are left as they are. Pixels are handed to the
     threads in chunks of a few rows (dynamic), not in one contiguous half
     each: sky and ground rows differ widely in cost (the caller sets the
-    chunk size: ``numba.parallel_chunksize`` inside a cached kernel cannot be
-    cached)."""
+    chunk size with ``kernels.parallel_chunks``)."""
     for i in prange(P.shape[0]):
         _pcf_pixel(i, P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor, MinSize,
                    MaxSize, NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out)
@@ -404,15 +402,11 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
-                chunk = numba.get_parallel_chunksize()
-                numba.set_parallel_chunksize(PIXEL_CHUNK)
-                try:
+                with parallel_chunks(PIXEL_CHUNK):
                     pcf_kernel(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
                                pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)),
                                lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi,
                                res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                                b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles), out)
-                finally:
-                    numba.set_parallel_chunksize(chunk)
         return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
