@@ -11,7 +11,7 @@ from penumbra.core.methods.base import PhaseTimer
 from penumbra.core.methods.embree_ref import EmbreeReference
 from penumbra.core.methods.penumbra_casting import (PenumbraCasting, _bucket_sort_by_area, cast, prepare,
                                                      scene_blockers)
-from penumbra.core.methods._pc_geometry import (MAXP, blocked_by_edges, hard_volume, in_hard_volume,
+from penumbra.core.methods._pc_geometry import (MAXB, MAXP, blocked_by_edges, hard_volume, in_hard_volume,
                                                  penumbra_volume, point_in_volume, receiver_edge_functions,
                                                  triangle_plane)
 from penumbra.core.methods._pc_hierarchy import build_hierarchy
@@ -322,19 +322,63 @@ def test_hard_cases_finite_and_exact(case):
 
 # --------------------------------------------------------------------------
 # building blocks
-def test_penumbra_volume_contains_every_hard_volume():
-    """Random triangles, light polygons (finite and directional) and points:
-    whenever a sample in the polygon blocks r (exact hard volume test), r is
-    inside the penumbra volume (no slack), and both hard volume forms agree."""
-    rng = np.random.default_rng(3)
+def _random_blocker(rng, nb):
+    """A random triangle (nb = 3), or a random convex planar quad (nb = 4):
+    corners on an ellipse at sorted angles, in a randomly turned plane;
+    returned as float64[MAXB, 3] with the last corner repeated."""
+    if nb == 3:
+        tri = rng.normal(0, 1, (3, 3))
+    else:
+        ang = np.sort(rng.uniform(0, 2 * np.pi, 4))
+        while np.diff(np.concatenate([ang, [ang[0] + 2 * np.pi]])).max() > 0.9 * np.pi:
+            ang = np.sort(rng.uniform(0, 2 * np.pi, 4))
+        ab = rng.uniform(0.3, 1.5, 2)
+        flat = np.stack([ab[0] * np.cos(ang), ab[1] * np.sin(ang), np.zeros(4)], axis=1)
+        rot, _ = np.linalg.qr(rng.normal(0, 1, (3, 3)))
+        tri = flat @ rot.T + rng.normal(0, 0.5, 3)
+    out = np.empty((MAXB, 3))
+    out[:nb] = tri
+    out[nb:] = tri[nb - 1]
+    return out
+
+
+def _segment_crosses(poly, nb, r, l, margin=1e-9):
+    """Segment r -> l (l excluded, r excluded) meets the convex polygon: as a
+    fan of triangles (Moller-Trumbore); None when it passes within ``margin``
+    of an edge of the fan or of an end point (undecidable in floating point)."""
+    hit = False
+    for j in range(1, nb - 1):
+        a, b, c = poly[0], poly[j], poly[j + 1]
+        e1, e2 = b - a, c - a
+        d = l - r
+        p = np.cross(d, e2)
+        det = e1 @ p
+        s = r - a
+        u = s @ p / det
+        q = np.cross(s, e1)
+        v = d @ q / det
+        t = e2 @ q / det
+        if min(abs(u), abs(v), abs(1 - u - v), abs(t), abs(1 - t)) <= margin:
+            return None
+        hit |= (u >= 0) and (v >= 0) and (u + v <= 1) and (0 < t < 1)
+    return hit
+
+
+@pytest.mark.parametrize("nb", [3, 4])
+def test_penumbra_volume_contains_every_hard_volume(nb):
+    """Random blockers (triangles; convex quads, section 5), light polygons
+    (finite and directional) and points: whenever a sample in the polygon
+    blocks r (exact hard volume test), r is inside the penumbra volume (no
+    slack), and both hard volume forms agree."""
+    rng = np.random.default_rng(3 + nb)
     out = np.zeros((4, MAXP))
-    hv = np.zeros((4, 4))
-    ef = np.zeros((3, 4))
+    hv = np.zeros((MAXB + 1, 4))
+    ef = np.zeros((MAXB, 4))
     tn = np.zeros(4)
     DE = np.array([[0, 1], [1, 2], [2, 3], [3, 0]] + [[0, 0]] * 12, np.int64)
     hits = 0
     for trial in range(90):
-        tri = rng.normal(0, 1, (3, 3)) + [0, 0, 2.0]
+        tri = _random_blocker(rng, nb) + [0, 0, 2.0]
         directional = trial % 3 == 0
         a, b = rng.uniform(0.1, 1.5, 2)
         corners = np.array([[-a, -b], [a, -b], [a, b], [-a, b]])
@@ -346,16 +390,16 @@ def test_penumbra_volume_contains_every_hard_volume():
             DV[:4, :2] = corners + rng.normal(0, 0.5, 2)
             DV[:4, 2] = 5.0
             DV[:4, 3] = 1.0
-        k = penumbra_volume(tri, DV, 4, DE, 4, 1e-12, out)
+        k = penumbra_volume(tri, nb, DV, 4, DE, 4, 1e-12, out)
         assert k >= 0
-        triangle_plane(tri, tn)
+        triangle_plane(tri, nb, tn)
         uv = rng.uniform(0, 1, (24, 2))
         for r in rng.normal(0, 2.5, (80, 3)):
-            rho = receiver_edge_functions(tri, r[0], r[1], r[2], ef)
+            rho = receiver_edge_functions(tri, nb, tn, r[0], r[1], r[2], ef)
             inside = point_in_volume(out[None], 0, k, -1, r[0], r[1], r[2], 0.0)
             for u, v in uv:
                 p = (DV[0] * (1 - u) * (1 - v) + DV[1] * u * (1 - v) + DV[2] * u * v + DV[3] * (1 - u) * v)
-                blk = hard_volume(tri, p[0], p[1], p[2], p[3], hv) and in_hard_volume(hv, r[0], r[1], r[2])
+                blk = hard_volume(tri, nb, p[0], p[1], p[2], p[3], hv) and in_hard_volume(hv, nb, r[0], r[1], r[2])
                 assert blk == blocked_by_edges(ef, rho, tn, p[0], p[1], p[2], p[3])
                 if blk:
                     hits += 1
@@ -363,29 +407,28 @@ def test_penumbra_volume_contains_every_hard_volume():
     assert hits > 300
 
 
-def test_hard_volume_is_the_segment_test():
-    """V_l holds r iff the segment from r to l crosses T (Moller-Trumbore)."""
-    rng = np.random.default_rng(4)
-    hv = np.zeros((4, 4))
-    n_in = 0
+@pytest.mark.parametrize("nb", [3, 4])
+def test_hard_volume_is_the_segment_test(nb):
+    """V_l holds r iff the segment from r to l crosses T (Moller-Trumbore on
+    T, or on the two triangles of a convex quad)."""
+    rng = np.random.default_rng(4 + nb)
+    hv = np.zeros((MAXB + 1, 4))
+    ef = np.zeros((MAXB, 4))
+    tn = np.zeros(4)
+    n_in = n_out = 0
     for _ in range(3000):
-        tri = rng.normal(0, 1, (3, 3))
+        tri = _random_blocker(rng, nb)
         r, l = rng.normal(0, 2, 3), rng.normal(0, 2, 3)
-        ok = hard_volume(tri, l[0], l[1], l[2], 1.0, hv) and in_hard_volume(hv, *r)
-        e1, e2 = tri[1] - tri[0], tri[2] - tri[0]
-        d = l - r
-        p = np.cross(d, e2)
-        det = e1 @ p
-        s = r - tri[0]
-        u = s @ p / det
-        q = np.cross(s, e1)
-        v = d @ q / det
-        t = e2 @ q / det
-        mt = (u >= 0) and (v >= 0) and (u + v <= 1) and (0 < t < 1)
-        if min(abs(u), abs(v), abs(1 - u - v), abs(t), abs(1 - t)) > 1e-9:
+        ok = hard_volume(tri, nb, l[0], l[1], l[2], 1.0, hv) and in_hard_volume(hv, nb, *r)
+        triangle_plane(tri, nb, tn)
+        rho = receiver_edge_functions(tri, nb, tn, r[0], r[1], r[2], ef)
+        assert ok == blocked_by_edges(ef, rho, tn, l[0], l[1], l[2], 1.0)
+        mt = _segment_crosses(tri, nb, r, l)
+        if mt is not None:
             assert ok == mt
-        n_in += ok
-    assert n_in > 100
+            n_in += ok
+            n_out += not ok
+    assert n_in > 100 and n_out > 100
 
 
 def test_hierarchy_midpoint_sah_and_leaves():
@@ -412,7 +455,7 @@ def test_coarse_sort_is_largest_first_by_bucket():
     rng = np.random.default_rng(6)
     s = 10.0 ** rng.uniform(-4, 1, 500)
     tris = rng.normal(0, 1, (500, 3, 3)) * s[:, None, None]
-    order = _bucket_sort_by_area(tris, 8)
+    order = _bucket_sort_by_area(tris, np.full(len(tris), 3), 8)
     area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
     la = np.log(area[order])
     b = np.minimum(7, ((la.max() - la) / (la.max() - la.min()) * 8).astype(int))

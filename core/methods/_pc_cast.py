@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._pc_geometry import MAXP, blocked_by_edges, box_vs_volume, hard_volume, in_hard_volume, \
+from ._pc_geometry import MAXB, MAXP, blocked_by_edges, box_vs_volume, hard_volume, in_hard_volume, \
     penumbra_volume, point_in_volume, receiver_edge_functions, triangle_plane
 from ._pc_light import sample_point
 
@@ -70,15 +70,15 @@ def _popcount(x):
 
 @njit(cache=True, inline="always")
 def _coefficients(ef, tn, rho, mode, r, M, centre, co):
-    """Per receiver: the three edge functions and T's plane as linear forms in
-    the sample, signed so that "blocked" reads v_e >= 0 for every e and
-    s > 0 (the sample strictly on the other side of T from r); negation is
-    exact, so this decides exactly as ``blocked_by_edges``. For the sphere the
-    receiver's rotation is folded in: p = c + M q gives a . p - k w =
-    (M^T a) . q - (k - a . c)."""
+    """Per receiver: the MAXB edge functions (rows of edges T lacks are zero)
+    and T's plane (last) as linear forms in the sample, signed so that
+    "blocked" reads v_e >= 0 for every e and s > 0 (the sample strictly on the
+    other side of T from r); negation is exact, so this decides exactly as
+    ``blocked_by_edges``. For the sphere the receiver's rotation is folded in:
+    p = c + M q gives a . p - k w = (M^T a) . q - (k - a . c)."""
     sr = 1.0 if rho > 0.0 else -1.0
-    for e in range(4):
-        if e < 3:
+    for e in range(MAXB + 1):
+        if e < MAXB:
             ax, ay, az, k = sr * ef[e, 0], sr * ef[e, 1], sr * ef[e, 2], sr * ef[e, 3]
         else:
             ax, ay, az, k = -sr * tn[0], -sr * tn[1], -sr * tn[2], -sr * tn[3]
@@ -95,26 +95,40 @@ def _coefficients(ef, tn, rho, mode, r, M, centre, co):
 
 
 @njit(cache=True, inline="always")
-def _word_tests(T4, j, a, e, base, co):
-    """Bits [a, e) of one 64-bit mask word: sample i blocked by T."""
+def _word_tests(T4, j, a, e, base, co, quad):
+    """Bits [a, e) of one 64-bit mask word: sample i blocked by T (three edge
+    forms and the plane for a triangle, four for a quad)."""
     u0x, u0y, u0z, c0 = co[0], co[1], co[2], co[3]
     u1x, u1y, u1z, c1 = co[4], co[5], co[6], co[7]
     u2x, u2y, u2z, c2 = co[8], co[9], co[10], co[11]
-    tx, ty, tz, tc = co[12], co[13], co[14], co[15]
+    u3x, u3y, u3z, c3 = co[12], co[13], co[14], co[15]
+    tx, ty, tz, tc = co[16], co[17], co[18], co[19]
     # unsigned indices and shifts: no negative-index wraparound or
     # out-of-range-shift selects in the loop body, so LLVM vectorizes it
     ua = np.uint64(a)
     sh = np.uint64(a - base)
     acc = np.uint64(0)
-    for k in range(np.uint64(e - a)):
-        i = ua + k
-        px, py, pz, pw = T4[j, 0, i], T4[j, 1, i], T4[j, 2, i], T4[j, 3, i]
-        v0 = u0x * px + u0y * py + u0z * pz - c0 * pw
-        v1 = u1x * px + u1y * py + u1z * pz - c1 * pw
-        v2 = u2x * px + u2y * py + u2z * pz - c2 * pw
-        sp = tx * px + ty * py + tz * pz - tc * pw
-        blk = (v0 >= 0.0) & (v1 >= 0.0) & (v2 >= 0.0) & (sp > 0.0)
-        acc |= np.uint64(blk) << (k + sh)
+    if quad:
+        for k in range(np.uint64(e - a)):
+            i = ua + k
+            px, py, pz, pw = T4[j, 0, i], T4[j, 1, i], T4[j, 2, i], T4[j, 3, i]
+            v0 = u0x * px + u0y * py + u0z * pz - c0 * pw
+            v1 = u1x * px + u1y * py + u1z * pz - c1 * pw
+            v2 = u2x * px + u2y * py + u2z * pz - c2 * pw
+            v3 = u3x * px + u3y * py + u3z * pz - c3 * pw
+            sp = tx * px + ty * py + tz * pz - tc * pw
+            blk = (v0 >= 0.0) & (v1 >= 0.0) & (v2 >= 0.0) & (v3 >= 0.0) & (sp > 0.0)
+            acc |= np.uint64(blk) << (k + sh)
+    else:
+        for k in range(np.uint64(e - a)):
+            i = ua + k
+            px, py, pz, pw = T4[j, 0, i], T4[j, 1, i], T4[j, 2, i], T4[j, 3, i]
+            v0 = u0x * px + u0y * py + u0z * pz - c0 * pw
+            v1 = u1x * px + u1y * py + u1z * pz - c1 * pw
+            v2 = u2x * px + u2y * py + u2z * pz - c2 * pw
+            sp = tx * px + ty * py + tz * pz - tc * pw
+            blk = (v0 >= 0.0) & (v1 >= 0.0) & (v2 >= 0.0) & (sp > 0.0)
+            acc |= np.uint64(blk) << (k + sh)
     return acc
 
 
@@ -134,7 +148,7 @@ def chunk_visibility(fu, slot, pool, S, out):
 
 
 @njit(cache=True, nogil=True)
-def cast_chunk(t0, tri_sel, tris, VL, nVL,
+def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                DVg, nvg, DEg, neg, g_start,
                mode, SP, Q, M, centre, lp, seed, pix, Pg, bit2s, nx, ny,
                pts, set_id,
@@ -156,11 +170,11 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
     VG = np.zeros((G, 4, MAXP))
     nVG = np.zeros(G, np.int64)
     hsets = nsets if planes else 1
-    HV = np.zeros((hsets, S if planes else 1, 4, 4))
+    HV = np.zeros((hsets, S if planes else 1, MAXB + 1, 4))
     hv_ok = np.zeros((hsets, S if planes else 1), np.bool_)
     tn = np.zeros(4)
-    ef = np.zeros((3, 4))
-    co = np.zeros(16)
+    ef = np.zeros((MAXB, 4))
+    co = np.zeros(4 * MAXB + 4)
     # samples as structure of arrays (x, y, z, w rows): fixed points, or the
     # sphere's disk offsets with w = 1 (the per-receiver rotation goes into
     # the coefficients)
@@ -186,18 +200,19 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
         k = tri_sel[ti]
         nL = nVL[k]
         tri = tris[k]
-        triangle_plane(tri, tn)
+        nb = nverts[k]
+        triangle_plane(tri, nb, tn)
         st[5] += 1
         stamp = st[5]
         vol_built = False
         if not optC:
             # basic algorithm, lines 2-3: every V_Gk and V_li up front
             for g in range(G):
-                nVG[g] = max(0, penumbra_volume(tri, DVg[g], nvg[g], DEg[g], neg[g], eps, VG[g]))
+                nVG[g] = max(0, penumbra_volume(tri, nb, DVg[g], nvg[g], DEg[g], neg[g], eps, VG[g]))
             if planes:
                 for j in range(nsets):
                     for i in range(S):
-                        hv_ok[j, i] = hard_volume(tri, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
+                        hv_ok[j, i] = hard_volume(tri, nb, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
                                                   SP[j, i, 3], HV[j, i])
                     for g in range(G):
                         hv_stamp[j, g] = stamp
@@ -294,7 +309,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                         st[2] = st[1]
                 if not vol_built:                                        # lines 60-64 (C)
                     for g in range(G):
-                        nVG[g] = max(0, penumbra_volume(tri, DVg[g], nvg[g], DEg[g], neg[g],
+                        nVG[g] = max(0, penumbra_volume(tri, nb, DVg[g], nvg[g], DEg[g], neg[g],
                                                         eps, VG[g]))
                     vol_built = True
                     st[9] += 1
@@ -312,7 +327,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                     if planes and hv_stamp[j, g] != stamp:
                         # C: the hard volumes of this group of this set, on first need
                         for i in range(g_start[g], g_start[g + 1]):
-                            hv_ok[j, i] = hard_volume(tri, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
+                            hv_ok[j, i] = hard_volume(tri, nb, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
                                                       SP[j, i, 3], HV[j, i])
                         hv_stamp[j, g] = stamp
                         st[10] += g_start[g + 1] - g_start[g]
@@ -320,7 +335,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                     i1 = g_start[g + 1]
                     if not planes and not have_ef:
                         # per receiver and triangle, on the first group that needs it
-                        rho = receiver_edge_functions(tri, x, y, z, ef)
+                        rho = receiver_edge_functions(tri, nb, tn, x, y, z, ef)
                         if mode != 2 and rho != 0.0:
                             _coefficients(ef, tn, rho, mode, r, M, centre, co)
                         have_ef = True
@@ -331,7 +346,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                             if pool[sl, w] & b:
                                 continue
                             st[8] += 1
-                            if hv_ok[j, i] and in_hard_volume(HV[j, i], x, y, z):
+                            if hv_ok[j, i] and in_hard_volume(HV[j, i], nb, x, y, z):
                                 pool[sl, w] |= b
                     elif mode == 2:
                         for i in range(i0, i1):
@@ -349,7 +364,7 @@ def cast_chunk(t0, tri_sel, tris, VL, nVL,
                         for w in range(i0 >> 6, ((i1 - 1) >> 6) + 1):
                             a = max(i0, w << 6)
                             e = min(i1, (w + 1) << 6)
-                            pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co)
+                            pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co, nb > 3)
                             st[8] += e - a
                     if optA:                                             # line 72
                         if _bits_full(pool, sl, g_start[g], g_start[g + 1]):

@@ -5,13 +5,19 @@ Points of a light's bounding polygon / volume are homogeneous ``(x, y, z, w)``:
 A plane is ``(nx, ny, nz, o)`` with value ``n . x - o w``; every volume here is
 oriented so that its *inside* (where shadow can be) is value >= 0.
 
+A blocker T is a triangle or a convex planar polygon of up to ``MAXB``
+corners (``_pc_blockers``: coplanar triangles cast together, section 5),
+given as ``poly[MAXB, 3]`` and its corner count ``nb``; for a triangle every
+formula below is the paper's.
+
 * ``penumbra_volume``: the separating planes between a convex light polygon
   (or convex polytope, section 3.4 "Volumetric light sources") and the blocker
-  triangle T, found by enumerating every vertex-edge pair of the two and keeping
+  T, found by enumerating every vertex-edge pair of the two and keeping
   the planes with all light vertices on one side and all of T on the other,
   plus T's own plane as a cap when it does not cut the light.
-* ``hard_volume``: the hard shadow volume V_l of one light sample: three planes
-  through the sample and T's edges and T's plane (four dot products per test).
+* ``hard_volume``: the hard shadow volume V_l of one light sample: ``nb``
+  planes through the sample and T's edges and T's plane (nb + 1 dot products
+  per test).
   A receiver r is inside iff the segment from r to the sample (or the ray from r
   along a sun direction) meets T: edges inclusive, T's plane strict, which is
   how Embree's watertight test treats a ray through a shared edge or a ray that
@@ -29,6 +35,7 @@ import numpy as np
 from numba import njit
 
 MAXP = 31          # planes kept per penumbra volume (cap first); bit masks fit int64
+MAXB = 4           # corners of a blocker polygon
 ALL = np.int64(-1)  # active plane set token "ALL" (every bit set)
 
 
@@ -38,7 +45,7 @@ def _cross(ax, ay, az, bx, by, bz):
 
 
 @njit(cache=True, inline="always")
-def _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
+def _separating(tri, nb, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
     """Candidate plane with normal n through point s: append it to ``out``
     at column k, oriented with T's side >= 0, when it separates T and the
     light (all of T on one side, all light vertices on the other, not both
@@ -52,7 +59,7 @@ def _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
     o = nx * sx + ny * sy + nz * sz
     tmin = 1e300
     tmax = -1e300
-    for t in range(3):
+    for t in range(nb):
         h = nx * tri[t, 0] + ny * tri[t, 1] + nz * tri[t, 2] - o
         tmin = min(tmin, h)
         tmax = max(tmax, h)
@@ -76,10 +83,10 @@ def _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
 
 
 @njit(cache=True)
-def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
+def penumbra_volume(tri, nb, DV, nv, DE, ne, eps, out):
     """Separating planes between light polygon/polytope ``DV[:nv]`` (homogeneous
-    vertices, edges ``DE[:ne]`` as vertex index pairs) and triangle ``tri``
-    (float64[3,3]); unit normals, T's side >= 0. Writes ``out[:, :k]`` (rows
+    vertices, edges ``DE[:ne]`` as vertex index pairs) and blocker ``tri``
+    (float64[>=nb, 3], ``nb`` corners); unit normals, T's side >= 0. Writes ``out[:, :k]`` (rows
     nx, ny, nz, o: structure of arrays, so the tests below vectorize over the
     planes) and returns
     k (0 = no plane: the whole space), or -1 for a degenerate triangle (it
@@ -93,6 +100,9 @@ def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
     e2 = math.sqrt((cx - ax) ** 2 + (cy - ay) ** 2 + (cz - az) ** 2)
     if not (tl > 1e-14 * e1 * e2) or not (tl > 0.0):
         return -1
+    if nb > 3:
+        tnx, tny, tnz = _newell(tri, nb)
+        tl = math.sqrt(tnx * tnx + tny * tny + tnz * tnz)
     k = 0
     # cap: T's plane, when every light vertex lies strictly on one side
     tnx /= tl
@@ -117,9 +127,9 @@ def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
             k += 1
     # candidate planes: (edge of T, vertex of light) and (vertex of T, edge of
     # light), in that order (nested loops: no integer division per candidate)
-    for e in range(3):
+    for e in range(nb):
         i0 = e
-        i1 = (e + 1) % 3
+        i1 = e + 1 if e + 1 < nb else 0            # no integer division
         sx, sy, sz = tri[i0, 0], tri[i0, 1], tri[i0, 2]
         for v in range(nv):
             if k >= MAXP:
@@ -127,8 +137,8 @@ def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
             px, py, pz, pw = DV[v, 0], DV[v, 1], DV[v, 2], DV[v, 3]
             nx, ny, nz = _cross(tri[i1, 0] - sx, tri[i1, 1] - sy, tri[i1, 2] - sz,
                                 px - pw * sx, py - pw * sy, pz - pw * sz)
-            k = _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k)
-    for t in range(3):
+            k = _separating(tri, nb, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k)
+    for t in range(nb):
         sx, sy, sz = tri[t, 0], tri[t, 1], tri[t, 2]
         for e in range(ne):
             if k >= MAXP:
@@ -139,20 +149,22 @@ def penumbra_volume(tri, DV, nv, DE, ne, eps, out):
                                 DV[v0, 2] - DV[v0, 3] * sz,
                                 DV[v1, 0] - DV[v1, 3] * sx, DV[v1, 1] - DV[v1, 3] * sy,
                                 DV[v1, 2] - DV[v1, 3] * sz)
-            k = _separating(tri, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k)
+            k = _separating(tri, nb, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k)
     return k
 
 
 @njit(cache=True, inline="always")
-def hard_volume(tri, px, py, pz, pw, hv):
-    """Hard shadow volume V_l of sample ``(p, w)`` and T into ``hv[4, 4]``:
-    row 0 T's plane (inside strictly > 0), rows 1-3 the edge planes through the
-    sample (inside >= 0). Returns False when the sample lies on T's plane or T
-    is degenerate (T blocks nothing from it)."""
+def hard_volume(tri, nb, px, py, pz, pw, hv):
+    """Hard shadow volume V_l of sample ``(p, w)`` and T into ``hv[MAXB + 1, 4]``:
+    row 0 T's plane (inside strictly > 0), rows 1..nb the edge planes through
+    the sample (inside >= 0). Returns False when the sample lies on T's plane
+    or T is degenerate (T blocks nothing from it)."""
     ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
-    bx, by, bz = tri[1, 0], tri[1, 1], tri[1, 2]
-    cx, cy, cz = tri[2, 0], tri[2, 1], tri[2, 2]
-    tnx, tny, tnz = _cross(bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az)
+    if nb == 3:
+        tnx, tny, tnz = _cross(tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az,
+                               tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az)
+    else:
+        tnx, tny, tnz = _newell(tri, nb)
     to = tnx * ax + tny * ay + tnz * az
     s = tnx * px + tny * py + tnz * pz - to * pw
     if s == 0.0 or not (s == s):
@@ -163,10 +175,10 @@ def hard_volume(tri, px, py, pz, pw, hv):
     hv[0, 1] = tny
     hv[0, 2] = tnz
     hv[0, 3] = to
-    for e in range(3):
+    for e in range(nb):
         i0 = e
-        i1 = (e + 1) % 3
-        i2 = (e + 2) % 3
+        i1 = e + 1 if e + 1 < nb else 0            # no integer division
+        i2 = i1 + 1 if i1 + 1 < nb else 0
         sx, sy, sz = tri[i0, 0], tri[i0, 1], tri[i0, 2]
         nx, ny, nz = _cross(tri[i1, 0] - sx, tri[i1, 1] - sy, tri[i1, 2] - sz,
                             px - pw * sx, py - pw * sy, pz - pw * sz)
@@ -181,16 +193,13 @@ def hard_volume(tri, px, py, pz, pw, hv):
 
 
 @njit(cache=True, inline="always")
-def in_hard_volume(hv, x, y, z):
-    """POINT-IN-VOLUME(r, V_l): four dot products."""
+def in_hard_volume(hv, nb, x, y, z):
+    """POINT-IN-VOLUME(r, V_l): nb + 1 dot products."""
     if hv[0, 0] * x + hv[0, 1] * y + hv[0, 2] * z - hv[0, 3] <= 0.0:
         return False
-    if hv[1, 0] * x + hv[1, 1] * y + hv[1, 2] * z - hv[1, 3] < 0.0:
-        return False
-    if hv[2, 0] * x + hv[2, 1] * y + hv[2, 2] * z - hv[2, 3] < 0.0:
-        return False
-    if hv[3, 0] * x + hv[3, 1] * y + hv[3, 2] * z - hv[3, 3] < 0.0:
-        return False
+    for e in range(1, nb + 1):
+        if hv[e, 0] * x + hv[e, 1] * y + hv[e, 2] * z - hv[e, 3] < 0.0:
+            return False
     return True
 
 
@@ -241,45 +250,49 @@ def point_in_volume(planes, p, n, active, x, y, z, tol):
 
 
 @njit(cache=True, inline="always")
-def receiver_edge_functions(tri, x, y, z, ef):
+def receiver_edge_functions(tri, nb, tn, x, y, z, ef):
     """The hard shadow volume test of section 3.2 with the roles of sample
     and receiver exchanged. Edge plane e of V_l through sample (p, w) and edge
     (a, b) evaluated at r is [(b - a) x (p - w a)] . (r - a) = p . U_e - w (a . U_e)
     with U_e = (r - a) x (b - a): linear in the sample. ``ef[e] = (U_e, a . U_e)``
-    for r, so each sample costs three dot products and no volume is built.
-    Returns T's plane value at r (its sign: r's side of T)."""
-    for e in range(3):
+    for r, so each sample costs nb + 1 dot products and no volume is built.
+    Rows nb..MAXB-1 are zero (a test every sample passes). ``tn``: T's plane
+    (``triangle_plane``). Returns T's plane value at r (its sign: r's side of T)."""
+    for e in range(ef.shape[0]):
+        if e >= nb:
+            ef[e, 0] = 0.0
+            ef[e, 1] = 0.0
+            ef[e, 2] = 0.0
+            ef[e, 3] = 0.0
+            continue
         i0 = e
-        i1 = (e + 1) % 3
+        i1 = e + 1 if e + 1 < nb else 0            # no integer division
         ax, ay, az = tri[i0, 0], tri[i0, 1], tri[i0, 2]
         ux, uy, uz = _cross(x - ax, y - ay, z - az, tri[i1, 0] - ax, tri[i1, 1] - ay, tri[i1, 2] - az)
         ef[e, 0] = ux
         ef[e, 1] = uy
         ef[e, 2] = uz
         ef[e, 3] = ux * ax + uy * ay + uz * az
-    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
-    tnx, tny, tnz = _cross(tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az,
-                           tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az)
-    return tnx * x + tny * y + tnz * z - (tnx * ax + tny * ay + tnz * az)
+    return tn[0] * x + tn[1] * y + tn[2] * z - tn[3]
 
 
 @njit(cache=True, inline="always")
 def blocked_by_edges(ef, rho, tn, px, py, pz, pw):
     """POINT-IN-VOLUME(r, V_l) from ``receiver_edge_functions``: the sample
-    strictly on the other side of T's plane from r, and r inside the three
-    edge planes (inclusive), oriented by the sample's side as in ``hard_volume``."""
+    strictly on the other side of T's plane from r, and r inside every edge
+    plane (inclusive), oriented by the sample's side as in ``hard_volume``."""
     s = tn[0] * px + tn[1] * py + tn[2] * pz - tn[3] * pw
     if s > 0.0:
         if not (rho < 0.0):
             return False
-        for e in range(3):
+        for e in range(ef.shape[0]):
             if ef[e, 0] * px + ef[e, 1] * py + ef[e, 2] * pz - ef[e, 3] * pw > 0.0:
                 return False
         return True
     if s < 0.0:
         if not (rho > 0.0):
             return False
-        for e in range(3):
+        for e in range(ef.shape[0]):
             if ef[e, 0] * px + ef[e, 1] * py + ef[e, 2] * pz - ef[e, 3] * pw < 0.0:
                 return False
         return True
@@ -287,11 +300,27 @@ def blocked_by_edges(ef, rho, tn, px, py, pz, pw):
 
 
 @njit(cache=True, inline="always")
-def triangle_plane(tri, tn):
-    """T's (unnormalized) plane n_T = (b - a) x (c - a), o_T = n_T . a into tn[4]."""
+def _newell(tri, nb):
+    """Newell's normal of polygon ``tri[:nb]`` (twice its area, oriented by its winding)."""
+    nx = ny = nz = 0.0
+    for j in range(nb):
+        q = j + 1 if j + 1 < nb else 0
+        nx += (tri[j, 1] - tri[q, 1]) * (tri[j, 2] + tri[q, 2])
+        ny += (tri[j, 2] - tri[q, 2]) * (tri[j, 0] + tri[q, 0])
+        nz += (tri[j, 0] - tri[q, 0]) * (tri[j, 1] + tri[q, 1])
+    return nx, ny, nz
+
+
+@njit(cache=True, inline="always")
+def triangle_plane(tri, nb, tn):
+    """T's (unnormalized) plane into tn[4]: n_T = (b - a) x (c - a) for a
+    triangle, Newell's normal for a polygon; o_T = n_T . a."""
     ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
-    tnx, tny, tnz = _cross(tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az,
-                           tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az)
+    if nb == 3:
+        tnx, tny, tnz = _cross(tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az,
+                               tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az)
+    else:
+        tnx, tny, tnz = _newell(tri, nb)
     tn[0] = tnx
     tn[1] = tny
     tn[2] = tnz

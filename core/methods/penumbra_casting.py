@@ -32,6 +32,15 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
   ``materialize_hard_volumes=True`` builds the paper's per-sample planes
   instead (per triangle, per set and group on first need under C); the two
   agree exactly except for rays within rounding of an edge.
+* Blockers (``_pc_blockers``, ``coplanar_blockers``): edge-adjacent
+  triangles in one plane that form a convex polygon of up to 4 corners are
+  cast as that polygon, the simplest case of the paper's section 5 suggestion
+  to process several blocker triangles at once: one traversal and one
+  penumbra volume instead of one per triangle, and no false penumbra along
+  the inner edges. The union is the polygon, so the blocked relations are
+  the same up to rays within rounding of a removed inner edge (tested).
+  A quad costs a fifth linear form per sample test. Off: the paper's
+  per-triangle algorithm.
 * Triangles that cannot shadow a visible receiver never enter the
   traversal: a bounding-box test against the hull of the light and the
   receivers, then V_L against the receivers' bounding box.
@@ -73,8 +82,9 @@ from numba import njit, prange
 
 from .. import sampling
 from . import register
+from ._pc_blockers import MAXB, coplanar_blockers, pad_triangles
 from ._pc_cast import cast_chunk, chunk_visibility
-from ._pc_geometry import MAXP, box_vs_volume, penumbra_volume
+from ._pc_geometry import MAXP, _newell, box_vs_volume, penumbra_volume
 from ._pc_hierarchy import build_hierarchy, node_umbra_bits
 from ._pc_light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, all_sample_points,
                         assign_sets, block_polygon_2d, box_to_homog, disk_polygon, fixed_sample_table,
@@ -94,6 +104,7 @@ class PenumbraCastingParams:
     lazy_volumes: bool = True         # optimization C
     masks_on_demand: bool = True      # optimization D
     coarse_sort: bool = True          # coarse blocker sorting by area, largest first
+    coplanar_blockers: bool = True    # cast coplanar convex triangle groups as one polygon (section 5)
     SortBuckets: int = 32             # area buckets (paper: a histogram; count not given)
     RebuildFraction: float = 0.25     # A, line 29: the paper's "large enough fraction" (not given)
     shared_samples_with_reference: bool = False   # the embree reference's own per-pixel samples
@@ -107,11 +118,11 @@ _VL_BATCH = 1 << 16
 # --------------------------------------------------------------------------
 # small kernels
 @njit(cache=True, parallel=True)
-def _light_volumes(tris, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
-    """V_L of every candidate triangle and the test against the receivers'
+def _light_volumes(tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
+    """V_L of every candidate blocker and the test against the receivers'
     bounding box: ``keep`` = T may shadow some receiver."""
     for t in prange(tris.shape[0]):
-        k = penumbra_volume(tris[t], DV, nv, DE, ne, eps, VL[t])
+        k = penumbra_volume(tris[t], nverts[t], DV, nv, DE, ne, eps, VL[t])
         nVL[t] = k
         if k < 0:
             keep[t] = False
@@ -121,12 +132,17 @@ def _light_volumes(tris, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
 
 
 @njit(cache=True)
-def _bucket_sort_by_area(tris, nb):
-    """Coarse blocker sorting (section 3.3): bucket by area on a log scale,
-    largest first; linear time (histogram + counting sort), stable."""
+def _bucket_sort_by_area(tris, nverts, nb):
+    """Coarse blocker sorting (section 3.3): bucket by area on a log scale
+    into ``nb`` buckets, largest first; linear time (histogram + counting
+    sort), stable."""
     n = tris.shape[0]
     area = np.empty(n)
     for t in range(n):
+        if nverts[t] > 3:
+            cx, cy, cz = _newell(tris[t], nverts[t])
+            area[t] = 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
+            continue
         ux = tris[t, 1, 0] - tris[t, 0, 0]
         uy = tris[t, 1, 1] - tris[t, 0, 1]
         uz = tris[t, 1, 2] - tris[t, 0, 2]
@@ -358,8 +374,8 @@ class _Chunk:
 
 def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: PhaseTimer,
          threads: Optional[int] = None):
-    """Run the casting for ``tris`` (float64[T,3,3], already the blockers);
-    returns V per receiver (float64) and stats."""
+    """Run the casting for ``tris`` (float64[T,3,3], the shadow-casting
+    triangles); returns V per receiver (float64) and stats."""
     L = setup.light
     n = len(setup.idx)
     stats: Dict[str, object] = {"receivers": int(n), "samples": int(L.S), "groups": int(L.G),
@@ -395,22 +411,31 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         tmin = tris.min(1)
         tmax = tris.max(1)
         inbox = np.all((tmax >= blo - setup.tol) & (tmin <= bhi + setup.tol), axis=1)
-        cand = tris[inbox]
+        cand_tris = tris[inbox]
+    with timer("merge"):
+        if params.coplanar_blockers:
+            cand, cand_nv, _ = coplanar_blockers(cand_tris)
+        else:
+            cand, cand_nv = pad_triangles(cand_tris)
+    with timer("cull"):
         # V_L of every candidate, in batches (bounds the MAXP-wide temporary);
         # survivors keep only as many plane slots as they use
         parts, nparts, widest = [], [], 1
-        blocker_parts = []
+        blocker_parts, nv_parts = [], []
         for a in range(0, len(cand), _VL_BATCH):
             cb = np.ascontiguousarray(cand[a:a + _VL_BATCH])
+            cnv = np.ascontiguousarray(cand_nv[a:a + _VL_BATCH])
             VLb = np.zeros((len(cb), 4, MAXP))
             nVLb = np.zeros(len(cb), np.int64)
             keep = np.zeros(len(cb), np.bool_)
-            _light_volumes(cb, L.DVL, L.nvl, L.DEL, L.nel, setup.eps, root_bb, setup.tol, VLb, nVLb, keep)
+            _light_volumes(cb, cnv, L.DVL, L.nvl, L.DEL, L.nel, setup.eps, root_bb, setup.tol, VLb, nVLb,
+                           keep)
             w = int(nVLb[keep].max()) if keep.any() else 0
             widest = max(widest, w)
             parts.append(VLb[keep, :, :max(w, 1)])
             nparts.append(nVLb[keep])
             blocker_parts.append(cb[keep])
+            nv_parts.append(cnv[keep])
         VL = np.zeros((sum(len(q) for q in parts), 4, widest))
         o = 0
         for q in parts:
@@ -418,14 +443,16 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             o += len(q)
         nVL = np.concatenate(nparts) if nparts else np.zeros(0, np.int64)
         blockers = np.ascontiguousarray(np.concatenate(blocker_parts)) if blocker_parts \
-            else np.zeros((0, 3, 3))
-    stats["triangles_box_culled"] = int(len(tris) - len(cand))
-    stats["triangles_volume_culled"] = int(len(cand) - len(blockers))
+            else np.zeros((0, MAXB, 3))
+        blocker_nv = np.ascontiguousarray(np.concatenate(nv_parts)) if nv_parts else np.zeros(0, np.int64)
+    stats["triangles_box_culled"] = int(len(tris) - len(cand_tris))
+    stats["blocker_polygons"] = int(len(cand))
+    stats["triangles_volume_culled"] = int(len(cand) - len(blockers))   # blockers (polygons)
     stats["blockers"] = int(len(blockers))
     # -- coarse sort ---------------------------------------------------------
     with timer("sort"):
         if params.coarse_sort and len(blockers):
-            order = _bucket_sort_by_area(blockers, max(1, int(params.SortBuckets)))
+            order = _bucket_sort_by_area(blockers, blocker_nv, max(1, int(params.SortBuckets)))
         else:
             order = np.arange(len(blockers), dtype=np.int64)
     # -- chunks --------------------------------------------------------------
@@ -484,7 +511,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         while True:
             perm, bb, left, right, start, count, depth = c.hier
             t0 = cast_chunk(
-                t0, order, blockers, VL, nVL, L.DVg, L.nvg, L.DEg, L.neg, L.g_start,
+                t0, order, blockers, blocker_nv, VL, nVL, L.DVg, L.nvg, L.DEg, L.neg, L.g_start,
                 L.mode, L.SP, L.Q, c.M, L.centre, L.lp, setup.seed, c.pix, c.Pg, L.bit2s, L.nx, L.ny,
                 c.pts, c.set_id, perm, bb, left, right, start, count, depth, c.node_gu, c.node_fu,
                 c.fu, c.gu, c.slot, c.pool, c.free, c.st, optA, optB, optC, optD,

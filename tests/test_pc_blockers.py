@@ -1,0 +1,143 @@
+"""Coplanar convex blocker polygons for penumbra casting (Laine & Aila 2005,
+section 5: several blocker triangles processed at once): the polygons are
+exactly the union of their triangles, and casting them changes no blocked
+relation except rays within rounding of a removed inner edge."""
+import numpy as np
+import pytest
+
+from penumbra.core.buffers import FrameBuffers
+from penumbra.core.methods._pc_blockers import MAXB, PLANE_ULPS, coplanar_blockers, pad_triangles
+from penumbra.core.methods.penumbra_casting import PenumbraCasting, cast, prepare, scene_blockers
+from penumbra.core.methods.base import PhaseTimer
+
+PC = PenumbraCasting()
+
+
+def _area(tris):
+    return 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+
+
+def check_partition(tris, polys, nv, poly_of):
+    """Every polygon: at most MAXB corners, planar within the tolerance,
+    strictly convex, its area the sum of its triangles' areas, and every
+    corner of those triangles on it (so, the triangles not overlapping, the
+    polygon is their union)."""
+    assert len(poly_of) == len(tris) and poly_of.min() >= 0 and poly_of.max() == len(polys) - 1
+    assert ((nv >= 3) & (nv <= MAXB)).all()
+    tri_area = _area(tris)
+    for m in range(len(polys)):
+        k = nv[m]
+        P = polys[m, :k]
+        assert (polys[m, k:] == P[-1]).all()                 # padding: the last corner
+        mine = tris[poly_of == m]
+        mag = max(np.abs(P).max(), np.abs(mine).max())
+        tol = 2 * PLANE_ULPS * 2.0 ** -23 * mag
+        c = P.mean(0)
+        n = sum(np.cross(P[j] - c, P[(j + 1) % k] - c) for j in range(k))
+        area = 0.5 * np.linalg.norm(n)
+        n = n / np.linalg.norm(n)
+        assert np.abs((mine.reshape(-1, 3) - c) @ n).max() <= tol
+        for j in range(k):
+            turn = np.cross(P[j] - P[j - 1], P[(j + 1) % k] - P[j]) @ n
+            assert turn > 0.0, (m, j)
+            # every triangle corner inside (or on) this edge
+            e = P[(j + 1) % k] - P[j]
+            side = np.cross(e, mine.reshape(-1, 3) - P[j]) @ n / np.linalg.norm(e)
+            assert side.min() >= -tol
+        assert area == pytest.approx(tri_area[poly_of == m].sum(), rel=1e-5)
+
+
+def subdivided_plane(nx, ny, turn=0.0, offset=(0.0, 0.0, 0.0), dtype=np.float32):
+    x, y = np.meshgrid(np.linspace(-1, 1, nx + 1), np.linspace(-0.5, 0.5, ny + 1), indexing="ij")
+    V = np.stack([x, y, np.zeros_like(x)], -1)
+    c, s = np.cos(turn), np.sin(turn)
+    R = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    V = (V @ R.T + offset).astype(dtype).astype(np.float64)
+    tris = []
+    for i in range(nx):
+        for j in range(ny):
+            a, b, cc, d = V[i, j], V[i + 1, j], V[i + 1, j + 1], V[i, j + 1]
+            tris += [[a, b, cc], [a, cc, d]] if (i + j) % 2 else [[a, b, d], [b, cc, d]]
+    return np.array(tris)
+
+
+def test_grids_bar_faces_become_rectangles():
+    """GRIDS: 3 lattices of 2 x 16 bars, each a box of 4 long faces split in
+    32 segments plus 2 end caps, and the ground quad: 3 * 32 * 6 + 1 = 577
+    rectangles (the turned lattices' float32 corners included)."""
+    from scenes import load_sample
+    scene = load_sample("grids", (32, 32))
+    tris = scene_blockers(scene)
+    polys, nv, poly_of = coplanar_blockers(tris)
+    assert len(tris) == 3 * 32 * (4 * 32 * 2 + 2 * 2) + 2
+    assert len(polys) == 3 * 32 * 6 + 1
+    assert (nv == 4).all()
+    check_partition(tris, polys, nv, poly_of)
+
+
+@pytest.mark.parametrize("turn", [0.0, 0.3, 1.1])
+def test_subdivided_plane_merges_into_strips(turn):
+    """An 8 x 3 grid of quads (alternating diagonals), turned and moved, in
+    float32: each polygon grows across whole triangle edges only, so at best
+    one strip per column or row; never a triangle left over."""
+    tris = subdivided_plane(8, 3, turn, offset=(3.0, -2.0, 5.0))
+    polys, nv, poly_of = coplanar_blockers(tris)
+    check_partition(tris, polys, nv, poly_of)
+    assert len(polys) <= 8 and (nv == 4).all()
+
+
+def test_non_planar_and_concave_stay_apart():
+    """A folded strip (two planes) and an L-shape (concave union): no polygon
+    spans the fold, and the L's polygons are convex; a triangle fan of a
+    regular hexagon merges into polygons of at most MAXB corners."""
+    flat = subdivided_plane(4, 1)
+    folded = flat.copy()
+    right = folded[..., 0] > 0
+    folded[..., 2] = np.where(right, folded[..., 0] * 0.01, 0.0)
+    polys, nv, poly_of = coplanar_blockers(folded)
+    check_partition(folded, polys, nv, poly_of)
+    for m in range(len(polys)):
+        xs = folded[poly_of == m][..., 0]
+        assert xs.min() >= -1e-12 or xs.max() <= 1e-12
+    # L: three unit squares
+    sq = lambda x, y: [[[x, y, 0], [x + 1, y, 0], [x + 1, y + 1, 0]], [[x, y, 0], [x + 1, y + 1, 0], [x, y + 1, 0]]]
+    L = np.array(sq(0, 0) + sq(1, 0) + sq(0, 1), float)
+    polys, nv, poly_of = coplanar_blockers(L)
+    check_partition(L, polys, nv, poly_of)
+    assert len(polys) >= 2
+    ang = np.arange(6) * np.pi / 3
+    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros(6)], 1)
+    fan = np.array([[np.zeros(3), ring[j], ring[(j + 1) % 6]] for j in range(6)])
+    polys, nv, poly_of = coplanar_blockers(fan)
+    check_partition(fan, polys, nv, poly_of)
+    assert len(polys) < 6
+
+
+def test_degenerate_and_unshared_triangles_pass_through():
+    """Zero-area triangles and isolated ones stay triangles, unchanged."""
+    rng = np.random.default_rng(2)
+    tris = rng.normal(0, 1, (20, 3, 3))
+    tris[3, 2] = tris[3, 1]                       # zero area
+    polys, nv, poly_of = coplanar_blockers(tris)
+    assert (nv == 3).all() and len(polys) == 20
+    ref, ref_nv = pad_triangles(tris)
+    assert np.array_equal(polys[poly_of], ref) and np.array_equal(ref_nv, nv)
+
+
+@pytest.mark.parametrize("name", ["grids", "sphere_plane", "torus_plane"])
+def test_polygons_block_what_their_triangles_block(name):
+    """The same receivers and light samples cast with and without merging:
+    only relations within rounding of a removed inner edge may differ."""
+    from scenes import load_sample
+    scene = load_sample(name, (64, 64))
+    fb = FrameBuffers(scene, 64, 64)
+    out = {}
+    for merged in (True, False):
+        p = PC.make_params({"samples": 64, "coplanar_blockers": merged})
+        setup = prepare(fb, scene.lights[0], p)
+        out[merged] = cast(setup, scene_blockers(scene), p, PhaseTimer())
+    (Vm, sm), (Vt, st) = out[True], out[False]
+    assert sm["blockers"] < st["blockers"]
+    diff = np.abs(Vm - Vt) * 64
+    assert diff.sum() <= 2, diff.sum()           # blocked relations that differ
+    assert sm["nodes_visited"] < st["nodes_visited"]
