@@ -452,9 +452,8 @@ def test_hierarchy_midpoint_sah_and_leaves():
 
 
 def test_receiver_chunks_are_median_splits():
-    """The chunks partition the receivers, rows in increasing order, sizes
-    within one of each other after halving (median splits), each split along
-    the longest axis of its box."""
+    """The chunks partition the receivers with rows in increasing order; the
+    first split halves them (sizes within one) across the longest axis (x)."""
     rng = np.random.default_rng(8)
     pts = rng.normal(0, 1, (10_000, 3)) * [4.0, 1.0, 0.5]
     for n in (1, 2, 5, 8):
