@@ -15,8 +15,8 @@ import pytest
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.methods import producer_of
-from penumbra.core.methods._drt_coherence import inv_concentric, project_to_light
-from penumbra.core.methods._drt_maps import reference_eyes
+from penumbra.core.methods.depth_raytrace.coherence import inv_concentric, project_to_light
+from penumbra.core.methods.depth_raytrace.maps import reference_eyes
 from penumbra.core.methods.depth_raytrace import benchmark_table, format_table
 from penumbra.core.metrics import errors, reach_mask
 from penumbra.core.sampling import concentric_disk, light_sample, pack_light

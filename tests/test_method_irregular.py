@@ -16,9 +16,9 @@ from numba import njit
 
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.methods import producer_of
-from penumbra.core.methods._ism_geom import (SHAPE_DISK, SHAPE_SQUARE, clip_and_occlude_2d,
+from penumbra.core.methods.irregular.geom import (SHAPE_DISK, SHAPE_SQUARE, clip_and_occlude_2d,
                                              minor_segment_area, rect_segment_area)
-from penumbra.core.methods._ism_mesh import mesh_adjacency
+from penumbra.core.methods.irregular.mesh import mesh_adjacency
 from penumbra.core.methods.irregular import IrregularParams, soft_irregular
 from penumbra.core.scene import Camera, Light, ObjectInfo, Scene
 from penumbra.core.views import look_rotation

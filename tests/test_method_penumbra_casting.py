@@ -11,11 +11,11 @@ from penumbra.core.methods.base import PhaseTimer
 from penumbra.core.methods.embree_ref import EmbreeReference
 from penumbra.core.methods.penumbra_casting import (PenumbraCasting, _bucket_sort_by_area, _chunk_receivers, cast,
                                                      prepare, scene_blockers)
-from penumbra.core.methods._pc_geometry import (MAXB, MAXP, blocked_by_edges, hard_volume, in_hard_volume,
+from penumbra.core.methods.penumbra_casting.geometry import (MAXB, MAXP, blocked_by_edges, hard_volume, in_hard_volume,
                                                  penumbra_volume, point_in_volume, receiver_edge_functions,
                                                  triangle_plane)
-from penumbra.core.methods._pc_hierarchy import build_hierarchy
-from penumbra.core.methods._pc_light import MODE_SPHERE, group_layout
+from penumbra.core.methods.penumbra_casting.hierarchy import build_hierarchy
+from penumbra.core.methods.penumbra_casting.light import MODE_SPHERE, group_layout
 from penumbra.core.metrics import errors
 from penumbra.core.scene import Camera, Light, ObjectInfo, Scene
 from penumbra.core.views import look_rotation

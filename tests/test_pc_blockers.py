@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from penumbra.core.buffers import FrameBuffers
-from penumbra.core.methods._pc_blockers import MAXB, PLANE_ULPS, _unique_vertices, coplanar_blockers, pad_triangles
+from penumbra.core.methods.penumbra_casting.blockers import MAXB, PLANE_ULPS, _unique_vertices, coplanar_blockers, pad_triangles
 from penumbra.core.methods.penumbra_casting import PenumbraCasting, cast, prepare, scene_blockers
 from penumbra.core.methods.base import PhaseTimer
 

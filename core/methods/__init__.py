@@ -1,4 +1,5 @@
-"""Method registry: one module per algorithm, keyed by DESIGN.md's method ids.
+"""Method registry: one module (or package, named by its id) per algorithm, keyed
+by DESIGN.md's method ids.
 
 A module registers a Method subclass with ``@register``; pass ids (``embree``
 and ``embree_irr`` come from one producer) map to their producer here.
@@ -29,13 +30,8 @@ def register(cls):
 
 def _load():
     # import order = display order
-    from . import pcf, embree_ref  # noqa: F401
-    for name in ("single_sample", "layered", "depth_raytrace", "penumbra_casting", "irregular"):
-        try:
-            __import__(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:  # not landed yet
-            if exc.name != f"{__name__}.{name}":
-                raise
+    from . import (pcf, embree_ref, single_sample, layered, depth_raytrace,  # noqa: F401
+                   penumbra_casting, irregular)
 
 
 def pass_ids(external: bool = True) -> List[str]:

@@ -59,7 +59,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ._drt_maps import FP_FOOT, FP_GAPABS, FP_GAPTEX, FP_K, FP_MNROOT, FP_MXROOT
+from .maps import FP_FOOT, FP_GAPABS, FP_GAPTEX, FP_K, FP_MNROOT, FP_MXROOT
 
 MAXI = 48            # occlusion intervals kept per ray (extra ones merge: conservative)
 LN = 12              # per-face line record: u0 v0 du dv k0 dk tlo thi w0 w1 inv_du inv_dv
@@ -194,7 +194,7 @@ def face_line(fp, f, ox, oy, oz, ex, ey, ez, t_end, Lf):
     T = fp[f, 20]
     # the outermost texel ring is not used: a ray crossing a surface there
     # (between two cube faces, say) would be judged on a floor sampled up to
-    # a texel away; faces that tile directions overlap (see _drt_maps)
+    # a texel away; faces that tile directions overlap (see maps)
     mu = (R - L) / fp[f, 21]
     mv = (T - B) / fp[f, 22]
     lo = 0.0

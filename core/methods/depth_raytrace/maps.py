@@ -55,8 +55,8 @@ import numba
 import numpy as np
 from numba import njit
 
-from .. import raycast, views
-from ..scene import Light, ViewFace
+from ... import raycast, views
+from ...scene import Light, ViewFace
 
 # packed face layout: ViewFace.packed() (24) then these
 FP_FOOT = 24      # texel footprint: per unit depth (perspective) or absolute (ortho)

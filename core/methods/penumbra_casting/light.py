@@ -43,7 +43,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..sampling import concentric_disk, light_sample, rand01, strata, stratum_uv
+from ...sampling import concentric_disk, light_sample, rand01, strata, stratum_uv
 
 MAXV = 16
 MAXE = 16

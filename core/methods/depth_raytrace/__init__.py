@@ -3,7 +3,7 @@ Moll 2000, section 5), method id ``depth_raytrace``.
 
 Precompute (independent of the number of light samples): reference shadow
 maps from a few points on the light - the 4 corners of a rectangle, documented
-boundary points for the other shapes (``_drt_maps.reference_eyes``) - rendered
+boundary points for the other shapes (``maps.reference_eyes``) - rendered
 with the skeleton's Embree depth renderer, and per map the min / max depth
 quadtrees and the connectedness quadtree (gap bias).
 
@@ -12,9 +12,9 @@ square, to a jittered point on the light's true shape (the reference's
 ``sampling.light_sample`` with the same counter hash, so the two sample the
 same points), from the point moved off its surface by
 ``sampling.offset_origin``. Each ray is traced through the depth images
-(``_drt_trace``: hierarchical epipolar traversal, floors and walls, the
+(``trace``: hierarchical epipolar traversal, floors and walls, the
 accelerations of 5.1.1-5.1.2 behind switches). With ``coherence`` only the
-cells the coherent sampler of 5.2 asks for are traced (``_drt_coherence``);
+cells the coherent sampler of 5.2 asks for are traced (``coherence``);
 points are visited in a serpentine order inside ``tile`` x ``tile`` tiles,
 tiles run in parallel, each with its own state, so the result does not depend
 on the thread count.
@@ -64,13 +64,13 @@ Departures / choices, each documented where it is made:
     face seen edge-on from the light (the side of a thin bar) otherwise
     shares its texel with the bar's top and shadows itself;
   * a ray leaving the point into its own surface (cos theta_r <= 0) is
-    blocked without tracing (``_drt_coherence``);
+    blocked without tracing (``coherence``);
   * gap bias in texel footprints by default (scene units if given);
   * hierarchical connectedness is off while coherence is on (5.2.2: the
     coherent sampler needs the blocker point);
   * the unresolved parts of a ray after the last image count as unblocked;
   * cube faces (wide point / spot / area lights) overlap by 3 texels and the
-    outermost texel ring of every face is not traced (``_drt_maps``);
+    outermost texel ring of every face is not traced (``maps``);
   * reset of the prediction when the previous point is farther than
     ``reset_pixels`` camera-pixel footprints (5.2.1 gives no value).
 
@@ -106,15 +106,15 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .. import sampling, views
-from ..kernels import face_project, parallel_chunks, pick_face
-from ..sampling import strata
-from . import register
-from ._drt_coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
+from ... import sampling, views
+from ...kernels import face_project, parallel_chunks, pick_face
+from ...sampling import strata
+from .. import register
+from .coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
                              absorb, begin_point, blocker_capacity, finish_point)
-from ._drt_maps import ReferenceMaps, build_reference_maps
-from ._drt_trace import LN, MAXI, trace_ray
-from .base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method,
+from .maps import ReferenceMaps, build_reference_maps
+from .trace import LN, MAXI, trace_ray
+from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method,
                    MethodResult, PhaseTimer)
 
 
@@ -574,7 +574,7 @@ def benchmark_table(buffers, light, sample_counts: Sequence[int] = (64, 256, 102
     ``repeats`` (warm JIT: call once at a small size first); ``*_cpu_s`` is
     the process CPU time of the last repeat (all threads), a figure that a
     machine shared with other work disturbs less."""
-    from .embree_ref import EmbreeReference
+    from ..embree_ref import EmbreeReference
     m = DepthRaytrace()
     configs = configs or {"no_accel": NO_ACCEL, "accel": ACCEL, "accel_coherence": ACCEL_COHERENCE}
     base = DepthRaytraceParams(seed=seed)

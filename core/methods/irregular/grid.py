@@ -38,8 +38,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..kernels import face_project, pick_face
-from ._ism_geom import blocks_centre, penumbra_term
+from ...kernels import face_project, pick_face
+from .geom import blocks_centre, penumbra_term
 
 
 # --------------------------------------------------------------------------

@@ -7,14 +7,14 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
 * Receiver points r_j: the camera G-buffer hits in world space (section 3.2),
   moved off their surface exactly like the reference's ray origins
   (``sampling.offset_origin``, then rounded to float32 as Embree receives
-  them), in a bounding volume hierarchy (``_pc_hierarchy``: midpoint splits
+  them), in a bounding volume hierarchy (``hierarchy``: midpoint splits
   above ``MidpointLimit`` points, SAH below, ``LeafSize`` points per leaf),
   each with a bit mask of blocked light samples.
 * Light samples l_i: a jittered grid of ``samples`` strata, in groups G_k of
   about ``GroupSize`` strata with convex bounding polygons Delta_Gk, under the
-  bounding polygon Delta_L (``_pc_light``), in ``SampleSets`` distinct sets,
+  bounding polygon Delta_L (``light``), in ``SampleSets`` distinct sets,
   one set per receiver chosen by a hash of its pixel (section 3.4).
-* Per triangle (``_pc_cast``): the penumbra volume V_L of the whole light
+* Per triangle (``cast``): the penumbra volume V_L of the whole light
   (separating planes between Delta_L and T, capped by T's plane), the
   penumbra volumes V_Gk, the hard shadow volumes V_li (4 planes), and the
   recursive traversal of figure 2 with the optimizations of figure 3, each
@@ -26,13 +26,13 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
   buckets, linear time), largest first.
 * POINT-IN-VOLUME(r_j, V_li) (line 70): by default the four plane tests of
   V_li are evaluated with the roles of sample and receiver exchanged
-  (``_pc_geometry.receiver_edge_functions``): per receiver and triangle three
+  (``geometry.receiver_edge_functions``): per receiver and triangle three
   cross products, then per sample four dot products against the sample's
   coordinates, a 64-bit mask word at a time, and no V_li is ever built.
   ``materialize_hard_volumes=True`` builds the paper's per-sample planes
   instead (per triangle, per set and group on first need under C); the two
   agree exactly except for rays within rounding of an edge.
-* Blockers (``_pc_blockers``, ``coplanar_blockers``): edge-adjacent
+* Blockers (``blockers``, ``coplanar_blockers``): edge-adjacent
   triangles in one plane that form a convex polygon of up to 4 corners are
   cast as that polygon, the simplest case of the paper's section 5 suggestion
   to process several blocker triangles at once: one traversal and one
@@ -48,7 +48,7 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
 V = 1 - (blocked samples) / samples, average visibility (Agrawala et al.
 equation 2), the same quantity as the ``embree`` pass.
 
-Light types (see ``_pc_light``): area lights use their rectangle / disk /
+Light types (see ``light``): area lights use their rectangle / disk /
 ellipse with the reference's own maps; the sun works with directions
 (points at infinity, homogeneous w = 0: hard volumes are prisms, penumbra
 volumes are separating planes between a cone of directions and T); sphere
@@ -80,16 +80,16 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .. import sampling
-from . import register
-from ._pc_blockers import MAXB, coplanar_blockers, pad_triangles
-from ._pc_cast import cast_chunk, chunk_visibility
-from ._pc_geometry import MAXP, _newell, box_vs_volume, penumbra_volume
-from ._pc_hierarchy import build_hierarchy, node_umbra_bits
-from ._pc_light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, all_sample_points,
+from ... import sampling
+from .. import register
+from .blockers import MAXB, coplanar_blockers, pad_triangles
+from .cast import cast_chunk, chunk_visibility
+from .geometry import MAXP, _newell, box_vs_volume, penumbra_volume
+from .hierarchy import build_hierarchy, node_umbra_bits
+from .light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, all_sample_points,
                         assign_sets, block_polygon_2d, box_to_homog, disk_polygon, fixed_sample_table,
                         group_layout, min_rotations, polygon_to_homog, sphere_disk_table)
-from .base import AVERAGE, GBUFFER, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
+from ..base import AVERAGE, GBUFFER, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
 
 @dataclass
@@ -496,7 +496,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         c.node_gu = np.zeros((nn, L.G), np.uint8)
         c.node_fu = np.zeros(nn, np.uint8)
         c.st = np.zeros(16, np.int64)
-        # zeroed on allocation: pages are committed on first touch (see _pc_cast)
+        # zeroed on allocation: pages are committed on first touch (see cast)
         c.pool = np.zeros((m, nwords), np.uint64)
         if optD:
             c.free = np.empty(m, np.int64)

@@ -54,7 +54,7 @@ import math
 
 from numba import njit
 
-from ..sampling import offset_origin, orthonormal_basis, reference_sample
+from ...sampling import offset_origin, orthonormal_basis, reference_sample
 
 USEPREV, QUEUED, DONE = 0, 1, 2
 

@@ -17,7 +17,7 @@ Which triangles count as occluders ("counted"):
   winding number), the faces through which they leave it. Open components
   (planes, non-manifold or inconsistently wound pieces) count every triangle.
   The umbra (depth complexity) and the penumbra both use counted triangles
-  only, so every triangle's contribution stays exact (see ``_ism_geom``).
+  only, so every triangle's contribution stays exact (see ``geom``).
 
 Records (silhouette edges):
   one record per (counted triangle, edge). A manifold edge whose two

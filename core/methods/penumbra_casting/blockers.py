@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._pc_geometry import MAXB     # corners per blocker polygon (quads: a fifth plane test per sample)
+from .geometry import MAXB     # corners per blocker polygon (quads: a fifth plane test per sample)
 
 PLANE_ULPS = 4.0    # coplanarity / collinearity tolerance in float32 ULPs
 _ULP32 = 2.0 ** -23

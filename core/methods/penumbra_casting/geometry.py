@@ -6,7 +6,7 @@ A plane is ``(nx, ny, nz, o)`` with value ``n . x - o w``; every volume here is
 oriented so that its *inside* (where shadow can be) is value >= 0.
 
 A blocker T is a triangle or a convex planar polygon of up to ``MAXB``
-corners (``_pc_blockers``: coplanar triangles cast together, section 5),
+corners (``blockers``: coplanar triangles cast together, section 5),
 given as ``poly[MAXB, 3]`` and its corner count ``nb``; for a triangle every
 formula below is the paper's.
 

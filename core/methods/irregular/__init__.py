@@ -5,7 +5,7 @@ the camera's visible points, from the triangles.
 Figure 2, step by step:
   (a) receiver points: the camera G-buffer hits, moved off their surface by
       ``sampling.offset_origin`` (the self-intersection scheme the Embree
-      reference uses), stored in a light-space grid (``_ism_grid``): a
+      reference uses), stored in a light-space grid (``grid``): a
       perspective grid from the light centre (one face, or cube faces when
       the receivers spread wider than 60 degrees), orthographic for a sun;
       columns x depth slices, receivers stored contiguously by counting sort.
@@ -14,7 +14,7 @@ Figure 2, step by step:
       between each receiver and the light centre (the "depth complexity") is
       exact at the receiver points (watertight 3D orientation tests).
   (c) penumbra quads (2.2): one per silhouette edge w.r.t. the light centre
-      (adjacency from hashing vertex positions, ``_ism_mesh``), sized from the
+      (adjacency from hashing vertex positions, ``mesh``), sized from the
       light radius and the largest receiver depth, sorted into bins; with
       ``bin_refine`` each bin rebuilds the quad from its own largest receiver
       depth, with ``wedge_test`` each column starts at the depth where the
@@ -69,15 +69,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import views
-from ..sampling import offset_points
-from . import register
-from ._ism_geom import SHAPE_DISK, SHAPE_SQUARE
-from ._ism_grid import (assign_faces, bin_entries_from_ranges, bin_quads, counting_sort_cells,
+from ... import views
+from ...sampling import offset_points
+from .. import register
+from .geom import SHAPE_DISK, SHAPE_SQUARE
+from .grid import (assign_faces, bin_entries_from_ranges, bin_quads, counting_sort_cells,
                         edge_quads, penumbra_bins, penumbra_brute_force, rect_k,
                         triangle_ranges, umbra_bins, umbra_brute_force)
-from ._ism_mesh import classify, mesh_adjacency
-from .base import AVERAGE, GBUFFER, Method, MethodResult, PhaseTimer
+from .mesh import classify, mesh_adjacency
+from ..base import AVERAGE, GBUFFER, Method, MethodResult, PhaseTimer
 
 SINGLE_FACE_HALF_ANGLE = math.radians(60.0)   # as views.MAX_SINGLE_VIEW_HALF_ANGLE
 MAX_GRID_SIDE = 4096
@@ -155,7 +155,7 @@ def light_model(light, rect_kernel: bool = True) -> LightModel:
 
 def receiver_frames(light, lm: LightModel, Ps: np.ndarray) -> np.ndarray:
     """float64[n, 12]: e1/s1, e2/s2, n, h_p, p2x, p2y per receiver (see
-    ``_ism_geom.penumbra_term``); h_p <= 0 marks receivers without penumbra."""
+    ``geom.penumbra_term``); h_p <= 0 marks receivers without penumbra."""
     n = len(Ps)
     RF = np.zeros((n, 12))
     if n == 0 or lm.zero:
@@ -280,7 +280,7 @@ class Grid:
             self.bin_bx[ids] = loc % self.nbx[f]
             self.bin_by[ids] = loc // self.nbx[f]
         self.perm = np.random.default_rng(0x15A).permutation(nb).astype(np.int64)
-        # per-face constants of the quad bound (module docstring of _ism_grid)
+        # per-face constants of the quad bound (module docstring of grid)
         self.par = np.zeros(F, np.bool_)
         self.k = np.ones(F)
         self.rho = np.zeros(F)
