@@ -215,6 +215,9 @@ def test_exclusions_and_platform_split_match_blenders_builder(blender_ext):
                                    "dist/", ".venv/", ".git/", "demo_out/")), rel
         assert "__pycache__" not in rel and not rel.endswith((".pyc", ".blend", ".blend1"))
     assert "Makefile" not in ours and "pyproject.toml" not in ours
+    # the benchmark and the study are one package in the tree, none of it shipped
+    assert os.path.isfile(os.path.join(ROOT, "bench", "__init__.py"))
+    assert not [rel for rel in ours if rel.split("/")[0] in ("bench", "bench.py", "bench_methods.py", "study.py")]
 
     wheels = _manifest()["wheels"]
     for platform in PLATFORMS:

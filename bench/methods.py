@@ -6,25 +6,14 @@ the per-phase split each method reports. Written to ``bench/results/methods.md``
 """
 from __future__ import annotations
 
+import copy
 import os
-import statistics
-import time
 
 import numba
 
-from .bench import _load
-
-
-def _median(fn, repeats):
-    fn()
-    runs = []
-    out = None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        runs.append((time.perf_counter() - t, out))
-    runs.sort(key=lambda r: r[0])
-    return runs[len(runs) // 2]
+from ..core.buffers import FrameBuffers
+from ..core.methods import producers
+from .harness import load_sample, median_run
 
 
 def _phases(res):
@@ -32,14 +21,12 @@ def _phases(res):
 
 
 def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
-    from .core.buffers import FrameBuffers
-    from .core.methods import producers
     reg = producers()
     lines = [f"# Per-method benchmarks (medians of {repeats} warm runs, {numba.get_num_threads()} threads)", ""]
     big = 128 if quick else 512
 
     def fb_for(name, res, map_size=None):
-        sc = _load(name, (res, res))
+        sc = load_sample(name, (res, res))
         fb = FrameBuffers(sc, res, res, map_size)
         fb.gbuffer
         return sc, fb
@@ -49,7 +36,7 @@ def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
 
     def embree_time(key, fb, light, ns):
         if key not in embree_cache:
-            embree_cache[key] = _median(lambda: emb.run(fb, light, emb.make_params({"samples": ns})), repeats)[0]
+            embree_cache[key] = median_run(lambda: emb.run(fb, light, emb.make_params({"samples": ns})), repeats)[0]
         return embree_cache[key]
 
     if "single_sample" in reg:
@@ -59,8 +46,8 @@ def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
         for name in ("grids", "torus_plane"):
             sc, fb = fb_for(name, big, big // 2)
             lt = sc.lights[0]
-            ta, ra = _median(lambda: m.run(fb, lt, m.make_params({"adaptive": True})), repeats)
-            tf, _ = _median(lambda: m.run(fb, lt, m.make_params({"adaptive": False})), repeats)
+            ta, ra = median_run(lambda: m.run(fb, lt, m.make_params({"adaptive": True})), repeats)
+            tf, _ = median_run(lambda: m.run(fb, lt, m.make_params({"adaptive": False})), repeats)
             lines.append(f"| {name} | {ta:.4f} | {tf:.4f} | {tf / ta:.2f}x | "
                          f"{100 * ra.stats.get('searched_fraction', 0):.1f}% |")
         lines.append("")
@@ -72,7 +59,7 @@ def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
             sc, fb = fb_for(name, big, big // 2)
             lt = sc.lights[0]
             for ns in ((16, 64) if quick else (64, 256)):
-                t, r = _median(lambda: m.run(fb, lt, m.make_params({"samples": ns})), repeats)
+                t, r = median_run(lambda: m.run(fb, lt, m.make_params({"samples": ns})), repeats)
                 ph = r.time_s
                 pre = sum(v for k, v in ph.items() if k not in ("total", "display"))
                 lines.append(f"| {name} | {ns} | {pre:.3f} | {ph.get('display', float('nan')):.4f} | "
@@ -90,9 +77,9 @@ def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
                     "rank_images": False, "clear_miss": False, "occlusion_intervals": False}
             acc = {"samples": ns, "coherence": False}
             coh = {"samples": ns, "coherence": True}
-            t0, _ = _median(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else repeats)
-            t1, _ = _median(lambda: m.run(fb, lt, m.make_params(acc)), repeats)
-            t2, r2 = _median(lambda: m.run(fb, lt, m.make_params(coh)), repeats)
+            t0, _ = median_run(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else repeats)
+            t1, _ = median_run(lambda: m.run(fb, lt, m.make_params(acc)), repeats)
+            t2, r2 = median_run(lambda: m.run(fb, lt, m.make_params(coh)), repeats)
             te = embree_time(("grids", big, ns), fb, lt, ns)
             lines.append(f"| {ns} | {t0:.3f} | {t1:.3f} | {t2:.3f} | {r2.stats.get('rays_per_pixel', float('nan')):.1f} "
                          f"| {te:.3f} | {te / t2:.2f}x |")
@@ -110,14 +97,13 @@ def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
             sc, fb = fb_for("grids", res)
             lt = sc.lights[0]
             if scale != 1.0:
-                import copy
                 lt = copy.copy(lt)
                 lt.size *= scale
                 lt.size_y *= scale
             te = embree_time(("grids", res, ns, scale), fb, lt, ns)
             for merged in (True, False):
                 prm = m.make_params({"samples": ns, "coplanar_blockers": merged})
-                t, r = _median(lambda: m.run(fb, lt, prm), 1 if res >= 1024 or ns > 256 else repeats)
+                t, r = median_run(lambda: m.run(fb, lt, prm), 1 if res >= 1024 or ns > 256 else repeats)
                 kind = f"{r.stats['blockers']} {'polygons' if merged else 'triangles'}"
                 lines.append(f"| {res}^2, {ns} spp{', light x4 area' if scale != 1 else ''} | {kind} | {t:.3f} | "
                              f"{_phases(r)} | {r.stats.get('peak_mask_bytes', 0) / 2**20:.1f} | {te:.3f} | "
@@ -128,13 +114,12 @@ def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
         lines += ["## irregular (Johnson et al.): grids 512x512", "",
                   "| light size x | silhouettes from | time | phases |", "|---|---|---|---|"]
         sc, fb = fb_for("grids", big)
-        import copy
         for scale in (0.5, 1.0, 2.0, 4.0):
             lt = copy.copy(sc.lights[0])
             lt.size *= scale
             lt.size_y *= scale
             for mode in ("centre", "light"):
-                t, r = _median(lambda: m.run(fb, lt, m.make_params({"silhouette_from": mode})), repeats)
+                t, r = median_run(lambda: m.run(fb, lt, m.make_params({"silhouette_from": mode})), repeats)
                 lines.append(f"| {scale} | {mode} | {t:.3f} | {_phases(r)} |")
         lines.append("")
     text = "\n".join(lines) + "\n"

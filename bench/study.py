@@ -21,9 +21,15 @@ import time
 import traceback
 from typing import Dict, List
 
+import numba
 import numpy as np
 
-ROOT = os.path.dirname(os.path.abspath(__file__))
+from ..core import auto_choice
+from ..core import methods as registry
+from ..core.buffers import FrameBuffers
+from ..core.metrics import errors, reach_mask
+from .harness import ROOT, load_sample
+
 REFERENCE_SAMPLES = 1024
 SCENES = ("grids", "sphere_plane", "torus_plane")
 RESOLUTIONS = ((128, 128), (256, 256))
@@ -50,12 +56,6 @@ SWEEPS: Dict[str, List] = {
 }
 
 
-def _load(name, res):
-    sys.path.insert(0, os.path.join(ROOT, "tests"))
-    from scenes import load_sample
-    return load_sample(name, tuple(res))
-
-
 def _apply(method, params: dict, buffers):
     """Params for ``method`` from a sweep entry; ``map_scale`` multiplies the
     default map size (the output's larger side)."""
@@ -69,17 +69,13 @@ def _apply(method, params: dict, buffers):
 
 
 def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUTIONS, quick=False) -> List[dict]:
-    from penumbra.core import methods as registry
-    from penumbra.core.buffers import FrameBuffers
-    from penumbra.core.metrics import errors, reach_mask
-    import numba
     os.makedirs(out_dir, exist_ok=True)
     rows = []
     sheets = {}
     producers = registry.producers()
     for name in scenes:
         for res in resolutions:
-            scene = _load(name, res)
+            scene = load_sample(name, res)
             light = scene.lights[0]
             fb = FrameBuffers(scene, *res)
             ref_m = producers["embree"]
@@ -158,7 +154,7 @@ def write_outputs(rows, sheets, out_dir):
         w = csv.DictWriter(f, keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
-    import matplotlib
+    import matplotlib                 # a dev dependency, needed only to draw the figures
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fronts = {}
@@ -280,12 +276,10 @@ def _write_json(path: str, data: dict) -> None:
 def install_table(src: str, dst: str = None) -> str:
     """Check ``src`` the way the planner reads it, then copy it to
     ``core/auto_table.json`` (shipped in the extension). Returns ``dst``."""
-    from penumbra.core.auto_choice import TABLE_PATH, load_table
-    dst = dst or TABLE_PATH
-    load_table(src)                               # TableError: not installed
+    dst = dst or auto_choice.TABLE_PATH
+    auto_choice.load_table(src)                               # TableError: not installed
     with open(src) as f:
         _write_json(dst, json.load(f))
-    from penumbra.core import auto_choice
     auto_choice._packaged.cache_clear()
     return dst
 
@@ -297,7 +291,7 @@ def table_from_csv(csv_path: str, out: str) -> str:
         rows = list(csv.DictReader(f))
     lights = {}
     for name in {r["scene"] for r in rows}:
-        lt = _load(name, (16, 16)).lights[0]
+        lt = load_sample(name, (16, 16)).lights[0]
         lights[name] = (lt.kind, lt.extent)
     fronts = {}
     for r in rows:
@@ -314,7 +308,7 @@ def table_from_csv(csv_path: str, out: str) -> str:
 
 
 def main(argv=None) -> int:
-    """``python -m penumbra.study install-table [SRC]`` (default
+    """``python -m penumbra.bench.study install-table [SRC]`` (default
     bench/results/auto_table.json) or ``table-from-csv CSV OUT``."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["install-table"] and len(argv) <= 2:
@@ -324,7 +318,7 @@ def main(argv=None) -> int:
     if argv[:1] == ["table-from-csv"] and len(argv) == 3:
         print(table_from_csv(argv[1], argv[2]))
         return 0
-    print("usage: python -m penumbra.study install-table [SRC] | table-from-csv CSV OUT", file=sys.stderr)
+    print("usage: python -m penumbra.bench.study install-table [SRC] | table-from-csv CSV OUT", file=sys.stderr)
     return 2
 
 

@@ -1,0 +1,38 @@
+"""``penumbra bench``: the benchmark and the accuracy study (not shipped in
+the extension; ``blender_manifest.toml`` excludes ``/bench/``).
+
+- :mod:`.phases`: per-phase wall times of the pipeline (``--part skeleton``),
+- :mod:`.methods`: the per-method tables of issues 3-5 (``--part methods``),
+- :mod:`.study`: accuracy versus time and the planner's table (``--part study``),
+- :mod:`.harness`: what they share (sample scenes, machine, median of warm runs).
+
+Medians of ``--repeats`` warm runs; thread counts stated. Results go to
+``bench/results/`` (or ``--out``) as CSV, Markdown, PNG and JSON, with the machine.
+"""
+from __future__ import annotations
+
+import json
+
+from .harness import machine
+from .methods import run_method_benchmarks
+from .phases import bench_skeleton, bench_startup, write_results
+
+
+def run_bench(args) -> int:
+    """The ``bench`` command: ``args.part`` (all, skeleton, methods, study),
+    ``args.out``, ``args.repeats``, ``args.quick``."""
+    repeats = max(1, args.repeats)
+    print(f"machine: {json.dumps(machine())}")
+    if args.part in ("all", "skeleton"):
+        rows = bench_skeleton(repeats, args.quick) + bench_startup()
+        md = write_results(rows, args.out, "skeleton")
+        print(f"pipeline phases, medians of {repeats} warm runs")
+        print(md)
+    if args.part in ("all", "methods"):
+        run_method_benchmarks(args.out, repeats, args.quick)
+    if args.part in ("all", "study"):
+        # imported here, not above: ``python -m penumbra.bench.study`` runs the
+        # module as __main__, and runpy warns when the package imported it first
+        from .study import run_study
+        run_study(args.out, repeats=repeats, quick=args.quick)
+    return 0

@@ -1,0 +1,56 @@
+"""What every part of ``penumbra bench`` shares: the repository root, the
+sample scenes (captured through ``tests/scenes.py``), the machine the numbers
+were measured on, and the median of warm runs.
+"""
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import sys
+import time
+
+import numba
+import numpy
+
+#: the repository (and package) root: bench/ sits directly under it
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TESTS = os.path.join(ROOT, "tests")
+
+
+def load_sample(name: str, resolution):
+    """``sample_blends/<name>.blend`` captured at ``resolution`` (W, H), as the
+    tests capture it (cached per name and resolution)."""
+    if TESTS not in sys.path:
+        sys.path.insert(0, TESTS)
+    from scenes import load_sample as capture    # tests/scenes.py: not a package
+    return capture(name, tuple(resolution))
+
+
+def machine() -> dict:
+    """CPU, core count, library versions and Numba threads, with the date."""
+    cpu = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+            "numpy": numpy.__version__, "numba": numba.__version__,
+            "numba_threads": numba.get_num_threads(), "date": time.strftime("%Y-%m-%d")}
+
+
+def median_run(fn, repeats: int):
+    """``(median seconds, output)`` of ``repeats`` calls of ``fn`` after one
+    warm call (JIT, caches); the output is the last call's."""
+    fn()
+    times = []
+    out = None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times), out
