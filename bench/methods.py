@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import os
+from typing import Dict, List
 
 import numba
 
@@ -20,108 +21,139 @@ def _phases(res):
     return ", ".join(f"{k} {v:.3f}" for k, v in res.time_s.items() if k != "total")
 
 
-def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
-    reg = producers()
-    lines = [f"# Per-method benchmarks (medians of {repeats} warm runs, {numba.get_num_threads()} threads)", ""]
-    big = 128 if quick else 512
+def _scaled(light, scale: float):
+    """A copy of an area ``light`` with each side ``scale`` times as long."""
+    lt = copy.copy(light)
+    lt.size *= scale
+    lt.size_y *= scale
+    return lt
 
-    def fb_for(name, res, map_size=None):
+
+class Tables:
+    """What the tables share: the registry, the run sizes, and the ``embree``
+    time of each case (measured once, compared against by several tables)."""
+
+    def __init__(self, repeats: int, quick: bool):
+        self.repeats = repeats
+        self.quick = quick
+        self.big = 128 if quick else 512          # the side of the "512x512" tables
+        self.reg = producers()
+        self._embree: Dict[tuple, float] = {}
+
+    def buffers(self, name: str, res: int, map_size=None):
+        """Sample scene ``name`` at res x res and its buffers, G-buffer built."""
         sc = load_sample(name, (res, res))
         fb = FrameBuffers(sc, res, res, map_size)
         fb.gbuffer
         return sc, fb
 
-    emb = reg["embree"]
-    embree_cache = {}
+    def embree_time(self, key, fb, light, ns: int) -> float:
+        if key not in self._embree:
+            emb = self.reg["embree"]
+            self._embree[key] = median_run(lambda: emb.run(fb, light, emb.make_params({"samples": ns})),
+                                           self.repeats)[0]
+        return self._embree[key]
 
-    def embree_time(key, fb, light, ns):
-        if key not in embree_cache:
-            embree_cache[key] = median_run(lambda: emb.run(fb, light, emb.make_params({"samples": ns})), repeats)[0]
-        return embree_cache[key]
 
-    if "single_sample" in reg:
-        m = reg["single_sample"]
-        lines += ["## single_sample (Brabec & Seidel): 512x512, 256x256 light map", "",
-                  "| scene | adaptive | search off | speed-up | pixels searched |", "|---|---|---|---|---|"]
-        for name in ("grids", "torus_plane"):
-            sc, fb = fb_for(name, big, big // 2)
-            lt = sc.lights[0]
-            ta, ra = median_run(lambda: m.run(fb, lt, m.make_params({"adaptive": True})), repeats)
-            tf, _ = median_run(lambda: m.run(fb, lt, m.make_params({"adaptive": False})), repeats)
-            lines.append(f"| {name} | {ta:.4f} | {tf:.4f} | {tf / ta:.2f}x | "
-                         f"{100 * ra.stats.get('searched_fraction', 0):.1f}% |")
-        lines.append("")
-    if "layered" in reg:
-        m = reg["layered"]
-        lines += ["## layered (Agrawala et al. 4): 512x512 output, 256x256 maps", "",
-                  "| scene | samples | precompute | display | depth complexity |", "|---|---|---|---|---|"]
-        for name in ("grids", "torus_plane"):
-            sc, fb = fb_for(name, big, big // 2)
-            lt = sc.lights[0]
-            for ns in ((16, 64) if quick else (64, 256)):
-                t, r = median_run(lambda: m.run(fb, lt, m.make_params({"samples": ns})), repeats)
-                ph = r.time_s
-                pre = sum(v for k, v in ph.items() if k not in ("total", "display"))
-                lines.append(f"| {name} | {ns} | {pre:.3f} | {ph.get('display', float('nan')):.4f} | "
-                             f"{r.stats.get('depth_complexity', float('nan')):.3f} |")
-        lines.append("")
-    if "depth_raytrace" in reg:
-        m = reg["depth_raytrace"]
-        lines += ["## depth_raytrace (Agrawala et al. 5, figure 10 middle): grids 512x512", "",
-                  "| samples | no accel | accel | accel + coherence | rays/pixel | embree | speed-up vs embree |",
-                  "|---|---|---|---|---|---|---|"]
-        sc, fb = fb_for("grids", big)
+def single_sample_table(tb: Tables) -> List[str]:
+    m = tb.reg["single_sample"]
+    lines = ["## single_sample (Brabec & Seidel): 512x512, 256x256 light map", "",
+             "| scene | adaptive | search off | speed-up | pixels searched |", "|---|---|---|---|---|"]
+    for name in ("grids", "torus_plane"):
+        sc, fb = tb.buffers(name, tb.big, tb.big // 2)
         lt = sc.lights[0]
-        for ns in ((16, 64) if quick else (64, 256, 1024)):
-            none = {"samples": ns, "coherence": False, "hierarchical_connectedness": False, "minmax_clipping": False,
-                    "rank_images": False, "clear_miss": False, "occlusion_intervals": False}
-            acc = {"samples": ns, "coherence": False}
-            coh = {"samples": ns, "coherence": True}
-            t0, _ = median_run(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else repeats)
-            t1, _ = median_run(lambda: m.run(fb, lt, m.make_params(acc)), repeats)
-            t2, r2 = median_run(lambda: m.run(fb, lt, m.make_params(coh)), repeats)
-            te = embree_time(("grids", big, ns), fb, lt, ns)
-            lines.append(f"| {ns} | {t0:.3f} | {t1:.3f} | {t2:.3f} | {r2.stats.get('rays_per_pixel', float('nan')):.1f} "
-                         f"| {te:.3f} | {te / t2:.2f}x |")
-        lines.append("")
-    if "penumbra_casting" in reg:
-        m = reg["penumbra_casting"]
-        lines += ["## penumbra_casting (Laine & Aila, table 2 shape): grids", "",
-                  "Blockers: `polygons` = coplanar triangles cast as one convex polygon (the default, paper "
-                  "section 5); `triangles` = the paper's per-triangle algorithm (`coplanar_blockers` off).", "",
-                  "| case | blockers | time | phases | peak mask MB | embree | embree / casting |",
-                  "|---|---|---|---|---|---|---|"]
-        cases = [(64, 64, 1.0), (128, 64, 1.0)] if quick else [(256, 256, 1.0), (512, 256, 1.0), (1024, 256, 1.0),
-                                                                (512, 1024, 1.0), (512, 256, 2.0)]
-        for res, ns, scale in cases:
-            sc, fb = fb_for("grids", res)
-            lt = sc.lights[0]
-            if scale != 1.0:
-                lt = copy.copy(lt)
-                lt.size *= scale
-                lt.size_y *= scale
-            te = embree_time(("grids", res, ns, scale), fb, lt, ns)
-            for merged in (True, False):
-                prm = m.make_params({"samples": ns, "coplanar_blockers": merged})
-                t, r = median_run(lambda: m.run(fb, lt, prm), 1 if res >= 1024 or ns > 256 else repeats)
-                kind = f"{r.stats['blockers']} {'polygons' if merged else 'triangles'}"
-                lines.append(f"| {res}^2, {ns} spp{', light x4 area' if scale != 1 else ''} | {kind} | {t:.3f} | "
-                             f"{_phases(r)} | {r.stats.get('peak_mask_bytes', 0) / 2**20:.1f} | {te:.3f} | "
-                             f"{te / t:.2f}x |")
-        lines.append("")
-    if "irregular" in reg:
-        m = reg["irregular"]
-        lines += ["## irregular (Johnson et al.): grids 512x512", "",
-                  "| light size x | silhouettes from | time | phases |", "|---|---|---|---|"]
-        sc, fb = fb_for("grids", big)
-        for scale in (0.5, 1.0, 2.0, 4.0):
-            lt = copy.copy(sc.lights[0])
-            lt.size *= scale
-            lt.size_y *= scale
-            for mode in ("centre", "light"):
-                t, r = median_run(lambda: m.run(fb, lt, m.make_params({"silhouette_from": mode})), repeats)
-                lines.append(f"| {scale} | {mode} | {t:.3f} | {_phases(r)} |")
-        lines.append("")
+        ta, ra = median_run(lambda: m.run(fb, lt, m.make_params({"adaptive": True})), tb.repeats)
+        tf, _ = median_run(lambda: m.run(fb, lt, m.make_params({"adaptive": False})), tb.repeats)
+        lines.append(f"| {name} | {ta:.4f} | {tf:.4f} | {tf / ta:.2f}x | "
+                     f"{100 * ra.stats.get('searched_fraction', 0):.1f}% |")
+    return lines
+
+
+def layered_table(tb: Tables) -> List[str]:
+    m = tb.reg["layered"]
+    lines = ["## layered (Agrawala et al. 4): 512x512 output, 256x256 maps", "",
+             "| scene | samples | precompute | display | depth complexity |", "|---|---|---|---|---|"]
+    for name in ("grids", "torus_plane"):
+        sc, fb = tb.buffers(name, tb.big, tb.big // 2)
+        lt = sc.lights[0]
+        for ns in ((16, 64) if tb.quick else (64, 256)):
+            t, r = median_run(lambda: m.run(fb, lt, m.make_params({"samples": ns})), tb.repeats)
+            ph = r.time_s
+            pre = sum(v for k, v in ph.items() if k not in ("total", "display"))
+            lines.append(f"| {name} | {ns} | {pre:.3f} | {ph.get('display', float('nan')):.4f} | "
+                         f"{r.stats.get('depth_complexity', float('nan')):.3f} |")
+    return lines
+
+
+def depth_raytrace_table(tb: Tables) -> List[str]:
+    m = tb.reg["depth_raytrace"]
+    lines = ["## depth_raytrace (Agrawala et al. 5, figure 10 middle): grids 512x512", "",
+             "| samples | no accel | accel | accel + coherence | rays/pixel | embree | speed-up vs embree |",
+             "|---|---|---|---|---|---|---|"]
+    sc, fb = tb.buffers("grids", tb.big)
+    lt = sc.lights[0]
+    for ns in ((16, 64) if tb.quick else (64, 256, 1024)):
+        none = {"samples": ns, "coherence": False, "hierarchical_connectedness": False, "minmax_clipping": False,
+                "rank_images": False, "clear_miss": False, "occlusion_intervals": False}
+        acc = {"samples": ns, "coherence": False}
+        coh = {"samples": ns, "coherence": True}
+        t0, _ = median_run(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else tb.repeats)
+        t1, _ = median_run(lambda: m.run(fb, lt, m.make_params(acc)), tb.repeats)
+        t2, r2 = median_run(lambda: m.run(fb, lt, m.make_params(coh)), tb.repeats)
+        te = tb.embree_time(("grids", tb.big, ns), fb, lt, ns)
+        lines.append(f"| {ns} | {t0:.3f} | {t1:.3f} | {t2:.3f} | {r2.stats.get('rays_per_pixel', float('nan')):.1f} "
+                     f"| {te:.3f} | {te / t2:.2f}x |")
+    return lines
+
+
+def penumbra_casting_table(tb: Tables) -> List[str]:
+    m = tb.reg["penumbra_casting"]
+    lines = ["## penumbra_casting (Laine & Aila, table 2 shape): grids", "",
+             "Blockers: `polygons` = coplanar triangles cast as one convex polygon (the default, paper "
+             "section 5); `triangles` = the paper's per-triangle algorithm (`coplanar_blockers` off).", "",
+             "| case | blockers | time | phases | peak mask MB | embree | embree / casting |",
+             "|---|---|---|---|---|---|---|"]
+    cases = [(64, 64, 1.0), (128, 64, 1.0)] if tb.quick else [(256, 256, 1.0), (512, 256, 1.0), (1024, 256, 1.0),
+                                                               (512, 1024, 1.0), (512, 256, 2.0)]
+    for res, ns, scale in cases:
+        sc, fb = tb.buffers("grids", res)
+        lt = sc.lights[0] if scale == 1.0 else _scaled(sc.lights[0], scale)
+        te = tb.embree_time(("grids", res, ns, scale), fb, lt, ns)
+        for merged in (True, False):
+            prm = m.make_params({"samples": ns, "coplanar_blockers": merged})
+            t, r = median_run(lambda: m.run(fb, lt, prm), 1 if res >= 1024 or ns > 256 else tb.repeats)
+            kind = f"{r.stats['blockers']} {'polygons' if merged else 'triangles'}"
+            lines.append(f"| {res}^2, {ns} spp{', light x4 area' if scale != 1 else ''} | {kind} | {t:.3f} | "
+                         f"{_phases(r)} | {r.stats.get('peak_mask_bytes', 0) / 2**20:.1f} | {te:.3f} | "
+                         f"{te / t:.2f}x |")
+    return lines
+
+
+def irregular_table(tb: Tables) -> List[str]:
+    m = tb.reg["irregular"]
+    lines = ["## irregular (Johnson et al.): grids 512x512", "",
+             "| light size x | silhouettes from | time | phases |", "|---|---|---|---|"]
+    sc, fb = tb.buffers("grids", tb.big)
+    for scale in (0.5, 1.0, 2.0, 4.0):
+        lt = _scaled(sc.lights[0], scale)
+        for mode in ("centre", "light"):
+            t, r = median_run(lambda: m.run(fb, lt, m.make_params({"silhouette_from": mode})), tb.repeats)
+            lines.append(f"| {scale} | {mode} | {t:.3f} | {_phases(r)} |")
+    return lines
+
+
+#: method id -> its table, in the order methods.md lists them
+TABLES = {"single_sample": single_sample_table, "layered": layered_table, "depth_raytrace": depth_raytrace_table,
+          "penumbra_casting": penumbra_casting_table, "irregular": irregular_table}
+
+
+def run_method_benchmarks(out_dir: str, repeats: int = 3, quick: bool = False):
+    """Every registered method's table into ``out_dir/methods.md`` (and stdout)."""
+    tb = Tables(repeats, quick)
+    lines = [f"# Per-method benchmarks (medians of {repeats} warm runs, {numba.get_num_threads()} threads)", ""]
+    for mid, table in TABLES.items():
+        if mid in tb.reg:
+            lines += table(tb) + [""]
     text = "\n".join(lines) + "\n"
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "methods.md"), "w") as f:
