@@ -1,0 +1,64 @@
+"""The benchmark package (``penumbra.bench``, not shipped): the study's Pareto
+front against brute force, the planner's table rebuilt from the committed
+study.csv, ``install-table`` refusing a bad table without touching the
+installed one, and ``python -m penumbra.bench.study``'s usage error.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from penumbra.bench import study
+from penumbra.core import auto_choice
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+RESULTS = os.path.join(ROOT, "bench", "results")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.floats(0.001, 10.0), st.floats(0.0, 1.0)), min_size=1, max_size=30))
+def test_pareto_front_is_the_points_nothing_beats(points):
+    front = set(study.pareto(points))
+
+    def beaten(i):
+        ti, ei = points[i]
+        return any((t <= ti and e <= ei) and (t < ti or e < ei) for t, e in points)
+
+    for i, p in enumerate(points):
+        if i in front:
+            assert not beaten(i)
+        elif not beaten(i):                       # an exact duplicate of a front point
+            assert any(points[j] == p for j in front)
+
+
+def test_table_rebuilt_from_the_committed_study_is_the_committed_table(tmp_path):
+    out = study.table_from_csv(os.path.join(RESULTS, "study.csv"), str(tmp_path / "auto_table.json"))
+    with open(out) as f, open(os.path.join(RESULTS, "auto_table.json")) as g:
+        rebuilt, committed = json.load(f), json.load(g)
+    assert auto_choice.parse_table(rebuilt).scenes == auto_choice.parse_table(committed).scenes
+
+
+def test_install_table_refuses_a_bad_table_and_keeps_the_installed_one(tmp_path):
+    dst = tmp_path / "installed.json"
+    dst.write_text('{"kept": true}\n')
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "something else"}\n')
+    with pytest.raises(auto_choice.TableError):
+        study.install_table(str(bad), str(dst))
+    assert json.loads(dst.read_text()) == {"kept": True}
+    assert study.install_table(os.path.join(RESULTS, "auto_table.json"), str(dst)) == str(dst)
+    assert auto_choice.load_table(str(dst)).scenes
+
+
+def test_study_module_usage_error_exits_2_with_one_line():
+    env = dict(os.environ, PYTHONWARNINGS="error::RuntimeWarning")   # runpy: imported twice
+    p = subprocess.run([sys.executable, "-m", "penumbra.bench.study", "no-such-command"],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert p.returncode == 2
+    assert p.stderr.strip().splitlines() == [
+        "usage: python -m penumbra.bench.study install-table [SRC] | table-from-csv CSV OUT"]
