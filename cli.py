@@ -146,11 +146,11 @@ def open_blend(path: str):
     """Open the .blend in this Blender session (read only: nothing is ever
     saved); returns its scene."""
     import bpy
+    from .bridge.pipeline import first_line
     try:
         bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
     except Exception as exc:  # bpy raises RuntimeError with Blender's report
-        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        raise UsageError(f"cannot open {path}: {msg}")
+        raise UsageError(f"cannot open {path}: {first_line(exc)}")
     scene = bpy.context.scene
     if scene is None:
         raise UsageError(f"{path} has no scene")
