@@ -1,7 +1,8 @@
 """Penumbra: physically grounded soft-shadow passes for Blender.
 
-``register()`` wires the Blender-facing parts (``addon/``, ``operators/``) and
-the ``penumbra`` command (``blender --command penumbra ...``). Importing this
+``register()`` wires the Blender-facing parts (``addon/``, ``operators/``,
+both built on ``bridge/``) and the ``penumbra`` command (``blender --command
+penumbra ...``). Importing this
 package does not import bpy, so ``penumbra.core`` and the CLI work outside
 Blender (tests, the PyPI bpy module).
 """

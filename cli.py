@@ -146,47 +146,38 @@ def open_blend(path: str):
     """Open the .blend in this Blender session (read only: nothing is ever
     saved); returns its scene."""
     import bpy
+    from .bridge.pipeline import first_line
     try:
         bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
     except Exception as exc:  # bpy raises RuntimeError with Blender's report
-        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        raise UsageError(f"cannot open {path}: {msg}")
+        raise UsageError(f"cannot open {path}: {first_line(exc)}")
     scene = bpy.context.scene
     if scene is None:
         raise UsageError(f"{path} has no scene")
     return scene
 
 
-def capture(bpy_scene, path: str, frame=None, resolution=None):
-    from .operators.capture import capture_scene
+def load_scene(path: str, frame=None, resolution=None):
+    """Open the .blend and capture it."""
+    from .bridge.capture import capture_scene
     try:
-        captured = capture_scene(bpy_scene, frame=frame, resolution=resolution)
+        captured = capture_scene(open_blend(path), frame=frame, resolution=resolution)
     except ValueError as exc:
         raise UsageError(str(exc))
-    captured.name = os.path.splitext(os.path.basename(path))[0]
+    captured.name = _stem(path)
     return captured
 
 
-def load_scene(path: str, frame=None, resolution=None):
-    """Open the .blend and capture it."""
-    return capture(open_blend(path), path, frame, resolution)
-
-
-def _external_producers(passes, bpy_scene, resolution, samples, seed):
-    """Producers for passes that need Blender (``cycles``)."""
-    ext = {}
-    if "cycles" in passes:
-        from .operators.cycles_reference import make_cycles_producer
-        ext["cycles"] = make_cycles_producer(bpy_scene, resolution, samples=samples or 64, seed=seed)
-    return ext
+def _stem(path: str) -> str:
+    return os.path.splitext(os.path.basename(path))[0]
 
 
 def _available_external():
     import importlib
     try:
-        importlib.import_module(f"{__package__}.operators.cycles_reference")
+        importlib.import_module(f"{__package__}.bridge.cycles_reference")
     except ModuleNotFoundError as exc:
-        if exc.name != f"{__package__}.operators.cycles_reference":
+        if exc.name != f"{__package__}.bridge.cycles_reference":
             raise
         return []
     return ["cycles"]
@@ -223,43 +214,40 @@ def _summary(result) -> str:
 
 
 def cmd_render(args) -> int:
-    from .core.planner import PlanError, resolve_passes
-    from .core.frame import render_frame
-    from .core.output import write_frame
+    from .core.planner import resolve_passes
+    from .core.output import output_paths, write_frame
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     path = _check_blend(args.scene)
-    out = os.path.abspath(args.out)
-    try:
-        os.makedirs(out, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"cannot create output folder {out}: {exc.strerror}")
-    if not os.access(out, os.W_OK):
-        raise UsageError(f"output folder is not writable: {out}")
+    from .bridge.pipeline import FrameRequest, NoCamera, check_out_dir, prepare_frame, set_threads
+    out, err = check_out_dir(os.path.abspath(args.out))
+    if err:
+        raise UsageError(err)
     if args.threads:
-        import numba
-        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    from .core.output import output_paths
+        set_threads(args.threads)
     bpy_scene = open_blend(path)
     if bpy_scene.camera is None:
         raise UsageError(f"{path}: the scene has no camera")
-    stem = os.path.splitext(os.path.basename(path))[0]
+    stem = _stem(path)
     frames = args.frames or [args.frame if args.frame is not None else bpy_scene.frame_current]
     lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
-    overrides = {"seed": args.seed}
-    if args.samples:
-        overrides["samples"] = args.samples
     for k, frame in enumerate(frames):
         done = output_paths(out, stem, frame)["json"]
         if os.path.exists(done) and not args.force:
             print(f"frame {frame}: already written ({os.path.basename(done)}), skipped; --force recomputes it")
             continue
-        scene = capture(bpy_scene, path, frame, args.resolution)
-        if scene.camera is None:
+        request = FrameRequest(frame=frame, resolution=args.resolution, use_light_settings=False,
+                               methods=passes, lights=lights, seed=args.seed, samples=args.samples,
+                               map_size=args.map_size, error_budget=args.error_budget,
+                               skip_deleted=False)
+        try:
+            job = prepare_frame(bpy_scene, request)
+        except NoCamera:
             raise UsageError(f"{path}: the scene has no camera at frame {frame}")
-        ext = _external_producers(passes, bpy_scene, scene.resolution, args.samples, args.seed)
+        except ValueError as exc:
+            raise UsageError(str(exc))
+        job.captured.name = stem
         label = f"frame {frame} ({k + 1}/{len(frames)}) " if len(frames) > 1 else ""
-        result = render_frame(scene, passes, lights, overrides, map_size=args.map_size,
-                              progress=_ProgressBar(label), external=ext, error_budget=args.error_budget)
+        result = job.run(_ProgressBar(label)).result()
         for n in result.plan.notes:
             print(f"penumbra: {n}")
         paths = write_frame(result, out, previews=not args.no_previews)

@@ -14,22 +14,25 @@ Render Layers node Blender renders nothing and frame_change_post does not
 run; then render_pre computes them from the view layer's depsgraph.
 
 Each handler returns at once during Penumbra's own renders (the capture
-render, ``operators.capture.is_capturing()``, and the Cycles reference
-renders, ``operators.cycles_reference.is_rendering()``). Errors never stop the render: each
+render, ``bridge.capture.is_capturing()``, and the Cycles reference
+renders, ``bridge.cycles_reference.is_rendering()``). Errors never stop the render: each
 prints one ``Penumbra: ...`` line and is kept in :data:`state`.
 Per-light settings apply as in Compute Passes; the Cycles reference is
 skipped inside a render (it needs a render of its own).
 """
 from __future__ import annotations
 
-import os
 import sys
 from typing import Optional
 
 import bpy
 from bpy.app.handlers import persistent
 
-from . import properties as props
+from ..bridge import settings
+from ..bridge.capture import is_capturing
+from ..bridge.cycles_reference import is_rendering
+from ..bridge.pipeline import (FrameRequest, NoCamera, check_out_dir, compute_frame, first_line,
+                               render_output_folder, write_back)
 
 #: what the running render has done: frames computed, files written, errors
 state = {"active": False, "scene": None, "done": set(), "written": [], "errors": [], "notes": []}
@@ -42,18 +45,11 @@ def _reset(active: bool, scene_name: Optional[str] = None):
 def _capturing() -> bool:
     """Penumbra's own renders (the capture render, the Cycles reference
     renders) are not the user's: the handlers leave them alone."""
-    from ..operators.capture import is_capturing
-    if is_capturing():
-        return True
-    try:
-        from ..operators.cycles_reference import is_rendering
-    except ImportError:
-        return False
-    return is_rendering()
+    return is_capturing() or is_rendering()
 
 
 def _enabled(scene) -> bool:
-    s = props.scene_settings(scene)
+    s = settings.scene_settings(scene)
     return s is not None and bool(s.render_passes)
 
 
@@ -62,51 +58,25 @@ def _report(msg: str):
     print(f"Penumbra: {msg}", file=sys.stderr)
 
 
-def output_folder(scene, frame: int) -> str:
-    """Where a render's frame files go: the scene's output folder if set, else
-    the render output's folder (a ``penumbra`` sub-folder if the render's
-    own file would have the name Penumbra's EXR has)."""
-    s = props.scene_settings(scene)
-    if s is not None and s.output_folder.strip():
-        return s.output_folder.strip()
-    frame_path = bpy.path.abspath(scene.render.frame_path(frame=frame))
-    folder = os.path.dirname(frame_path) or os.getcwd()
-    from ..core.output import output_paths
-    from ..operators.capture import blend_stem
-    if os.path.abspath(output_paths(folder, blend_stem(scene), frame)["exr"]) == os.path.abspath(frame_path):
-        folder = os.path.join(folder, "penumbra")
-    return folder
-
-
 def compute_render_frame(scene, depsgraph=None):
     """Compute, store and write the passes of ``scene``'s current frame.
     Returns the written paths, or None (reason in ``state``)."""
     from ..core.output import write_frame
-    from ..operators import compute
-    from ..operators.capture import capture_scene
-    from .preferences import apply_threads
     frame = int(scene.frame_current)
-    out_dir, err = compute.check_out_dir(output_folder(scene, frame))
+    out_dir, err = check_out_dir(render_output_folder(scene, frame))
     if err:
         _report(f"frame {frame}: {err}")
         return None
-    if depsgraph is not None:
-        captured = capture_scene(scene, depsgraph=depsgraph)
-    else:
-        captured = capture_scene(scene, mode="VIEWPORT")
-    if captured.camera is None:
-        _report(f"frame {frame}: the scene has no camera")
+    request = FrameRequest(depsgraph=depsgraph, mode="AUTO" if depsgraph is not None else "VIEWPORT",
+                           in_render=True, threads=settings.preferred_threads(), skip_deleted=False)
+    try:
+        job = compute_frame(scene, request)
+    except NoCamera as exc:
+        _report(f"frame {frame}: {exc}")
         return None
-    jobs, notes = compute.light_jobs(scene, captured)
-    all_passes = [p for j in jobs for p in j.passes]
-    _ext, ext_notes = compute.external_producers(scene, captured, all_passes, in_render=True)
-    for j in jobs:
-        j.passes = [p for p in j.passes if p != "cycles"] or [compute.resolve_method(None)]
-    state["notes"] = notes + ext_notes
-    apply_threads()
-    results = [compute.run_step(captured, st) for st in compute.make_steps(jobs, per_light=False)]
-    result = compute.merge_results(captured, results) if results else compute.empty_result(captured)
-    compute.store_images(result)
+    state["notes"] = list(job.notes)
+    result = job.result()
+    write_back(scene, result)
     if not result.lights:
         state["notes"].append(f"frame {frame}: no light to compute, nothing written")
         return None
@@ -123,8 +93,7 @@ def _run(scene, depsgraph):
     try:
         compute_render_frame(scene, depsgraph)
     except Exception as exc:              # never a traceback in the middle of a render
-        text = str(exc).strip().splitlines()
-        _report(f"frame {frame}: {type(exc).__name__}: {text[-1] if text else ''}")
+        _report(f"frame {frame}: {type(exc).__name__}: {first_line(exc)}")
 
 
 # --------------------------------------------------------------------------

@@ -8,6 +8,8 @@ import importlib
 
 import bpy
 
+from ..bridge import settings
+from ..bridge.jobs import auto_choice_for, resolve_method
 from . import properties as props
 
 # operator modules whose buttons appear in the render panel, in this order
@@ -63,7 +65,7 @@ class PENUMBRA_PT_light(bpy.types.Panel):
     @classmethod
     def poll(cls, context):
         light = getattr(context, "light", None)
-        return light is not None and props.light_settings(light) is not None
+        return light is not None and settings.light_settings(light) is not None
 
     def draw_header(self, context):
         self.layout.prop(context.light.penumbra, "enabled", text="")
@@ -77,8 +79,7 @@ class PENUMBRA_PT_light(bpy.types.Panel):
         layout.prop(s, "method")
         layout.prop(s, "light_samples")
         layout.prop(s, "map_size")
-        if s.method == props.AUTO:
-            from ..operators.compute import auto_choice_for
+        if s.method == settings.AUTO:
             choice = auto_choice_for(s, context.light, context.scene)
             layout.label(text=f"Auto: {choice.short}", icon="INFO")
         op = layout.operator("penumbra.preview", text="Preview This Light", icon="IMAGE_RGB")
@@ -97,7 +98,6 @@ class PENUMBRA_PT_light_quality(bpy.types.Panel):
         return PENUMBRA_PT_light.poll(context)
 
     def draw(self, context):
-        from ..operators.compute import resolve_method
         s = context.light.penumbra
         layout = self.layout
         layout.use_property_split = True
@@ -115,7 +115,7 @@ class PENUMBRA_PT_render(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return context.scene is not None and props.scene_settings(context.scene) is not None
+        return context.scene is not None and settings.scene_settings(context.scene) is not None
 
     def draw(self, context):
         s = context.scene.penumbra

@@ -15,7 +15,8 @@ from types import SimpleNamespace
 
 import bpy
 
-ROOT_PACKAGE = __package__.rsplit(".", 1)[0]      # "penumbra" or "bl_ext.<repo>.penumbra"
+from ..bridge.pipeline import set_threads
+from ..bridge.settings import ROOT_PACKAGE, addon_preferences, preferred_threads
 CACHE_ENV = "PENUMBRA_NUMBA_CACHE_ROOT"
 
 
@@ -67,21 +68,13 @@ class PENUMBRA_AP_preferences(bpy.types.AddonPreferences):
 def get_prefs():
     """The add-on's preferences, or the defaults when it is registered as a
     plain package (``import penumbra; penumbra.register()``)."""
-    addons = getattr(bpy.context, "preferences", None)
-    entry = addons.addons.get(ROOT_PACKAGE) if addons is not None else None
-    if entry is not None and entry.preferences is not None:
-        return entry.preferences
-    return SimpleNamespace(numba_cache=default_cache_folder(), threads=0)
+    prefs = addon_preferences()
+    return prefs if prefs is not None else SimpleNamespace(numba_cache=default_cache_folder(), threads=0)
 
 
 def apply_threads() -> int:
     """Set Numba's thread count from the preferences; returns it."""
-    import numba
-    n = int(get_prefs().threads or 0)
-    top = numba.config.NUMBA_NUM_THREADS
-    n = top if n <= 0 else min(n, top)
-    numba.set_num_threads(n)
-    return n
+    return set_threads(preferred_threads())
 
 
 def register():

@@ -14,13 +14,10 @@ and ``choices`` (a str field with choices becomes a drop-down).
 
 Fields every method shares are set once per light or scene, not per method:
 ``samples`` (light samples), ``map_size`` (depth-map resolution), ``seed``
-(scene). A knob left at its default passes the dataclass's exact default
-(Blender stores floats as float32), so unchanged settings give the same bits
-as the command line.
+(scene). Reading them back into core requests is ``bridge/settings.py``'s.
 """
 from __future__ import annotations
 
-import dataclasses
 import re
 import typing
 import zlib
@@ -28,11 +25,8 @@ from typing import Dict, List, Optional, Tuple
 
 import bpy
 
-# fields set by the shared light / scene settings, not per method
-COMMON_FIELDS = ("samples", "map_size", "seed")
-AUTO = "auto"
-AUTO_SUFFIX = "_auto"
-REFERENCES = ("embree", "embree_irr", "cycles")
+from ..bridge.settings import AUTO, AUTO_SUFFIX, field_default, knob_fields
+from ..bridge.settings import knob_names as _knob_names_of
 
 # what each knob trades: field name, or "<method id>.<field>" for one method;
 # (tooltip, min, max) with None for no bound
@@ -160,20 +154,6 @@ def _enum_number(ident: str, used: set) -> int:
 
 # --------------------------------------------------------------------------
 # knob groups generated from the Params dataclasses
-def knob_fields(method) -> List[dataclasses.Field]:
-    """The dataclass fields of ``method.Params`` shown as knobs (the shared
-    ones in ``COMMON_FIELDS`` are set elsewhere)."""
-    return [f for f in dataclasses.fields(method.Params) if f.name not in COMMON_FIELDS]
-
-
-def _field_default(f: dataclasses.Field):
-    if f.default is not dataclasses.MISSING:
-        return f.default
-    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
-        return f.default_factory()  # type: ignore[misc]
-    return None
-
-
 def _knob_properties(method) -> Dict[str, object]:
     hints = typing.get_type_hints(method.Params)
     props: Dict[str, object] = {}
@@ -181,7 +161,7 @@ def _knob_properties(method) -> Dict[str, object]:
         if f.name in _RESERVED or f.name.startswith("_") or len(f.name) + len(AUTO_SUFFIX) > 63:
             continue            # not a valid Blender property name: the default applies
         tp, optional = _base_type(hints.get(f.name, type(None)))
-        default = _field_default(f)
+        default = field_default(f)
         meta = dict(f.metadata or {})
         label = meta.get("label") or friendly_label(f.name)
         tip, lo, hi = knob_tooltip(method.id, f.name, default)
@@ -232,41 +212,7 @@ def _make_knob_group(method) -> type:
 
 def knob_names(method) -> List[str]:
     """Names of the knob properties of ``method`` that exist on its group."""
-    cls = _knob_classes.get(method.id)
-    if cls is None:
-        return []
-    ann = cls.__annotations__
-    return [f.name for f in knob_fields(method) if f.name in ann]
-
-
-def knob_overrides(knobs_group, method) -> Dict[str, object]:
-    """Params values for ``method`` from a light's knob group, only those
-    that differ from the dataclass default (see the module doc)."""
-    import numpy as np
-    out: Dict[str, object] = {}
-    if knobs_group is None:
-        return out
-    defaults = {f.name: _field_default(f) for f in knob_fields(method)}
-    ann = _knob_classes[method.id].__annotations__
-    for name in knob_names(method):
-        default = defaults[name]
-        auto_name = name + AUTO_SUFFIX
-        if auto_name in ann and getattr(knobs_group, auto_name):
-            continue                        # automatic: the dataclass default applies
-        value = getattr(knobs_group, name)
-        if isinstance(default, bool) or isinstance(value, bool):
-            if bool(value) != default:
-                out[name] = bool(value)
-        elif isinstance(value, int):
-            if default is None or int(value) != default:
-                out[name] = int(value)
-        elif isinstance(value, float):
-            if default is None or np.float32(value) != np.float32(default):
-                out[name] = float(value)
-        elif isinstance(value, str):
-            if value != default:
-                out[name] = value
-    return out
+    return _knob_names_of(_knob_classes.get(method.id), method)
 
 
 # --------------------------------------------------------------------------
@@ -390,21 +336,3 @@ def unregister():
             bpy.utils.unregister_class(cls)
     _generated = []
     _knob_classes = {}
-
-
-# --------------------------------------------------------------------------
-# reading the settings (used by operators and handlers)
-def light_settings(light_data):
-    """``light.penumbra`` or None (add-on not registered, not a light)."""
-    return getattr(light_data, "penumbra", None)
-
-
-def scene_settings(scene):
-    return getattr(scene, "penumbra", None)
-
-
-def references(scene) -> List[str]:
-    s = scene_settings(scene)
-    if s is None:
-        return ["embree", "embree_irr"]
-    return [r for r in REFERENCES if r in s.references]

@@ -1,5 +1,5 @@
-"""bpy Operators; thin: capture -> core -> write back. ``capture.py`` is the
-one bpy -> numpy boundary. Nothing here imports bpy until ``register()``.
+"""bpy Operators; thin: settings -> ``bridge`` -> report. They never import
+``addon``. Nothing here imports bpy until ``register()``.
 
 Each operator module exposes ``classes``; they register in this order.
 """

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import bpy
 
-from ..addon import compositor
-
-IMAGE_PREFIX = "Penumbra "          # pass images "Penumbra <layer> <pass>", "Penumbra Preview"
-GROUP_NAME = "Penumbra"             # the compositor node group (Blender 5.0)
+from ..bridge import compositor
+from ..bridge.compositor import GROUP_NAME
+from ..bridge.images import IMAGE_PREFIX     # pass images "Penumbra <layer> <pass>", "Penumbra Preview"
 
 
 def penumbra_images():

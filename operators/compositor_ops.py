@@ -1,5 +1,5 @@
 """Set up compositor: the "Penumbra" node group in the scene's compositing
-node group (``addon/compositor.py`` builds it), fed by the stored pass
+node group (``bridge/compositor.py`` builds it), fed by the stored pass
 images or by a multilayer EXR written by ``penumbra render``."""
 from __future__ import annotations
 
@@ -8,7 +8,11 @@ from typing import Dict, List, Optional, Tuple
 
 import bpy
 
-from ..addon import compositor
+from ..bridge import compositor, settings
+from ..bridge.capture import light_object
+from ..bridge.images import pass_image_name
+from ..bridge.jobs import resolve_method
+from ..bridge.pipeline import default_exr_path
 
 
 def exr_layers(path: str) -> Dict[str, List[str]]:
@@ -47,14 +51,12 @@ def scene_lights(scene) -> List[Tuple[str, str]]:
 def light_method(light_name: str, requested: str = "", scene=None) -> str:
     """The pass shown as "the method" for a light: ``requested``, else the
     light's Penumbra method (``auto`` resolved as Compute Passes resolves it,
-    ``compute.resolve_method``)."""
-    from .compute import resolve_method
+    ``bridge.jobs.resolve_method``)."""
     if requested:
         return requested
-    ob = bpy.data.objects.get(light_name)
-    is_light = ob is not None and ob.type == "LIGHT"
-    s = getattr(ob.data, "penumbra", None) if is_light else None
-    return resolve_method(s, ob.data if is_light else None, scene)
+    ob = light_object(light_name)
+    s = settings.light_settings(ob.data) if ob is not None else None
+    return resolve_method(s, ob.data if ob is not None else None, scene)
 
 
 def _fallback_method(method: str, available: List[str]) -> str:
@@ -63,18 +65,6 @@ def _fallback_method(method: str, available: List[str]) -> str:
         return method
     refs = {"embree", "embree_irr", "cycles"}
     return next((p for p in available if p not in refs), method)
-
-
-def default_exr_path(scene) -> Optional[str]:
-    """``<output folder>/<stem>.<frame:04d>.exr`` (DESIGN.md naming) when the
-    scene has a Penumbra output folder."""
-    from ..core.output import output_paths
-    from .capture import blend_stem
-    ss = getattr(scene, "penumbra", None)
-    folder = getattr(ss, "output_folder", "") if ss is not None else ""
-    if not folder:
-        return None
-    return output_paths(bpy.path.abspath(folder), blend_stem(scene), scene.frame_current)["exr"]
 
 
 def plan_lights(scene, source: str, exr_path: Optional[str] = None,
@@ -91,7 +81,7 @@ def plan_lights(scene, source: str, exr_path: Optional[str] = None,
             lights.append((name, layer, _fallback_method(light_method(name, method, scene), passes)))
         return lights
     for name, layer in scene_lights(scene):
-        have = [p for p in known if bpy.data.images.get(compositor.pass_image_name(layer, p))]
+        have = [p for p in known if bpy.data.images.get(pass_image_name(layer, p))]
         if have:
             lights.append((name, layer, _fallback_method(light_method(name, method, scene), have)))
     return lights

@@ -1,356 +1,22 @@
-"""The ``cycles`` reference: the irradiance ratio V as Cycles renders it.
-
-Per light, two Cycles renders of the scene's camera view, each with only that
-light on, every surface a white diffuse (``view_layer.material_override``):
-
-    V = Diffuse Direct with the light's shadow / Diffuse Direct with
-        ``light.use_shadow = False``
-
-(DESIGN.md "What V means": the irradiance ratio, compared with ``embree_irr``).
-Both renders use the same seed, so they trace the same light samples and the
-ratio's noise is that of a ratio estimator with ``samples`` light samples per
-pixel, like ``embree_irr``'s. Settings (BLENDER_NOTES.md, "A Cycles shadow
-reference that lines up"): GAUSSIAN pixel filter of width 0.01 px (one ray
-through each pixel centre, as Penumbra's G-buffer), every bounce count 0, next
-event estimation only, no adaptive sampling, no denoising, no light-sampling
-threshold, no clamping, no time limit; the world is removed for the render
-(it would light the scene too) and so are the other lights (``hide_render``).
-
-The renders go to a temporary folder as multilayer EXR (the "Render Result"
-image has no pixels in background mode; checked in bpy 5.0.1) and the Diffuse
-Direct pass is read back with OpenEXR (Blender writes one part per pass).
-Everything changed on the scene is put back afterwards, error or not, and
-nothing is ever saved to the .blend. The compositor, the sequencer and
-Penumbra's own "passes in every render" setting are off for these renders;
-render handlers can also recognise them with :func:`is_rendering`.
-"""
+"""Render Cycles reference: the ``cycles`` pass of every shadow-casting
+light (``bridge/cycles_reference.py`` renders it), stored as images."""
 from __future__ import annotations
-
-import glob
-import logging
-import os
-import shutil
-import tempfile
-import time
-from typing import Callable, Dict, List, Tuple
-
-import numpy as np
 
 import bpy
 
-from ..core.methods.base import MethodResult
-
-log = logging.getLogger(__name__)
-
-PASS_ID = "cycles"
-FILTER = {"type": "GAUSSIAN", "width_px": 0.01}
-WHITE_MATERIAL = "Penumbra White Diffuse (temporary)"
-DIFFUSE_DIRECT = "Diffuse Direct"
-
-_rendering = 0
+from ..bridge import compositor, settings
+from ..bridge.capture import capture_scene, object_named
+from ..bridge.cycles_reference import PASS_ID, CyclesReferenceError, make_cycles_producer
+from ..bridge.images import store_pass_image
+from ..bridge.pipeline import scaled_resolution
 
 
-def is_rendering() -> bool:
-    """True while a Cycles reference render runs (render handlers should then
-    do nothing: these renders are Penumbra's own, not the user's)."""
-    return _rendering > 0
-
-
-class CyclesReferenceError(ValueError):
-    """A clear one-line reason the reference cannot be rendered."""
-
-
-# --------------------------------------------------------------------------
-# scene changes that are always undone
-class _Changes:
-    """Attribute changes remembered with their old values, undone in reverse
-    order (each one on its own: one failure does not stop the others)."""
-
-    def __init__(self):
-        self._undo: List[Tuple[object, str, object]] = []
-        self._seen = set()
-
-    def set(self, owner, attr: str, value) -> None:
-        key = (owner.as_pointer() if hasattr(owner, "as_pointer") else id(owner), type(owner).__name__, attr)
-        if key not in self._seen:
-            self._seen.add(key)
-            self._undo.append((owner, attr, getattr(owner, attr)))
-        if getattr(owner, attr) != value:
-            setattr(owner, attr, value)
-
-    def remember(self, owner, *attrs: str) -> None:
-        """Record current values without changing them (settings that change
-        one another, e.g. the image format and its colour depth)."""
-        for attr in attrs:
-            if hasattr(owner, attr):
-                self.set(owner, attr, getattr(owner, attr))
-
-    def set_if(self, owner, attr: str, value) -> None:
-        """``set`` when ``owner`` has ``attr`` (settings that come and go
-        between Blender versions)."""
-        if owner is not None and hasattr(owner, attr):
-            self.set(owner, attr, value)
-
-    def restore(self) -> List[str]:
-        """Put every value back. Some settings depend on others (an 8-bit
-        colour depth is refused while the format is still EXR and silently
-        becomes 16), so passes repeat until nothing changes."""
-        failed: Dict[str, str] = {}
-        for _ in range(4):
-            changed = False
-            failed.clear()
-            for owner, attr, old in reversed(self._undo):
-                try:
-                    if getattr(owner, attr) != old:
-                        setattr(owner, attr, old)
-                        changed = True
-                except Exception as exc:       # report, keep restoring the rest
-                    failed[attr] = f"{attr}: {exc}"
-            if not changed:
-                break
-        for owner, attr, old in self._undo:
-            try:
-                if getattr(owner, attr) != old:
-                    failed.setdefault(attr, f"{attr} stays {getattr(owner, attr)!r}, not {old!r}")
-            except Exception as exc:           # pragma: no cover - the owner is gone
-                failed.setdefault(attr, f"{attr}: {exc}")
-        for msg in failed.values():
-            log.warning("Penumbra: could not restore %s", msg)
-        self._undo.clear()
-        self._seen.clear()
-        return list(failed.values())
-
-
-# --------------------------------------------------------------------------
-# helpers
-def _render_view_layer(scene):
-    ctx_vl = getattr(bpy.context, "view_layer", None)
-    if ctx_vl is not None and bpy.context.scene == scene:
-        return ctx_vl
-    for vl in scene.view_layers:
-        if vl.use:
-            return vl
-    return scene.view_layers[0]
-
-
-def find_light_object(name: str):
-    """The light object a captured light's ``name`` names (``name_full``)."""
-    ob = bpy.data.objects.get(name)
-    if ob is None:
-        ob = next((o for o in bpy.data.objects if o.name_full == name), None)
-    if ob is None:
-        if "#" in name:
-            raise CyclesReferenceError(
-                f"light {name!r} is an instance (collection / geometry instancing); the Cycles "
-                "reference needs a light object of its own")
-        raise CyclesReferenceError(f"no light object named {name!r}")
-    if ob.type != "LIGHT":
-        raise CyclesReferenceError(f"{name!r} is a {ob.type}, not a light")
-    return ob
-
-
-def _white_material():
-    mat = bpy.data.materials.new(WHITE_MATERIAL)
-    nt = mat.node_tree
-    for n in list(nt.nodes):
-        nt.nodes.remove(n)
-    bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
-    bsdf.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    bsdf.inputs["Roughness"].default_value = 0.0
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
-    mat.diffuse_color = (1.0, 1.0, 1.0, 1.0)
-    return mat
-
-
-def read_diffuse_direct(path: str, view_layer: str) -> np.ndarray:
-    """float32[H,W,3] Diffuse Direct (row 0 at the top) from a Cycles multilayer
-    EXR, walking its parts (Blender writes one part per pass)."""
-    import OpenEXR
-    want = {f"{view_layer}.{DIFFUSE_DIRECT}.{c}": i for i, c in enumerate("RGB")}
-    found: Dict[int, np.ndarray] = {}
-    with OpenEXR.File(path, separate_channels=True) as f:
-        for part in f.parts:
-            for name, ch in part.channels.items():
-                if name in want:
-                    found[want[name]] = np.asarray(ch.pixels, np.float32)
-        if len(found) != 3:     # a single-layer file names channels without the layer
-            for part in f.parts:
-                for name, ch in part.channels.items():
-                    for k, c in enumerate("RGB"):
-                        if k not in found and name.endswith(f"{DIFFUSE_DIRECT}.{c}"):
-                            found[k] = np.asarray(ch.pixels, np.float32)
-    if len(found) != 3:
-        raise CyclesReferenceError(f"{os.path.basename(path)} holds no {DIFFUSE_DIRECT} pass")
-    return np.stack([found[0], found[1], found[2]], axis=-1)
-
-
-def shadow_ratio(shadowed: np.ndarray, unshadowed: np.ndarray) -> np.ndarray:
-    """V = sum_c shadowed / sum_c unshadowed over the colour channels; 0
-    where the unshadowed sum is not positive; finite, clamped to [0, 1]."""
-    s = np.asarray(shadowed, np.float64)
-    u = np.asarray(unshadowed, np.float64)
-    if s.ndim == 3:
-        s = s.sum(axis=-1)
-        u = u.sum(axis=-1)
-    s = np.nan_to_num(s, nan=0.0, posinf=0.0, neginf=0.0)
-    u = np.nan_to_num(u, nan=0.0, posinf=0.0, neginf=0.0)
-    ok = u > 0.0
-    v = np.zeros(u.shape, np.float64)
-    np.divide(s, u, out=v, where=ok)
-    return np.clip(v, 0.0, 1.0).astype(np.float32)
-
-
-def _configure(ch: _Changes, scene, view_layer, resolution, samples, seed, out_base, material):
-    """Every setting of the reference render, remembered in ``ch``."""
-    r = scene.render
-    c = scene.cycles
-    ch.set(r, "engine", "CYCLES")
-    W, H = resolution
-    ch.set(r, "resolution_x", int(W))
-    ch.set(r, "resolution_y", int(H))
-    ch.set(r, "resolution_percentage", 100)
-    for attr, value in (("use_border", False), ("use_crop_to_border", False),
-                        ("use_motion_blur", False), ("use_compositing", False),
-                        ("use_sequencer", False), ("use_freestyle", False),
-                        ("film_transparent", False), ("use_file_extension", True),
-                        ("use_overwrite", True), ("use_placeholder", False),
-                        ("use_single_layer", False)):
-        ch.set_if(r, attr, value)
-    ch.set(r, "filepath", out_base)
-    im = r.image_settings
-    ch.remember(im, "media_type", "file_format", "color_depth", "exr_codec", "color_mode",
-                "color_management")
-    # order matters (BLENDER_NOTES.md): media type first, it switches the format
-    ch.set_if(im, "media_type", "MULTI_LAYER_IMAGE")
-    ch.set(im, "file_format", "OPEN_EXR_MULTILAYER")
-    ch.set(im, "color_depth", "32")
-    ch.set(im, "exr_codec", "ZIP")
-    # Cycles: one ray per pixel centre, direct light only, plain Monte Carlo
-    for attr, value in (("samples", int(samples)), ("seed", int(seed)),
-                        ("use_animated_seed", False), ("use_adaptive_sampling", False),
-                        ("use_denoising", False), ("pixel_filter_type", "GAUSSIAN"),
-                        ("filter_width", 0.01), ("max_bounces", 0), ("diffuse_bounces", 0),
-                        ("glossy_bounces", 0), ("transmission_bounces", 0),
-                        ("volume_bounces", 0), ("transparent_max_bounces", 0),
-                        ("direct_light_sampling_type", "NEXT_EVENT_ESTIMATION"),
-                        ("light_sampling_threshold", 0.0), ("sample_clamp_direct", 0.0),
-                        ("sample_clamp_indirect", 0.0), ("time_limit", 0.0),
-                        ("use_sample_subset", False), ("sample_offset", 0),
-                        ("use_layer_samples", "IGNORE"), ("use_guiding", False),
-                        ("caustics_reflective", False), ("caustics_refractive", False)):
-        ch.set_if(c, attr, value)
-    ch.set(scene, "world", None)            # the world would light the scene too
-    cam = scene.camera
-    if cam is not None and getattr(cam.data, "dof", None) is not None:
-        ch.set(cam.data.dof, "use_dof", False)   # Penumbra's camera is a pinhole
-    ss = getattr(scene, "penumbra", None)
-    if ss is not None:                      # Penumbra's own render handlers stay out of it
-        ch.set_if(ss, "render_passes", False)
-    ch.set(view_layer, "use", True)
-    ch.set(view_layer, "material_override", material)
-    ch.set(view_layer, "use_pass_diffuse_direct", True)
-    ch.set_if(view_layer, "samples", 0)
-    ch.set_if(view_layer, "use_motion_blur", False)
-
-
-def _render_once(scene, view_layer, folder: str) -> Tuple[np.ndarray, float]:
-    for p in glob.glob(os.path.join(folder, "*")):
-        os.unlink(p)
-    t0 = time.perf_counter()
-    bpy.ops.render.render(write_still=True, layer=view_layer.name, scene=scene.name)
-    dt = time.perf_counter() - t0
-    files = sorted(glob.glob(os.path.join(folder, "*.exr")))
-    if not files:
-        raise CyclesReferenceError("the Cycles render wrote no EXR")
-    return read_diffuse_direct(files[0], view_layer.name), dt
-
-
-def render_light_reference(scene, light_name: str, resolution, samples: int = 64, seed: int = 0,
-                           view_layer=None) -> Tuple[np.ndarray, Dict[str, float]]:
-    """V (float32[H,W], row 0 at the top) for one light and the two render
-    times; the scene is left exactly as it was, error or not."""
-    global _rendering
-    W, H = (int(v) for v in resolution)
-    if W < 1 or H < 1:
-        raise CyclesReferenceError(f"resolution must be positive, got {W}x{H}")
-    if samples < 1:
-        raise CyclesReferenceError(f"samples must be at least 1, got {samples}")
-    if scene.camera is None:
-        raise CyclesReferenceError("the scene has no camera")
-    light_ob = find_light_object(light_name)
-    view_layer = view_layer or _render_view_layer(scene)
-    folder = tempfile.mkdtemp(prefix="penumbra_cycles_")
-    ch = _Changes()
-    material = None
-    _rendering += 1
-    try:
-        material = _white_material()
-        _configure(ch, scene, view_layer, (W, H), samples, seed, os.path.join(folder, "ref"), material)
-        for ob in scene.objects:            # one light at a time
-            if ob.type == "LIGHT" and ob != light_ob:
-                ch.set(ob, "hide_render", True)
-        ch.set(light_ob, "hide_render", False)
-        ch.set(light_ob.data, "use_shadow", True)
-        shadowed, t_sh = _render_once(scene, view_layer, folder)
-        ch.set(light_ob.data, "use_shadow", False)
-        unshadowed, t_un = _render_once(scene, view_layer, folder)
-    finally:
-        _rendering -= 1
-        failed = ch.restore()
-        if material is not None:
-            try:
-                bpy.data.materials.remove(material)
-            except Exception as exc:        # pragma: no cover - nothing holds it
-                failed.append(f"material: {exc}")
-        shutil.rmtree(folder, ignore_errors=True)
-    if failed:
-        raise CyclesReferenceError("could not restore the scene: " + "; ".join(failed))
-    if shadowed.shape[:2] != (H, W):
-        raise CyclesReferenceError(f"Cycles rendered {shadowed.shape[1]}x{shadowed.shape[0]}, "
-                                   f"expected {W}x{H}")
-    return shadow_ratio(shadowed, unshadowed), {"render_shadowed": t_sh, "render_unshadowed": t_un}
-
-
-def reference_params(samples: int, seed: int) -> dict:
-    return {"samples": int(samples), "seed": int(seed),
-            "filter": dict(FILTER), "bounces": 0,
-            "light_sampling": "NEXT_EVENT_ESTIMATION", "material_override": "white diffuse",
-            "blender": bpy.app.version_string}
-
-
-def make_cycles_producer(bpy_scene, resolution, samples: int = 64, seed: int = 0,
-                         view_layer=None) -> Callable:
-    """``producer(light) -> MethodResult`` for ``core.frame.render_frame(...,
-    external={"cycles": producer})``: ``light`` is a core Light whose ``name``
-    is the Blender light object's name. ``resolution`` is (W, H) and must be
-    the captured scene's, so the pixel grids line up."""
-    W, H = (int(v) for v in resolution)
-    samples = int(samples)
-    seed = int(seed)
-
-    def producer(light) -> MethodResult:
-        v, times = render_light_reference(bpy_scene, light.name, (W, H), samples, seed, view_layer)
-        return MethodResult(passes={PASS_ID: v}, time_s=times,
-                            stats={"resolution": [W, H]},
-                            params=reference_params(samples, seed))
-    return producer
-
-
-def external_producers(scene, captured, samples: int = 64, seed: int = 0) -> Dict[str, Callable]:
-    """``{"cycles": producer}`` for ``render_frame(captured, ..., external=...)``
-    at the captured scene's resolution (what ``operators/compute.py`` asks for)."""
-    return {PASS_ID: make_cycles_producer(scene, captured.resolution, samples, seed)}
-
-
-# --------------------------------------------------------------------------
-# operator
 def _penumbra_enabled(light_name: str) -> bool:
     """The light's Penumbra setting (``light.penumbra.enabled``; True when the
     settings are not registered or the light is an instance)."""
-    ob = bpy.data.objects.get(light_name)
-    settings = getattr(ob.data, "penumbra", None) if ob is not None and ob.type == "LIGHT" else None
-    return bool(getattr(settings, "enabled", True))
+    ob = object_named(light_name)
+    s = settings.light_settings(ob.data) if ob is not None and ob.type == "LIGHT" else None
+    return bool(getattr(s, "enabled", True))
 
 
 class PENUMBRA_OT_render_cycles_reference(bpy.types.Operator):
@@ -376,22 +42,18 @@ class PENUMBRA_OT_render_cycles_reference(bpy.types.Operator):
         description="Also show the reference images in the compositor")
 
     def _settings(self, scene):
-        ss = getattr(scene, "penumbra", None)
-        samples = self.samples or (int(ss.cycles_samples) if ss is not None else 64)
-        seed = self.seed if self.seed >= 0 else (int(ss.seed) if ss is not None else 0)
+        samples = self.samples or settings.cycles_samples(scene)
+        seed = self.seed if self.seed >= 0 else settings.seed(scene)
         return samples, seed
 
     def execute(self, context):
-        from ..addon import compositor
         from ..core.frame import render_frame
-        from .capture import capture_scene, render_resolution
         scene = context.scene
         if scene.camera is None:
             self.report({"ERROR"}, "Penumbra: the scene has no camera")
             return {"CANCELLED"}
         samples, seed = self._settings(scene)
-        w, h = render_resolution(scene)
-        res = (max(1, int(round(w * self.resolution_scale))), max(1, int(round(h * self.resolution_scale))))
+        res = scaled_resolution(scene, self.resolution_scale)
         view_layer = context.view_layer
         wm = context.window_manager
         wm.progress_begin(0.0, 1.0)
@@ -422,7 +84,7 @@ class PENUMBRA_OT_render_cycles_reference(bpy.types.Operator):
             self.report({"WARNING"}, "Penumbra: no light casts shadows; nothing to render")
             return {"CANCELLED"}
         for lr in done:
-            compositor.store_pass_image(lr.layer, PASS_ID, lr.passes[PASS_ID])
+            store_pass_image(lr.layer, PASS_ID, lr.passes[PASS_ID])
         if self.build_nodes:
             compositor.build_side_by_side(scene, {lr.name: lr.layer for lr in done}, (PASS_ID,))
         total = sum(lr.record[PASS_ID]["time_s"]["total"] for lr in done)

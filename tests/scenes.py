@@ -1,6 +1,6 @@
 """The bundled sample scenes as captured core Scenes, for tests and the bench.
 
-Loading a .blend needs bpy (``operators/capture.py`` is the one boundary);
+Loading a .blend needs bpy (``bridge/capture.py`` is the one boundary);
 each capture is cached per (name, resolution) for the test session.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ def sample_path(name: str) -> str:
 def load_sample(name: str, resolution=(128, 128)):
     """Capture ``sample_blends/<name>.blend`` at ``resolution`` (W, H)."""
     import bpy
-    from penumbra.operators.capture import capture_scene
+    from penumbra.bridge.capture import capture_scene
     bpy.ops.wm.open_mainfile(filepath=sample_path(name), load_ui=False)
     sc = capture_scene(bpy.context.scene, resolution=tuple(resolution))
     sc.name = name

@@ -7,7 +7,7 @@ import bpy
 import pytest
 
 import penumbra
-from penumbra.addon import compositor
+from penumbra.bridge import compositor
 from penumbra.core import auto_choice as ac
 from scenes import sample_path
 
@@ -56,16 +56,16 @@ def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
 
 
 def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
-    from penumbra.operators import compute
-    from penumbra.operators.capture import capture_scene
+    from penumbra.bridge import jobs as bj, pipeline
+    from penumbra.bridge.capture import capture_scene
     scene, light = _sphere_plane(16, 12)
     light.data.size = 0.0
-    jobs, _ = compute.light_jobs(scene, capture_scene(scene, resolution=(16, 12)), references=())
+    jobs, _ = bj.light_jobs(scene, capture_scene(scene, resolution=(16, 12)), references=())
     (job,) = jobs
     assert job.passes == ["pcf"] and job.auto.rule == "hard"
-    assert compute.resolve_method(light.data.penumbra, light.data, scene) == "pcf"
+    assert bj.resolve_method(light.data.penumbra, light.data, scene) == "pcf"
     # no light to go by (a cycles-only run): the documented fallback
-    assert compute.resolve_method(None) == ac.FALLBACK["average"]
+    assert bj.resolve_method(None) == ac.FALLBACK["average"]
 
 
 def test_panel_says_what_auto_picks_and_why(registered):

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 import penumbra
-from penumbra.addon import compositor
+from penumbra.bridge import compositor
 from penumbra.addon import properties as props
+from penumbra.bridge import settings
 from penumbra.core import exr
 from penumbra.core import methods as registry
 from scenes import sample_path
@@ -75,7 +76,7 @@ def test_light_and_scene_properties(registered):
     assert sc.render_passes is False
     assert set(sc.references) == {"embree", "embree_irr"}
     sc.references = {"embree", "cycles"}
-    assert props.references(bpy.context.scene) == ["embree", "cycles"]
+    assert settings.references(bpy.context.scene) == ["embree", "cycles"]
     # enabling render passes locks the interface (handlers change data)
     bpy.context.scene.render.use_lock_interface = False
     sc.render_passes = True
@@ -91,7 +92,7 @@ def test_every_method_has_its_knob_group(registered):
         group = getattr(knobs, mid)
         rna = group.bl_rna.properties
         for f in dataclasses.fields(m.Params):
-            if f.name in props.COMMON_FIELDS:
+            if f.name in settings.COMMON_FIELDS:
                 assert f.name not in rna
                 continue
             assert f.name in rna, (mid, f.name)
@@ -99,7 +100,7 @@ def test_every_method_has_its_knob_group(registered):
             assert p.name and p.description, (mid, f.name)
             default = f.default
             if default is None:
-                assert getattr(group, f.name + props.AUTO_SUFFIX) is True
+                assert getattr(group, f.name + settings.AUTO_SUFFIX) is True
             elif isinstance(default, bool):
                 assert getattr(group, f.name) is default
             elif isinstance(default, (int, float)):
@@ -107,14 +108,14 @@ def test_every_method_has_its_knob_group(registered):
             elif isinstance(default, str):
                 assert getattr(group, f.name) == default
         # untouched knobs override nothing: the same params as the command line
-        assert props.knob_overrides(group, m) == {}
+        assert settings.knob_overrides(group, m) == {}
     pcf = knobs.pcf
     assert pcf.bl_rna.properties["NumSamples"].name == "Num Samples"
     assert "acne" in pcf.bl_rna.properties["Bias0"].description
     pcf.NumSamples = 9
     pcf.Bias0_auto = False
     pcf.Bias0 = 0.25
-    ov = props.knob_overrides(pcf, producers["pcf"])
+    ov = settings.knob_overrides(pcf, producers["pcf"])
     assert ov == {"NumSamples": 9, "Bias0": 0.25}
     params = producers["pcf"].make_params(ov)
     assert params.NumSamples == 9 and params.Bias0 == 0.25 and params.Bias1 is None
@@ -240,7 +241,7 @@ def test_compute_uses_per_light_settings(registered, tmp_path):
 
 def test_compute_with_cycles_reference(registered):
     """The scene's references may include Cycles: it comes through the
-    external producer of operators/cycles_reference.py."""
+    external producer of bridge/cycles_reference.py."""
     scene = _open_sphere_plane(24, 16)
     bpy.data.objects["Key.Light"].data.penumbra.method = "pcf"     # not auto: a fixed pass name
     scene.penumbra.references = {"embree_irr", "cycles"}
@@ -281,7 +282,7 @@ def test_preview_updates_one_image_in_place(registered):
     assert len(bpy.data.images) == n_images
     # the preview is the pcf pass at that size
     from penumbra.core.frame import render_frame
-    from penumbra.operators.capture import capture_scene
+    from penumbra.bridge.capture import capture_scene
     ref = render_frame(capture_scene(scene, resolution=(24, 16)), ["pcf"], overrides={"seed": 0, "samples": 64})
     np.testing.assert_allclose(_pixels(img), ref.lights[0].passes["pcf"], atol=1e-6)
     # no image nodes, no pass images: a preview changes nothing else
@@ -358,8 +359,8 @@ def test_unknown_method_is_a_report(registered):
 def test_light_deleted_mid_way(registered):
     """The modal operator runs one light per step; a light deleted between
     steps is skipped with a warning, the others are written back."""
-    from penumbra.operators import compute
-    from penumbra.operators.capture import capture_scene
+    from penumbra.bridge import jobs as bj, pipeline
+    from penumbra.bridge.capture import capture_scene
     scene = _open_sphere_plane()
     bpy.ops.object.light_add(type="SPOT", location=(1, -1, 4))
     spot = bpy.context.object
@@ -368,15 +369,16 @@ def test_light_deleted_mid_way(registered):
     for lt in bpy.data.lights:
         lt.penumbra.method = "pcf"                # not auto: a fixed pass name
     captured = capture_scene(scene, resolution=(W, H))
-    jobs, _ = compute.light_jobs(scene, captured, samples=4)
-    steps = compute.make_steps(jobs, per_light=True)
+    jobs, _ = bj.light_jobs(scene, captured, samples=4)
+    steps = bj.make_steps(jobs, per_light=True)
     assert [st.names for st in steps] == [["Key.Light"], ["Second"]]
-    job = compute.ComputeJob(scene, captured, steps)
+    job = pipeline.FrameJob(scene, captured, steps)
     assert job.step()
     bpy.data.objects.remove(spot)
     while not job.done:
         job.step()
-    result = job.finish(bpy.context)
+    from penumbra.operators.compute import finish
+    result, _written = finish(job, scene, None, build_nodes=True)
     assert job.error is None
     assert job.warnings == ["light 'Second' was deleted during the run: skipped"]
     assert [lr.name for lr in result.lights] == ["Key.Light"]
@@ -386,17 +388,17 @@ def test_light_deleted_mid_way(registered):
 
 def test_grouped_and_per_light_steps_agree(registered):
     """One render_frame for all lights or one per light: the same passes."""
-    from penumbra.operators import compute
-    from penumbra.operators.capture import capture_scene
+    from penumbra.bridge import jobs as bj, pipeline
+    from penumbra.bridge.capture import capture_scene
     scene = _open_sphere_plane()
     bpy.ops.object.light_add(type="AREA", location=(-1, 1, 3))
     bpy.context.object.name = "Key_Light"             # same EXR layer as Key.Light
     captured = capture_scene(scene, resolution=(W, H))
-    jobs, _ = compute.light_jobs(scene, captured, samples=4)
-    grouped = compute.merge_results(captured, [compute.run_step(captured, st)
-                                               for st in compute.make_steps(jobs, False)])
-    split = compute.merge_results(captured, [compute.run_step(captured, st)
-                                             for st in compute.make_steps(jobs, True)])
+    jobs, _ = bj.light_jobs(scene, captured, samples=4)
+    grouped = pipeline.merge_results(captured, [pipeline.run_step(captured, st)
+                                               for st in bj.make_steps(jobs, False)])
+    split = pipeline.merge_results(captured, [pipeline.run_step(captured, st)
+                                             for st in bj.make_steps(jobs, True)])
     assert [lr.layer for lr in grouped.lights] == [lr.layer for lr in split.lights]
     assert len({lr.layer for lr in split.lights}) == 2
     for a, b in zip(grouped.lights, split.lights):

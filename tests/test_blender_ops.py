@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import penumbra
-from penumbra.addon import compositor
+from penumbra.bridge import compositor
 from scenes import sample_path
 
 

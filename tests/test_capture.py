@@ -1,4 +1,4 @@
-"""Scene capture (operators/capture.py): the bpy -> numpy boundary.
+"""Scene capture (bridge/capture.py): the bpy -> numpy boundary.
 
 These tests build small scenes with bpy and check that the captured
 ``penumbra.core.scene.Scene`` holds exactly what Blender would render.
@@ -14,7 +14,7 @@ from mathutils import Matrix
 
 from penumbra.core import views
 from penumbra.core.scene import Scene
-from penumbra.operators.capture import (
+from penumbra.bridge.capture import (
     CAPTURE_ENGINE_ID, capture_scene, is_capturing, render_resolution)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -1,4 +1,4 @@
-"""The "Penumbra" compositor node group (addon/compositor.py) and the Set up
+"""The "Penumbra" compositor node group (bridge/compositor.py) and the Set up
 compositor operator (operators/compositor_ops.py).
 
 The compositor evaluates headless: a render with ``write_still`` writes the
@@ -14,7 +14,8 @@ import OpenEXR
 import pytest
 
 import penumbra
-from penumbra.addon import compositor as C
+from penumbra.bridge import compositor as C
+from penumbra.bridge import images
 from penumbra.core import exr
 
 W, H = 16, 8
@@ -83,9 +84,9 @@ def _composite(scene, socket, path):
 
 
 def _store(layer, method_v, embree_v, cycles_v):
-    C.store_pass_image(layer, "pcf", method_v)
-    C.store_pass_image(layer, "embree", embree_v)
-    C.store_pass_image(layer, "cycles", cycles_v)
+    images.store_pass_image(layer, "pcf", method_v)
+    images.store_pass_image(layer, "embree", embree_v)
+    images.store_pass_image(layer, "cycles", cycles_v)
 
 
 LIGHTS = [("Key.Light", "Key_Light", "pcf"), ("Fill", "Fill", "pcf")]

@@ -1,4 +1,4 @@
-"""The ``cycles`` reference (operators/cycles_reference.py) against
+"""The ``cycles`` reference (bridge/cycles_reference.py) against
 ``embree_irr``, and that it leaves the scene exactly as it found it.
 
 Noise bound used below. Per pixel both references estimate the same ratio
@@ -33,8 +33,8 @@ from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.metrics import reach_mask
 from penumbra.core.scene import Light
-from penumbra.operators import cycles_reference as cr
-from penumbra.operators.capture import capture_scene
+from penumbra.bridge import cycles_reference as cr
+from penumbra.bridge.capture import capture_scene
 from scenes import sample_path
 
 RES = (64, 64)
@@ -292,7 +292,7 @@ def registered():
 
 
 def test_operator_stores_reference_images(registered):
-    from penumbra.addon import compositor
+    from penumbra.bridge import compositor
     scene = open_sample("sphere_plane")
     scene.render.resolution_x, scene.render.resolution_y = 40, 30
     scene.penumbra.render_passes = True       # switched off for the reference renders, then back

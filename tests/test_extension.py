@@ -209,6 +209,7 @@ def test_exclusions_and_platform_split_match_blenders_builder(blender_ext):
     ours = build.source_files(ROOT, patterns)
     assert sorted(ours) == blender_files
     assert "__init__.py" in ours and "core/frame.py" in ours and "operators/compute.py" in ours
+    assert "bridge/pipeline.py" in ours
     assert "core/auto_table.json" in ours          # auto's measured table ships with the code
     for rel in ours:
         assert not rel.startswith(("tests/", "sample_blends/", "scripts/", "bench/", "wheels/",

@@ -8,7 +8,8 @@ import OpenEXR
 import pytest
 
 import penumbra
-from penumbra.addon import compositor, handlers
+from penumbra.addon import handlers
+from penumbra.bridge import compositor, pipeline
 from penumbra.cli import main
 from penumbra.core import exr
 from scenes import sample_path
@@ -188,11 +189,10 @@ def test_output_folder_under_a_file_is_one_line_not_a_traceback(registered, tmp_
 def test_handler_failure_does_not_stop_the_render(registered, tmp_path, capfd, monkeypatch):
     scene, _ = _animated_scene(tmp_path)
     scene.frame_end = 1
-    from penumbra.operators import compute
 
     def boom(*a, **k):
         raise ValueError("kernel exploded\nsecond line")
-    monkeypatch.setattr(compute, "run_step", boom)
+    monkeypatch.setattr(pipeline, "run_step", boom)
     capfd.readouterr()
     bpy.ops.render.render(animation=True)
     err = capfd.readouterr().err
@@ -215,6 +215,6 @@ def test_no_enabled_light_writes_nothing(registered, tmp_path):
 def test_output_name_clash_goes_to_a_subfolder(registered, tmp_path):
     scene, _ = _animated_scene(tmp_path)
     scene.render.filepath = str(tmp_path / "render" / "anim.")   # frame_path = .../anim.0001.exr
-    assert handlers.output_folder(scene, 1) == str(tmp_path / "render" / "penumbra")
+    assert pipeline.render_output_folder(scene, 1) == str(tmp_path / "render" / "penumbra")
     scene.render.filepath = str(tmp_path / "render" / "x_")
-    assert handlers.output_folder(scene, 1) == str(tmp_path / "render")
+    assert pipeline.render_output_folder(scene, 1) == str(tmp_path / "render")

@@ -230,7 +230,7 @@ def test_operator_absurd_resolution_is_an_error_report(registered, tmp_path):
 @pytest.mark.parametrize("kind", ["nan_vertices", "inf_vertices", "empty_mesh", "degenerate_faces"])
 def test_operator_bad_mesh_data_finishes_with_finite_images(registered, tmp_path, kind):
     import bpy
-    from penumbra.addon import compositor
+    from penumbra.bridge import compositor
     bpy.ops.wm.open_mainfile(filepath=_blend_with(tmp_path / f"{kind}.blend", BAD_MESHES[kind]), load_ui=False)
     r = bpy.context.scene.render
     r.resolution_x, r.resolution_y = 24, 16

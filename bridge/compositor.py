@@ -25,39 +25,10 @@ from typing import Dict, Optional, Sequence
 
 import bpy
 
+from .images import pass_image_name
+
 PREFIX = "Penumbra:"
 FRAME_NAME = "Penumbra"
-
-
-def pass_image_name(layer: str, pass_id: str) -> str:
-    return f"Penumbra {layer} {pass_id}"
-
-
-def store_pass_image(layer: str, pass_id: str, v) -> bpy.types.Image:
-    """A float Blender image holding pass ``v`` (float32[H,W], row 0 at the
-    top) as grey; updated in place when it already exists with that size."""
-    h, w = v.shape
-    name = pass_image_name(layer, pass_id)
-    img = bpy.data.images.get(name)
-    if img is not None and tuple(img.size) != (w, h):
-        bpy.data.images.remove(img)
-        img = None
-    if img is None:
-        img = bpy.data.images.new(name, w, h, alpha=False, float_buffer=True)
-    fill_grey(img, v)
-    return img
-
-
-def fill_grey(img, v) -> None:
-    """Write ``v`` (float[H,W], row 0 at the top) into ``img`` (H x W) as
-    opaque grey, in one ``foreach_set`` (Blender rows go bottom-up)."""
-    import numpy as np
-    h, w = v.shape
-    rgba = np.empty((h, w, 4), np.float32)
-    rgba[..., :3] = np.asarray(v, np.float32)[::-1, :, None]
-    rgba[..., 3] = 1.0
-    img.pixels.foreach_set(rgba.ravel())
-    img.update()
 
 
 def compositor_tree(scene) -> bpy.types.NodeTree:

@@ -89,7 +89,7 @@ def capture_scene(scene=None, depsgraph=None, frame=None, resolution=None, *,
         return _capture_from_depsgraph(depsgraph, scene, resolution)
     if mode == "AUTO":
         mode = "RENDER" if (bpy.app.background and not _render_job_running()) else "VIEWPORT"
-    view_layer = _view_layer_of(scene)
+    view_layer = view_layer_of(scene)
     if mode == "RENDER":
         return _capture_with_render_depsgraph(scene, view_layer, resolution)
     if scene == bpy.context.scene and view_layer == bpy.context.view_layer:
@@ -150,7 +150,9 @@ def _render_job_running() -> bool:
         return False
 
 
-def _view_layer_of(scene):
+def view_layer_of(scene):
+    """The view layer a render of ``scene`` uses: the context's when
+    ``scene`` is the context scene, else its first enabled one."""
     ctx_vl = getattr(bpy.context, "view_layer", None)
     if scene == bpy.context.scene and ctx_vl is not None:
         return ctx_vl
@@ -345,7 +347,10 @@ def _capture_camera(scene, depsgraph) -> Optional[Camera]:
         pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y))
 
 
-def _capture_light(name: str, light, matrix_world) -> Light:
+def core_light(name: str, light, matrix_world) -> Light:
+    """Blender light data + its world matrix -> ``core.scene.Light``: the one
+    place Blender's light types map to Penumbra's kinds (object scale folded
+    into the size)."""
     world, scale = _orthonormal(_matrix(matrix_world), f"light {name!r}")
     t = light.type
     common = dict(name=name, world_from_light=world, blender_type=t,
@@ -372,6 +377,36 @@ def _capture_light(name: str, light, matrix_world) -> Light:
     if t == "SUN":
         return Light(kind="sun", angle=float(light.angle), **common)
     raise ValueError(f"light {name!r}: unsupported light type {t!r}")
+
+
+def light_kind_size(light) -> Tuple[str, float]:
+    """(kind, extent) of a captured ``core.scene.Light`` or of Blender light
+    data (mapped by :func:`core_light` without the object's scale: ``auto``
+    only tells zero from non-zero sizes)."""
+    if not isinstance(light, Light):
+        if getattr(light, "type", "") not in ("AREA", "POINT", "SPOT", "SUN"):
+            raise ValueError(f"not a light: {light!r}")
+        light = core_light(light.name, light, np.eye(4))
+    return light.kind, float(light.extent)
+
+
+def object_named(name: str):
+    """The object whose ``name`` or ``name_full`` (linked data) is ``name``."""
+    ob = bpy.data.objects.get(name)
+    if ob is None:
+        ob = next((o for o in bpy.data.objects if o.name_full == name), None)
+    return ob
+
+
+def light_object(captured_name: str):
+    """The Blender light object of a captured light (instances are named
+    ``parent/object#id``: their source object), or None when there is none."""
+    ob = object_named(captured_name)
+    if ob is None and "/" in captured_name:
+        ob = object_named(captured_name.split("/", 1)[1].rsplit("#", 1)[0])
+    if ob is None or ob.type != "LIGHT":
+        return None
+    return ob
 
 
 # --------------------------------------------------------------------------
@@ -405,7 +440,7 @@ def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights
             return
     name = _instance_name(inst)
     if otype == "LIGHT":
-        lights.append(_capture_light(name, ob.data, inst.matrix_world))
+        lights.append(core_light(name, ob.data, inst.matrix_world))
         return
     if not inst.show_self:
         return                      # an instancer that does not render itself

@@ -1,0 +1,145 @@
+"""Settings -> work: what to compute for each captured light, and which
+lights share one ``render_frame`` call.
+
+Each light's pass list is its own method (``light.penumbra.method``; ``auto``
+resolves per light in :func:`auto_choice_for`, from the accuracy study's
+table under the scene's error budget, and the decision with its reason goes
+into the frame's plan) plus the scene's references; its knobs, light samples
+and depth-map size become ``render_frame``'s overrides. Lights with the same
+settings share one step (one ``render_frame`` call and its buffers).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from typing import Dict, List, Optional, Sequence, Tuple
+
+from . import settings
+from .capture import light_kind_size, light_object
+
+#: methods fast enough for the preview (others fall back to pcf there)
+FAST_METHODS = ("pcf", "single_sample")
+
+
+@dataclass
+class LightJob:
+    """What to compute for one captured light."""
+    name: str
+    passes: List[str]
+    overrides: Dict[str, object]
+    method_overrides: Dict[str, Dict[str, object]]
+    map_size: Optional[int]
+    auto: Optional[object] = None          # core.auto_choice.AutoChoice when the light asks for auto
+
+    def key(self) -> str:
+        return json.dumps([self.passes, self.overrides, self.method_overrides, self.map_size],
+                          sort_keys=True, default=str)
+
+
+@dataclass
+class Step:
+    """One ``render_frame`` call: lights ``names`` (None: every light) with
+    the same passes and settings."""
+    names: Optional[List[str]]
+    passes: List[str]
+    overrides: Dict[str, object]
+    method_overrides: Dict[str, Dict[str, object]]
+    map_size: Optional[int]
+    auto: Dict[str, object] = field(default_factory=dict)   # light name -> AutoChoice
+    error_budget: Optional[float] = None                      # for passes "auto" the planner resolves
+
+
+def auto_choice_for(light_settings, light, scene):
+    """``auto``'s decision (``core.auto_choice.AutoChoice``) for a light
+    whose settings ask for it (or name no registered method), else None.
+    ``light``: the captured light or the Blender light data; ``scene``: the
+    Blender scene (its error budget)."""
+    from ..core import auto_choice
+    from ..core import methods as registry
+    method = light_settings.method if light_settings is not None else settings.AUTO
+    if method != settings.AUTO and method in registry.pass_ids(external=False):
+        return None
+    if light is None:
+        return auto_choice.choose("area", 1.0, table=None)       # documented fallback
+    kind, size = light_kind_size(light)
+    return auto_choice.choose(kind, size, budget=settings.error_budget(scene))
+
+
+def resolve_method(light_settings, light=None, scene=None) -> str:
+    """The pass id a light's settings ask for; ``auto`` resolves per light
+    (:func:`auto_choice_for`; without a light: the documented fallback)."""
+    choice = auto_choice_for(light_settings, light, scene)
+    return light_settings.method if choice is None else choice.method
+
+
+def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
+               samples: Optional[int] = None, fast: bool = False,
+               references: Optional[Sequence[str]] = None,
+               only: Optional[Sequence[str]] = None) -> Tuple[List[LightJob], List[str]]:
+    """One LightJob per captured light whose Penumbra setting is enabled.
+
+    ``methods``: pass ids for every light instead of each light's method +
+    references; ``samples``: light samples for every light; ``fast``: the
+    light's method only if it is in FAST_METHODS, else pcf; ``references``:
+    instead of the scene's; ``only``: names of Blender light objects.
+    Returns (jobs, notes)."""
+    from ..core import methods as registry
+    seed = settings.seed(scene)
+    refs = list(settings.references(scene) if references is None else references)
+    jobs, notes = [], []
+    for lt in captured.lights:
+        ob = light_object(lt.name)
+        if only is not None and (ob is None or ob.name not in only):
+            continue
+        s = settings.light_settings(ob.data) if ob is not None else None
+        if s is not None and not s.enabled:
+            notes.append(f"{lt.name}: Penumbra is off for this light")
+            continue
+        choice = None
+        if methods:
+            passes = list(methods)
+        else:
+            choice = auto_choice_for(s, lt, scene)
+            m = s.method if choice is None else choice.method
+            if fast and m not in FAST_METHODS:
+                m = FAST_METHODS[0]
+                if choice is not None:
+                    choice = replace(choice, method=m, reason=f"{choice.reason}; the preview runs {m} "
+                                                              f"instead (fast methods only)")
+            passes = list(dict.fromkeys([m] + refs))
+        ov = {"seed": seed}
+        n = samples or (int(s.light_samples) if s is not None else None)
+        if n:
+            ov["samples"] = int(n)
+        mo: Dict[str, Dict[str, object]] = {}
+        if s is not None:
+            for pid in passes:
+                if registry.is_external(pid):
+                    continue
+                m = registry.producer_of(pid)
+                group = getattr(s.knobs, m.id, None)
+                knobs = settings.knob_overrides(group, m) if group is not None else {}
+                if knobs:
+                    mo[m.id] = knobs
+        ms = int(s.map_size) if s is not None and s.map_size else None
+        jobs.append(LightJob(lt.name, passes, ov, mo, ms, choice))
+    return jobs, notes
+
+
+def make_steps(jobs: Sequence[LightJob], per_light: bool) -> List[Step]:
+    """Lights with the same settings share a step (one ``render_frame``
+    call) unless ``per_light`` (one step per light, for the modal UI)."""
+    steps: List[Step] = []
+    by_key: Dict[str, Step] = {}
+    for j in jobs:
+        k = j.key()
+        if not per_light and k in by_key:
+            by_key[k].names.append(j.name)
+            if j.auto is not None:
+                by_key[k].auto[j.name] = j.auto
+            continue
+        st = Step([j.name], list(j.passes), dict(j.overrides), dict(j.method_overrides), j.map_size,
+                  {j.name: j.auto} if j.auto is not None else {})
+        steps.append(st)
+        by_key[k] = st
+    return steps

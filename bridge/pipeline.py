@@ -1,0 +1,340 @@
+"""The frame pipeline: one way from a Blender scene to a ``FrameResult``,
+used by the command line, Compute Passes, Preview and the render handler.
+
+    capture -> light jobs -> drop external passes that cannot run -> threads
+            -> steps (``render_frame`` calls) -> merge
+
+:func:`prepare_frame` captures the scene and plans the steps of a
+:class:`FrameRequest` into a :class:`FrameJob`; ``job.step()`` runs one step
+(the modal Compute Passes runs one per timer tick), ``job.run()`` all of
+them, ``job.result()`` merges them. :func:`compute_frame` is the three in a
+row. Nothing in ``bpy.data`` changes until the caller writes the result back
+(:func:`write_back`, ``core.output.write_frame``), so a cancelled run leaves
+no trace.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+import bpy
+
+from . import settings
+from .capture import blend_stem, capture_scene, light_object, render_resolution
+from .jobs import LightJob, Step, light_jobs, make_steps, resolve_method
+
+Progress = Callable[[str, float], None]
+
+
+class NoCamera(ValueError):
+    """The captured scene has no camera."""
+
+    def __init__(self):
+        super().__init__("the scene has no camera")
+
+
+@dataclass
+class FrameRequest:
+    """What to compute for one frame of a scene.
+
+    Capture: ``frame`` (None: the current one), ``resolution`` (None: the
+    scene's), ``depsgraph`` (a render's own) or ``mode``.
+    Work, from each light's Penumbra settings: ``methods`` (pass ids for
+    every light instead of its method + the references), ``samples``,
+    ``fast`` (preview: fast methods only), ``references``, ``only`` (light
+    object names), ``per_light`` (one step per light). With
+    ``use_light_settings=False`` (the command line) every light gets
+    ``methods``, ``seed``, ``samples`` and ``map_size`` alike, ``lights``
+    names them (None: all) and ``auto`` is the planner's, under
+    ``error_budget``.
+    ``in_render``: inside a render (no Cycles reference); ``threads``: Numba
+    threads (0: all cores, None: unchanged); ``catch_errors``: a failed step
+    ends the job with ``job.error`` instead of raising; ``skip_deleted``:
+    lights deleted between steps are skipped with a warning.
+    """
+    frame: Optional[int] = None
+    resolution: Optional[Tuple[int, int]] = None
+    depsgraph: object = None
+    mode: str = "AUTO"
+    use_light_settings: bool = True
+    methods: Optional[Sequence[str]] = None
+    samples: Optional[int] = None
+    fast: bool = False
+    references: Optional[Sequence[str]] = None
+    only: Optional[Sequence[str]] = None
+    per_light: bool = False
+    lights: Optional[Sequence[str]] = None
+    seed: int = 0
+    map_size: Optional[int] = None
+    error_budget: Optional[float] = None
+    in_render: bool = False
+    threads: Optional[int] = None
+    catch_errors: bool = False
+    skip_deleted: bool = True
+
+
+# --------------------------------------------------------------------------
+# running
+def first_line(exc: BaseException) -> str:
+    """The last line of an exception's text (Blender puts its report there)."""
+    text = str(exc).strip()
+    return text.splitlines()[-1] if text else type(exc).__name__
+
+
+def set_threads(n: int) -> int:
+    """Numba's thread count: ``n`` (at most the cores), 0 = all cores."""
+    import numba
+    top = numba.config.NUMBA_NUM_THREADS
+    n = top if n <= 0 else min(n, top)
+    numba.set_num_threads(n)
+    return n
+
+
+def run_step(captured, step: Step, external=None, progress=None):
+    """``render_frame`` for the step's lights; ``auto``'s decisions go into
+    the result's plan (printed and stored in the JSON like the planner's)."""
+    from ..core.frame import render_frame
+    from ..core.planner import record_auto
+    passes = [p for p in step.passes if p != "cycles" or (external and "cycles" in external)]
+    result = render_frame(captured, passes, step.names, overrides=step.overrides,
+                          method_overrides=step.method_overrides, map_size=step.map_size,
+                          progress=progress, external=external, error_budget=step.error_budget)
+    for lp in result.plan.lights:
+        if lp.name in step.auto:
+            record_auto(lp, step.auto[lp.name])
+    return result
+
+
+def merge_results(captured, results):
+    """One FrameResult from the steps' results, lights in capture order,
+    layer names unique across steps (as one planner call would make them)."""
+    from ..core.frame import FrameResult
+    from ..core.planner import Plan
+    if len(results) == 1:
+        return results[0]
+    order = {lt.name: i for i, lt in enumerate(captured.lights)}
+    lights = sorted((lr for r in results for lr in r.lights), key=lambda lr: order.get(lr.name, 0))
+    plans = {lp.name: lp for r in results for lp in r.plan.lights}
+    used: Dict[str, int] = {}
+    for lr in lights:
+        layer = lr.layer
+        if layer in used:
+            used[layer] += 1
+            layer = f"{layer}_{used[layer]}"
+            lr.layer = layer
+            plans[lr.name].layer = layer
+        used.setdefault(layer, 1)
+    passes = list(dict.fromkeys(p for r in results for p in r.plan.passes))
+    notes = list(dict.fromkeys(n for r in results for n in r.plan.notes))
+    plan = Plan(passes, [plans[lr.name] for lr in lights if lr.name in plans], notes)
+    times: Dict[str, float] = {}
+    for r in results:
+        for k, v in r.buffer_times.items():
+            times[k] = times.get(k, 0.0) + v
+    W, H = captured.resolution
+    return FrameResult(captured.name, captured.frame, (W, H), plan, lights, times,
+                       sum(r.total_s for r in results))
+
+
+def empty_result(captured):
+    from ..core.frame import FrameResult
+    from ..core.planner import Plan
+    return FrameResult(captured.name, captured.frame, tuple(captured.resolution),
+                       Plan([], [], ["no light to compute"]), [], {}, 0.0)
+
+
+class FrameJob:
+    """The steps of one frame; ``step()`` runs the next one, ``result()``
+    merges what ran."""
+
+    def __init__(self, scene, captured, steps: List[Step], external=None, notes=(),
+                 catch_errors: bool = True, skip_deleted: bool = True):
+        self.scene_name = scene.name
+        self.captured = captured
+        self.steps = steps
+        self.external = external or {}
+        self.catch_errors = catch_errors
+        self.skip_deleted = skip_deleted
+        self.results = []
+        self.index = 0
+        self.notes: List[str] = list(notes)
+        self.warnings: List[str] = []
+        self.error: Optional[str] = None
+
+    @property
+    def done(self) -> bool:
+        return self.error is not None or self.index >= len(self.steps)
+
+    def step(self, progress: Optional[Progress] = None) -> bool:
+        """Run the next step; False once there is nothing left (or it failed)."""
+        if self.done:
+            return False
+        st = self.steps[self.index]
+        self.index += 1
+        if self.skip_deleted and st.names is not None:
+            alive = [n for n in st.names if light_object(n) is not None]
+            for n in st.names:
+                if n not in alive:
+                    self.warnings.append(f"light {n!r} was deleted during the run: skipped")
+            if not alive:
+                return not self.done
+            st = Step(alive, st.passes, st.overrides, st.method_overrides, st.map_size,
+                      {n: c for n, c in st.auto.items() if n in alive}, st.error_budget)
+        try:
+            self.results.append(run_step(self.captured, st, self.external, progress))
+        except Exception as exc:           # a report, not a traceback
+            if not self.catch_errors:
+                raise
+            self.error = f"{', '.join(st.names or ())}: {type(exc).__name__}: {exc}"
+        return not self.done
+
+    def run(self, progress: Optional[Progress] = None) -> "FrameJob":
+        """Every remaining step; ``progress(message, fraction of the frame)``."""
+        n = max(1, len(self.steps))
+        while not self.done:
+            i = self.index
+            self.step(None if progress is None else (lambda msg, f, i=i: progress(msg, (i + f) / n)))
+        return self
+
+    def result(self):
+        """The merged FrameResult (an empty one when no step ran)."""
+        if not self.results:
+            return empty_result(self.captured)
+        return merge_results(self.captured, self.results)
+
+
+# --------------------------------------------------------------------------
+# planning
+def external_producers(scene, captured, passes: Sequence[str], in_render: bool = False,
+                       samples: Optional[int] = None, seed: Optional[int] = None):
+    """Producers for external passes (``cycles``: ``cycles_reference.py``)
+    and notes for those that cannot run: (dict, notes); never inside a
+    render. ``samples`` / ``seed``: the scene's Penumbra settings when None."""
+    wanted = [p for p in dict.fromkeys(passes) if p == "cycles"]
+    if not wanted:
+        return {}, []
+    if in_render:
+        return {}, ["cycles reference skipped: it needs its own render and cannot run inside one"]
+    from .cycles_reference import make_cycles_producer
+    samples = settings.cycles_samples(scene) if samples is None else samples
+    seed = settings.seed(scene) if seed is None else seed
+    return {"cycles": make_cycles_producer(scene, captured.resolution, samples, seed)}, []
+
+
+def _jobs(scene, captured, request: FrameRequest) -> Tuple[List[LightJob], List[str]]:
+    return light_jobs(scene, captured, methods=request.methods, samples=request.samples,
+                      fast=request.fast, references=request.references, only=request.only)
+
+
+def _uniform_step(request: FrameRequest) -> Step:
+    """The command line's one step: the same passes and settings for every
+    light (the lights' own Penumbra settings do not apply)."""
+    overrides = {"seed": request.seed}
+    if request.samples:
+        overrides["samples"] = request.samples
+    return Step(list(request.lights) if request.lights is not None else None, list(request.methods),
+                overrides, {}, request.map_size, {}, request.error_budget)
+
+
+def prepare_frame(scene, request: FrameRequest) -> FrameJob:
+    """Capture ``scene`` and plan the request's steps. Raises ValueError /
+    RuntimeError when the scene cannot be captured, :class:`NoCamera`
+    when it has no camera. ``job.steps`` is empty when no light is to be
+    computed (``job.notes`` says why for lights that were left out)."""
+    captured = capture_scene(scene, depsgraph=request.depsgraph, frame=request.frame,
+                             resolution=request.resolution, mode=request.mode)
+    if captured.camera is None:
+        raise NoCamera()
+    if not request.use_light_settings:
+        step = _uniform_step(request)
+        external, notes = external_producers(scene, captured, step.passes, request.in_render,
+                                             samples=request.samples or 64, seed=request.seed)
+        steps = [step]
+    else:
+        jobs, notes = _jobs(scene, captured, request)
+        all_passes = [p for j in jobs for p in j.passes]
+        external, ext_notes = external_producers(scene, captured, all_passes, request.in_render)
+        notes = notes + ext_notes
+        if "cycles" in all_passes and "cycles" not in external:
+            for j in jobs:
+                j.passes = [p for p in j.passes if p != "cycles"] or [resolve_method(None)]
+        steps = make_steps(jobs, request.per_light)
+    if request.threads is not None:
+        set_threads(request.threads)
+    return FrameJob(scene, captured, steps, external, notes, request.catch_errors, request.skip_deleted)
+
+
+def compute_frame(scene, request: FrameRequest, progress: Optional[Progress] = None) -> FrameJob:
+    """Capture, plan and run one frame: ``job.result()`` is its FrameResult,
+    ``job.notes`` / ``job.warnings`` what was left out and why."""
+    return prepare_frame(scene, request).run(progress)
+
+
+def no_light_reason(job: FrameJob) -> str:
+    """Why a job has no step: no lights at all, or none enabled."""
+    return "the scene has no lights" if not job.captured.lights else "no light has Penumbra enabled"
+
+
+# --------------------------------------------------------------------------
+# write-back and output folders
+def write_back(scene, result, build_nodes: bool = False) -> List[str]:
+    """Store the result's passes as images (and show them in the compositor
+    when ``build_nodes``); returns the image names."""
+    from . import compositor
+    from .images import store_images
+    names = store_images(result)
+    if build_nodes and result.lights:
+        passes = list(dict.fromkeys(p for lr in result.lights for p in lr.passes))
+        compositor.build_side_by_side(scene, {lr.name: lr.layer for lr in result.lights}, passes)
+    return names
+
+
+def check_out_dir(path: str) -> Tuple[Optional[str], Optional[str]]:
+    """(absolute folder, None) when ``path`` can be written to (created if
+    needed), else (None, a one-line reason)."""
+    if path.startswith("//") and not bpy.data.filepath:
+        return None, f"output folder {path!r} is relative to an unsaved file: save it or use an absolute path"
+    out = os.path.abspath(bpy.path.abspath(path))
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        return None, f"cannot create output folder {out}: {exc.strerror or exc}"
+    if not os.path.isdir(out) or not os.access(out, os.W_OK):
+        return None, f"output folder is not writable: {out}"
+    return out, None
+
+
+def render_output_folder(scene, frame: int) -> str:
+    """Where a render's frame files go: the scene's output folder if set, else
+    the render output's folder (a ``penumbra`` sub-folder if the render's
+    own file would have the name Penumbra's EXR has)."""
+    from ..core.output import output_paths
+    folder = settings.output_folder(scene)
+    if folder:
+        return folder
+    frame_path = bpy.path.abspath(scene.render.frame_path(frame=frame))
+    folder = os.path.dirname(frame_path) or os.getcwd()
+    if os.path.abspath(output_paths(folder, blend_stem(scene), frame)["exr"]) == os.path.abspath(frame_path):
+        folder = os.path.join(folder, "penumbra")
+    return folder
+
+
+def default_exr_path(scene) -> Optional[str]:
+    """``<output folder>/<stem>.<frame:04d>.exr`` (DESIGN.md naming) when the
+    scene has a Penumbra output folder."""
+    from ..core.output import output_paths
+    folder = settings.output_folder(scene)
+    if not folder:
+        return None
+    return output_paths(bpy.path.abspath(folder), blend_stem(scene), scene.frame_current)["exr"]
+
+
+def scaled_resolution(scene, scale: float = 1.0, max_side: int = 0) -> Tuple[int, int]:
+    """The scene's render resolution times ``scale``, the larger side at
+    most ``max_side`` (0: no limit)."""
+    w, h = render_resolution(scene)
+    s = float(scale)
+    if max_side and max(w, h) * s > max_side:
+        s = max_side / float(max(w, h))
+    return max(1, int(round(w * s))), max(1, int(round(h * s)))
