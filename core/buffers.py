@@ -83,9 +83,7 @@ class FrameBuffers:
         pts = self.receivers()
         if len(pts):
             if light.kind != "sun":
-                r = 0.5 * np.hypot(light.size, light.size_y) if light.kind == "area" else light.radius
-                c = light.position
-                pts = np.vstack([pts, (c - r)[None], (c + r)[None]])
+                pts = np.vstack([pts, *(b[None] for b in light.box())])
             local = float(np.max(pts.max(0) - pts.min(0)))
             if 0 < local < e:
                 e = local
@@ -118,13 +116,12 @@ class FrameBuffers:
         if light.kind == "sun":
             to_sun = -light.direction
             reach = 2.0 * self.scale
-            spread = np.tan(0.5 * min(light.angle, np.radians(179.0))) * reach
+            spread = light.sun_spread * reach
             far_lo, far_hi = lo + to_sun * reach - spread, hi + to_sun * reach + spread
             lo, hi = np.minimum(lo, far_lo), np.maximum(hi, far_hi)
         else:
-            r = 0.5 * np.hypot(light.size, light.size_y) if light.kind == "area" else light.radius
-            c = light.position
-            lo, hi = np.minimum(lo, c - r), np.maximum(hi, c + r)
+            blo, bhi = light.box()
+            lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
         lo, hi = lo - pad, hi + pad
         tlo = tris.min(axis=1)
         thi = tris.max(axis=1)

@@ -892,7 +892,7 @@ def precompute(buffers, light: Light, params: LayeredParams) -> Optional[LDI]:
                 insert_s += time.perf_counter() - t
     if light.kind == "sun":
         axis = -light.direction
-        ctr, reach = axis, math.sin(min(0.5 * light.angle, math.pi / 2)) + 1e-12
+        ctr, reach = axis, math.sin(light.sun_half_angle) + 1e-12
     else:
         ctr = light.position
         reach = float(np.linalg.norm(pts - ctr, axis=1).max(initial=0.0)) * (1 + 1e-9) + 1e-300

@@ -91,14 +91,13 @@ class ReferenceMaps:
 def reference_eyes(light: Light, ref_points: int = 4):
     """[(eye point, Light used for the faces)] - see the module docstring."""
     c = light.position
-    m = light.world_from_light
-    ax, ay, az = (m[:3, k] / np.linalg.norm(m[:3, k]) for k in range(3))
+    ax, ay, az = light.axes
     if light.is_zero_size:
         return [(c, light)]
     n = max(3, int(ref_points))
     if light.kind == "area":
-        hx, hy = 0.5 * light.size, 0.5 * light.size_y
-        if light.shape in ("SQUARE", "RECTANGLE"):
+        hx, hy = light.half_size
+        if not light.is_round:
             pts = [c + sx * hx * ax + sy * hy * ay for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
         else:
             pts = [c + hx * math.cos(2 * math.pi * k / n) * ax + hy * math.sin(2 * math.pi * k / n) * ay
@@ -108,7 +107,7 @@ def reference_eyes(light: Light, ref_points: int = 4):
         r = light.radius
         return [(c + s * r * a, light) for a in (ax, ay, az) for s in (1.0, -1.0)]
     # sun: boundary directions of the cone; each a rotated copy of the light
-    half = 0.5 * min(light.angle, math.pi)
+    half = light.sun_half_angle
     out = []
     for k in range(n):
         phi = 2 * math.pi * k / n

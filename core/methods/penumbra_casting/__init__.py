@@ -217,8 +217,7 @@ def _light_setup(light, params: PenumbraCastingParams, Pg: np.ndarray, tol: floa
     lp = sampling.pack_light(light)
     seed = int(params.seed)
     centre = light.position.astype(np.float64)
-    m = light.world_from_light
-    ax, ay, az = [m[:3, k] / np.linalg.norm(m[:3, k]) for k in range(3)]
+    ax, ay, az = light.axes
     DVg = np.zeros((G, MAXV, 4))
     DEg = np.zeros((G, MAXE, 2), np.int64)
     nvg = np.zeros(G, np.int64)
@@ -229,8 +228,9 @@ def _light_setup(light, params: PenumbraCastingParams, Pg: np.ndarray, tol: floa
     w0 = None
     if light.kind == "area":
         mode = MODE_SHARED if shared else MODE_FIXED
-        disk = light.shape in ("DISK", "ELLIPSE")
-        ex, ey = ax * (0.5 * light.size), ay * (0.5 * light.size_y)
+        disk = light.is_round
+        hx, hy = light.half_size
+        ex, ey = ax * hx, ay * hy
         full = disk_polygon(1.0) if disk else block_polygon_2d(0, 1, 0, 1, False)
         DVL, nvl, DEL, nel = polygon_to_homog(full, centre, ex, ey, 1.0, tol)
         for g in range(G):
