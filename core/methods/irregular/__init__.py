@@ -77,7 +77,7 @@ from .grid import (assign_faces, bin_entries_from_ranges, bin_quads, counting_so
                         edge_quads, penumbra_bins, penumbra_brute_force, rect_k,
                         triangle_ranges, umbra_bins, umbra_brute_force)
 from .mesh import classify, mesh_adjacency
-from ..base import AVERAGE, GBUFFER, Method, MethodResult, PhaseTimer
+from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 
 SINGLE_FACE_HALF_ANGLE = math.radians(60.0)   # as views.MAX_SINGLE_VIEW_HALF_ANGLE
 MAX_GRID_SIDE = 4096
@@ -412,7 +412,7 @@ class SoftIrregularShadowMapping(Method):
     id = "irregular"
     paper = "Johnson, Hunt, Hux, Mark, Burns, Junkins 2009"
     passes = {"irregular": AVERAGE}
-    needs = frozenset({GBUFFER})
+    needs = frozenset({GBUFFER, SHADOW_TRIANGLES})
     Params = IrregularParams
 
     def run(self, buffers, light, params: IrregularParams) -> MethodResult:
@@ -421,12 +421,9 @@ class SoftIrregularShadowMapping(Method):
         H, W = g.shape
         with timer("select"):
             idx, P, Nrm = g.hit_points()
-            sc = buffers.scene
-            mask = sc.tri_casts_shadow
-            tris = sc.triangles[mask]
-            tobj = sc.tri_object[mask]
+            tris, tobj = buffers.shadow_triangles
         V, _, _, stats = soft_irregular(P, Nrm, tris, tobj, light, params, buffers.scale, timer,
-                                        bounds=sc.bounds())
+                                        bounds=buffers.scene.bounds())
         out = np.ones(H * W, np.float32)
         out[idx] = V
         return MethodResult(passes={"irregular": out.reshape(H, W)}, time_s=timer.result(), stats=stats)
