@@ -45,6 +45,8 @@ import os
 from dataclasses import asdict, dataclass, field
 from typing import Dict, List, Mapping, Optional, Sequence
 
+from .scene import LIGHT_KINDS
+
 AVERAGE, IRRADIANCE = "average", "irradiance"
 #: RMSE against the reference of the same V definition. In the study, 0.05
 #: is met by the sampling methods at 64 samples on every scene (0.004-0.046)
@@ -61,7 +63,6 @@ HARD = {AVERAGE: "pcf", IRRADIANCE: "embree_irr"}
 REFERENCES = ("embree", "embree_irr")
 TABLE_FORMAT = "penumbra-auto-table/1"
 TABLE_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "auto_table.json")
-LIGHT_KINDS = ("area", "sphere", "sun")
 
 
 class TableError(ValueError):

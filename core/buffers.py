@@ -1,16 +1,28 @@
 """The buffers of one frame, each built once on first request and shared by
 every method (DESIGN.md: "the planner ... builds only those buffers, once").
 
-Build times are recorded per buffer so the JSON can report them as phases.
+``needs`` is a contract (Falcor's ``reflect()`` / ``execute()``): a method
+declares the buffers it reads (``Method.needs``), ``NEED_BUILDERS`` names the
+FrameBuffers members that build each, and ``FrameBuffers.view(needs)`` is all
+a method's ``run()`` gets: those members and the frame's inputs
+(``FRAME_INPUTS``); anything else raises ``UndeclaredBufferError``.
+
+Every build is timed once, whoever asks first, and remembers what it was
+built from; a method is billed the build times of the buffers it used and of
+what those were built from (``BufferView.phase_times``), so its phases do not
+depend on which method ran first. ``build_times`` sums them per buffer for
+the JSON's ``buffers_time_s``.
 """
 from __future__ import annotations
 
 import time
-from typing import Dict, Optional, Tuple
+from dataclasses import dataclass
+from typing import Dict, FrozenSet, Iterable, Optional, Set, Tuple
 
 import numpy as np
 
 from . import raycast, views
+from .methods.base import GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES
 from .scene import GBuffer, Light, LightView, Scene
 from .sampling import scene_scale
 
@@ -19,55 +31,138 @@ _FIT_POINTS = 1 << 16
 # a per-light culled BVH is built only when culling drops this share of casters
 CULL_MIN_FRACTION = 0.1
 
+#: need -> the FrameBuffers members a method that declares it may use
+NEED_BUILDERS: Dict[str, Tuple[str, ...]] = {
+    GBUFFER: ("gbuffer", "receivers", "light_extent"),
+    SHADOW_GEOMETRY: ("shadow_scene", "shadow_scene_for"),
+    SHADOW_TRIANGLES: ("shadow_triangles",),
+    LIGHT_VIEW: ("light_view",),
+    LIGHT_SAMPLE_VIEWS: ("sample_view",),
+}
+#: need -> the needs its buffers are built from (a light view is rendered on a
+#: shadow BVH and fitted to the G-buffer's receivers)
+NEED_BUILT_FROM: Dict[str, Tuple[str, ...]] = {
+    LIGHT_VIEW: (GBUFFER, SHADOW_GEOMETRY),
+    LIGHT_SAMPLE_VIEWS: (SHADOW_GEOMETRY,),
+}
+#: need -> the phase of a method's cost its build time is billed as (in this order)
+NEED_PHASE: Dict[str, str] = {
+    GBUFFER: "gbuffer",
+    SHADOW_GEOMETRY: "bvh",
+    LIGHT_VIEW: "light_view",
+    SHADOW_TRIANGLES: "shadow_triangles",
+    LIGHT_SAMPLE_VIEWS: "bvh",      # sample views are the method's own work, on the shared BVH
+}
+#: the frame's inputs (not buffers): every method sees them
+FRAME_INPUTS = ("scene", "width", "height", "map_size", "scale")
+
+
+class UndeclaredBufferError(RuntimeError):
+    """A method's ``run()`` used a buffer its ``needs`` do not declare."""
+
+
+@dataclass(frozen=True)
+class _Build:
+    seconds: float
+    phase: str                  # NEED_PHASE value it is billed as
+    built_from: Tuple[str, ...] # keys of the buffers it was built from
+
 
 class FrameBuffers:
+    """The frame's shared buffers, each built on first use (see the module
+    docstring); ``view(needs)`` is what a method's ``run()`` gets."""
+
     def __init__(self, scene: Scene, width: int, height: int, map_size: Optional[int] = None):
         self.scene = scene
         self.width = int(width)
         self.height = int(height)
         self.map_size = int(map_size or max(width, height))
         self.build_times: Dict[str, float] = {}
+        self._builds: Dict[str, _Build] = {}
+        self._used: Optional[Set[str]] = None     # the running view's record (``BufferView``)
         self._gbuffer: Optional[GBuffer] = None
         self._shadow: Optional[raycast.TriangleScene] = None
         self._camera_scene: Optional[raycast.TriangleScene] = None
-        self._views: Dict[Tuple[str, int], LightView] = {}
+        self._shadow_triangles: Optional[Tuple[np.ndarray, np.ndarray]] = None
+        self._views: Dict[Tuple[str, int, str], LightView] = {}   # (light, map size, key)
         self._culled: Dict[str, raycast.TriangleScene] = {}
+        self._bvh_key: Dict[str, str] = {}        # light -> key of the BVH its shadow rays use
         self.culling: Dict[str, Dict[str, int]] = {}
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
-    def _timed(self, key, fn):
+    def _timed(self, key: str, phase: str, fn, built_from: Iterable[str] = (), total: Optional[str] = None):
+        """Build ``key`` with ``fn``, timed: ``build_times[total or key]``
+        grows by the time, and the build is billed as ``phase``."""
         t = time.perf_counter()
         out = fn()
-        self.build_times[key] = self.build_times.get(key, 0.0) + time.perf_counter() - t
+        dt = time.perf_counter() - t
+        total = total or key
+        self.build_times[total] = self.build_times.get(total, 0.0) + dt
+        self._builds[key] = _Build(dt, phase, tuple(built_from))
+        return out
+
+    def _use(self, key: str) -> None:
+        if self._used is not None:
+            self._used.add(key)
+
+    def view(self, needs: Iterable[str], owner: str = "method") -> "BufferView":
+        """What ``owner``'s ``run()`` may see: the builders of ``needs``."""
+        return BufferView(self, needs, owner)
+
+    def billed(self, used: Iterable[str], needs: Iterable[str]) -> Dict[str, float]:
+        """Build times of the buffers ``used`` and of what they were built
+        from, summed per phase; every phase ``needs`` call for is present."""
+        closure = _closure((k for k in used if k in self._builds),
+                           lambda k: (d for d in self._builds[k].built_from if d in self._builds))
+        phases = {NEED_PHASE[n] for n in _with_sources(needs)} | {self._builds[k].phase for k in closure}
+        out = {p: 0.0 for p in dict.fromkeys(NEED_PHASE.values()) if p in phases}
+        for k in sorted(closure):
+            out[self._builds[k].phase] += self._builds[k].seconds
         return out
 
     # -- geometry ---------------------------------------------------------
     @property
     def shadow_scene(self) -> raycast.TriangleScene:
-        """Embree BVH of the triangles that cast shadows."""
+        """Embree BVH of the triangles that cast shadows (SHADOW_GEOMETRY)."""
         if self._shadow is None:
             self._shadow = self._timed(
-                "bvh_shadow", lambda: raycast.TriangleScene.from_scene(self.scene, self.scene.tri_casts_shadow))
+                "bvh_shadow", "bvh",
+                lambda: raycast.TriangleScene.from_scene(self.scene, self.scene.tri_casts_shadow))
+        self._use("bvh_shadow")
         return self._shadow
 
     @property
+    def shadow_triangles(self) -> Tuple[np.ndarray, np.ndarray]:
+        """(float32[T,3,3], int32[T]): the shadow-casting triangles and their
+        object ids, as captured (SHADOW_TRIANGLES: no BVH is built)."""
+        if self._shadow_triangles is None:
+            def select():
+                mask = self.scene.tri_casts_shadow
+                return self.scene.triangles[mask], self.scene.tri_object[mask]
+            self._shadow_triangles = self._timed("shadow_triangles", "shadow_triangles", select)
+        self._use("shadow_triangles")
+        return self._shadow_triangles
+
+    @property
     def camera_scene(self) -> raycast.TriangleScene:
+        """Embree BVH of the triangles the camera sees (the G-buffer's)."""
         if self._camera_scene is None:
             mask = self.scene.tri_visible_camera
-            if mask.all() and self._shadow is not None and self.scene.tri_casts_shadow.all():
-                self._camera_scene = self._shadow
-            else:
-                self._camera_scene = self._timed(
-                    "bvh_camera", lambda: raycast.TriangleScene.from_scene(self.scene, mask))
+            self._camera_scene = self._timed(
+                "bvh_camera", "gbuffer", lambda: raycast.TriangleScene.from_scene(self.scene, mask))
+        self._use("bvh_camera")
         return self._camera_scene
 
     @property
     def gbuffer(self) -> GBuffer:
+        """The camera G-buffer at pixel centres (GBUFFER)."""
         if self._gbuffer is None:
             cs = self.camera_scene
             self._gbuffer = self._timed(
-                "gbuffer", lambda: raycast.camera_gbuffer(self.scene, self.width, self.height, cs))
+                "gbuffer", "gbuffer", lambda: raycast.camera_gbuffer(self.scene, self.width, self.height, cs),
+                built_from=("bvh_camera",))
+        self._use("gbuffer")
         return self._gbuffer
 
     def light_extent(self, light: Light) -> float:
@@ -83,9 +178,7 @@ class FrameBuffers:
         pts = self.receivers()
         if len(pts):
             if light.kind != "sun":
-                r = 0.5 * np.hypot(light.size, light.size_y) if light.kind == "area" else light.radius
-                c = light.position
-                pts = np.vstack([pts, (c - r)[None], (c + r)[None]])
+                pts = np.vstack([pts, *(b[None] for b in light.box())])
             local = float(np.max(pts.max(0) - pts.min(0)))
             if 0 < local < e:
                 e = local
@@ -118,13 +211,12 @@ class FrameBuffers:
         if light.kind == "sun":
             to_sun = -light.direction
             reach = 2.0 * self.scale
-            spread = np.tan(0.5 * min(light.angle, np.radians(179.0))) * reach
+            spread = light.sun_spread * reach
             far_lo, far_hi = lo + to_sun * reach - spread, hi + to_sun * reach + spread
             lo, hi = np.minimum(lo, far_lo), np.maximum(hi, far_hi)
         else:
-            r = 0.5 * np.hypot(light.size, light.size_y) if light.kind == "area" else light.radius
-            c = light.position
-            lo, hi = np.minimum(lo, c - r), np.maximum(hi, c + r)
+            blo, bhi = light.box()
+            lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
         lo, hi = lo - pad, hi + pad
         tlo = tris.min(axis=1)
         thi = tris.max(axis=1)
@@ -141,19 +233,24 @@ class FrameBuffers:
             kept = int(mask.sum())
             self.culling[light.name] = {"casters": casts, "kept": kept}
             if casts and kept <= (1.0 - CULL_MIN_FRACTION) * casts:
+                key = f"bvh_culled:{light.name}"
                 self._culled[light.name] = self._timed(
-                    f"bvh_culled:{light.name}", lambda: raycast.TriangleScene.from_scene(self.scene, mask))
+                    key, "bvh", lambda: raycast.TriangleScene.from_scene(self.scene, mask), built_from=("gbuffer",))
             else:
+                key = "bvh_shadow"
                 self._culled[light.name] = self.shadow_scene
+            self._bvh_key[light.name] = key
+        self._use(self._bvh_key[light.name])
         return self._culled[light.name]
 
     # -- light views -------------------------------------------------------
     def light_view(self, light: Light, map_size: Optional[int] = None,
                    eye: Optional[np.ndarray] = None, key: str = "centre") -> LightView:
         """Depth + object-id maps of ``light`` from ``eye`` (default its centre),
-        fitted to the visible receivers."""
+        fitted to the visible receivers (LIGHT_VIEW), one per (map size, key)."""
         ms = int(map_size or self.map_size)
         k = (light.name, ms, key)
+        name = f"light_view:{light.name}:{ms}:{key}"
         if k not in self._views:
             def build():
                 faces = views.light_view_faces(light, self.receivers(), self.scene.bounds(), ms, eye)
@@ -161,5 +258,78 @@ class FrameBuffers:
                 return raycast.render_light_view(faces, occ, self.scene.tri_object, e)
             self.receivers()              # build the G-buffer outside this phase's timer
             occ = self.shadow_scene_for(light)
-            self._views[k] = self._timed(f"light_view:{light.name}", build)
+            self._views[k] = self._timed(name, "light_view", build, total=f"light_view:{light.name}",
+                                         built_from=("gbuffer", self._bvh_key[light.name]))
+        self._use(name)
         return self._views[k]
+
+    def sample_view(self, faces, eye: np.ndarray) -> LightView:
+        """Depth + object-id maps through ``faces`` from ``eye``, a point on
+        the light (LIGHT_SAMPLE_VIEWS), rendered on the shared shadow BVH.
+        Not kept: each method picks its own samples and faces, and times the
+        rendering as its own phase. Build ``shadow_scene`` first when calling
+        this from several threads."""
+        return raycast.render_light_view(faces, self.shadow_scene, self.scene.tri_object, eye)
+
+
+def _closure(start: Iterable[str], edges) -> FrozenSet[str]:
+    """``start`` and everything reachable from it along ``edges(node)``."""
+    out, todo = set(), list(start)
+    while todo:
+        n = todo.pop()
+        if n not in out:
+            out.add(n)
+            todo.extend(edges(n))
+    return frozenset(out)
+
+
+def _with_sources(needs: Iterable[str]) -> FrozenSet[str]:
+    """``needs`` and the needs their buffers are built from (NEED_BUILT_FROM)."""
+    return _closure(needs, lambda n: NEED_BUILT_FROM.get(n, ()))
+
+
+_NEED_OF_MEMBER = {m: n for n, members in NEED_BUILDERS.items() for m in members}
+
+
+class BufferView:
+    """What one method's ``run()`` sees of the frame's buffers: the members
+    NEED_BUILDERS lists for its ``needs`` and the FRAME_INPUTS; any other
+    buffer raises UndeclaredBufferError. Used as a context manager it records
+    which buffers the method used (``used``), whoever built them, so
+    ``phase_times`` bills it their build times."""
+
+    def __init__(self, buffers: FrameBuffers, needs: Iterable[str], owner: str = "method"):
+        needs = frozenset(needs)
+        unknown = sorted(needs - set(NEED_BUILDERS))
+        if unknown:
+            raise ValueError(f"{owner}: no buffer builds the need(s) {', '.join(unknown)}")
+        self._buffers = buffers
+        self._owner = owner
+        self.needs = needs
+        self._members = {m for n in needs for m in NEED_BUILDERS[n]}
+        self.used: Set[str] = set()
+
+    def __getattr__(self, name):
+        if name in FRAME_INPUTS or name in self._members:
+            return getattr(self._buffers, name)
+        need = _NEED_OF_MEMBER.get(name)
+        if need is not None:
+            raise UndeclaredBufferError(
+                f"{self._owner} uses FrameBuffers.{name} without declaring {need!r} in its needs")
+        raise UndeclaredBufferError(f"{self._owner} uses FrameBuffers.{name}, which no need exposes "
+                                    f"(needs: {', '.join(sorted(NEED_BUILDERS))}; "
+                                    f"inputs: {', '.join(FRAME_INPUTS)})")
+
+    def __enter__(self):
+        if self._buffers._used is not None:
+            raise RuntimeError("one method runs on a FrameBuffers at a time")
+        self._buffers._used = self.used
+        return self
+
+    def __exit__(self, *exc):
+        self._buffers._used = None
+        return False
+
+    def phase_times(self) -> Dict[str, float]:
+        """Seconds per buffer phase billed to this method (FrameBuffers.billed)."""
+        return self._buffers.billed(self.used, self.needs)

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import methods as method_registry
 from .buffers import FrameBuffers
-from .methods.base import AVERAGE, GBUFFER, IRRADIANCE, LIGHT_VIEW, SHADOW_GEOMETRY, params_dict
+from .methods.base import AVERAGE, IRRADIANCE, params_dict
 from .metrics import errors, reach_mask
 from .planner import Plan, make_plan, refine_with_receivers
 from .scene import Scene
@@ -50,19 +50,6 @@ class FrameResult:
             "total_time_s": round(self.total_s, 6),
             "lights": [{"name": lr.name, "layer": lr.layer, "methods": lr.record} for lr in self.lights],
         }
-
-
-def _buffer_phases(buffers: FrameBuffers, needs, light) -> Dict[str, float]:
-    """Build times of the shared buffers a method needs, as phases of its cost."""
-    bt = buffers.build_times
-    out = {}
-    if GBUFFER in needs:
-        out["gbuffer"] = bt.get("gbuffer", 0.0) + bt.get("bvh_camera", 0.0)
-    if SHADOW_GEOMETRY in needs or LIGHT_VIEW in needs:
-        out["bvh"] = bt.get("bvh_shadow", 0.0)
-    if LIGHT_VIEW in needs:
-        out["light_view"] = bt.get(f"light_view:{light.name}", 0.0)
-    return out
 
 
 def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
@@ -120,8 +107,9 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
             ov = dict(overrides or {})
             ov.update((method_overrides or {}).get(prod_id, {}))
             params = m.make_params(ov)
-            res = m.run(buffers, light, params)
-            phases = _buffer_phases(buffers, m.needs, light)
+            with buffers.view(m.needs, m.id) as view:   # run() sees only what it declared
+                res = m.run(view, light, params)
+            phases = view.phase_times()       # the buffers it used, whoever built them
             phases.update({k2: v for k2, v in res.time_s.items() if k2 != "total"})
             phases = {k2: round(v, 6) for k2, v in phases.items()}
             phases["total"] = round(sum(phases.values()), 6)

@@ -25,7 +25,7 @@ def reach_mask(g: GBuffer, light: Light) -> np.ndarray:
     c = light.position
     if light.kind == "sun":
         to_sun = -light.direction
-        sin_half = math.sin(0.5 * min(light.angle, math.pi))
+        sin_half = math.sin(light.sun_half_angle)
         return ok & ((n @ to_sun) > -sin_half)
     d = c - P
     dist = np.linalg.norm(d, axis=-1)
@@ -35,14 +35,14 @@ def reach_mask(g: GBuffer, light: Light) -> np.ndarray:
         ok &= np.einsum("...i,...i->...", n, d) / dist > -sin_half
         if light.is_spot:
             cosang = -(np.einsum("...i,...i->...", d, light.direction)) / dist
-            ok &= cosang >= math.cos(0.5 * light.spot_size)
+            ok &= cosang >= light.spot_cos
         return ok
     # area: in front of the emitting side and some boundary point above the tangent plane
     m = light.world_from_light
     ax, ay, az = m[:3, 0], m[:3, 1], m[:3, 2]
     ok &= ((P - c) @ (-az)) > 0
-    hx, hy = 0.5 * light.size, 0.5 * light.size_y
-    if light.shape in ("DISK", "ELLIPSE"):
+    hx, hy = light.half_size
+    if light.is_round:
         ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
         pts = [c + ax * hx * math.cos(a) + ay * hy * math.sin(a) for a in ang]
     else:

@@ -16,31 +16,27 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .scene import Light
+from .scene import KIND_AREA, KIND_SPHERE, KIND_SUN, Light  # noqa: F401 (kernels' kind codes)
 
 # packed light layout (float64[24]) for kernels
 L_KIND, L_CX, L_AX, L_AY, L_AZ, L_HX, L_HY, L_SHAPE, L_RADIUS, L_COSMAX, L_SPOTCOS = \
     0, 1, 4, 7, 10, 13, 14, 15, 16, 17, 18
-KIND_AREA, KIND_SPHERE, KIND_SUN = 0, 1, 2
 
 
 def pack_light(light: Light) -> np.ndarray:
     """float64[24]: kind, centre(3), local X, Y, Z axes (unit), half sizes,
     shape (0 rectangle, 1 ellipse), radius, cos of the sun cone half-angle,
     cos of the spot cone half-angle."""
-    m = light.world_from_light
     out = np.zeros(24, np.float64)
-    out[L_KIND] = {"area": KIND_AREA, "sphere": KIND_SPHERE, "sun": KIND_SUN}[light.kind]
-    out[L_CX:L_CX + 3] = m[:3, 3]
-    for k, off in enumerate((L_AX, L_AY, L_AZ)):
-        a = m[:3, k]
-        out[off:off + 3] = a / np.linalg.norm(a)
-    out[L_HX] = 0.5 * light.size
-    out[L_HY] = 0.5 * light.size_y
-    out[L_SHAPE] = 1.0 if light.shape in ("DISK", "ELLIPSE") else 0.0
+    out[L_KIND] = light.kind_code
+    out[L_CX:L_CX + 3] = light.position
+    for a, off in zip(light.axes, (L_AX, L_AY, L_AZ)):
+        out[off:off + 3] = a
+    out[L_HX], out[L_HY] = light.half_size
+    out[L_SHAPE] = 1.0 if light.is_round else 0.0
     out[L_RADIUS] = light.radius
-    out[L_COSMAX] = math.cos(0.5 * min(light.angle, math.pi))
-    out[L_SPOTCOS] = math.cos(0.5 * min(light.spot_size, math.pi))
+    out[L_COSMAX] = light.sun_cos_max
+    out[L_SPOTCOS] = light.spot_cos
     return out
 
 

@@ -12,13 +12,19 @@ Conventions
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import List, Optional, Tuple
 
 import numpy as np
 
 LIGHT_KINDS = ("area", "sphere", "sun")
+#: ``Light.kind_code``: a kind's index in LIGHT_KINDS, the code Numba kernels branch on
+KIND_AREA, KIND_SPHERE, KIND_SUN = 0, 1, 2
 AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
+#: a sun's angle is clamped below a hemisphere where its spread per unit
+#: distance, tan(angle / 2), must stay finite (``Light.sun_spread``)
+SUN_MAX_SPREAD_ANGLE = math.radians(179.0)
 
 
 @dataclass
@@ -77,6 +83,12 @@ class Light:
         ``spot_size`` (full cone angle, radians) < pi makes it a spot.
       * ``sun``    - directions uniform in the cone of full angle ``angle``
         around the local -Z.
+
+    Each kind answers for itself what the methods need of it (pbrt-v4's
+    light interface): ``axes``, ``half_size``, ``is_round``,
+    ``bounding_radius`` / ``box()`` of the emitting shape, the sun's cone
+    (``sun_half_angle``, ``sun_cos_max``, ``sun_spread``), the spot's cone
+    (``spot_half_angle``, ``spot_cos``), ``is_zero_size`` and ``kind_code``.
     """
 
     name: str
@@ -114,8 +126,78 @@ class Light:
         return d / np.linalg.norm(d)
 
     @property
+    def kind_code(self) -> int:
+        """KIND_AREA | KIND_SPHERE | KIND_SUN: the kind as kernels see it."""
+        return LIGHT_KINDS.index(self.kind)
+
+    @property
+    def axes(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The light's local X, Y, Z axes in world space, unit length (an area
+        light's sides run along X and Y; it emits along -Z)."""
+        m = self.world_from_light
+        return tuple(m[:3, k] / np.linalg.norm(m[:3, k]) for k in range(3))
+
+    @property
+    def half_size(self) -> Tuple[float, float]:
+        """An area light's half extents along its local X and Y."""
+        return 0.5 * self.size, 0.5 * self.size_y
+
+    @property
+    def is_round(self) -> bool:
+        """An area light whose shape is a disk or an ellipse (else a rectangle)."""
+        return self.kind == "area" and self.shape in ("DISK", "ELLIPSE")
+
+    @property
+    def bounding_radius(self) -> float:
+        """Radius of the ball around ``position`` that holds every emitting
+        point: an area light's half diagonal (a disk's or an ellipse's too:
+        that of the rectangle around it), a sphere light's radius. A sun has
+        no position: ``inf``."""
+        if self.kind == "area":
+            return float(0.5 * np.hypot(self.size, self.size_y))
+        if self.kind == "sphere":
+            return float(self.radius)
+        return math.inf
+
+    def box(self) -> Tuple[np.ndarray, np.ndarray]:
+        """(lo, hi): the axis-aligned box around the emitting points (a box
+        around the ball of ``bounding_radius``). Not for a sun."""
+        if self.kind == "sun":
+            raise ValueError(f"light {self.name!r}: a sun has no box")
+        c, r = self.position, self.bounding_radius
+        return c - r, c + r
+
+    @property
+    def sun_half_angle(self) -> float:
+        """Half-angle of a sun's cone of directions, at most a hemisphere."""
+        return 0.5 * min(self.angle, math.pi)
+
+    @property
+    def sun_cos_max(self) -> float:
+        """Cosine of ``sun_half_angle``: the cap directions are sampled in."""
+        return math.cos(self.sun_half_angle)
+
+    @property
+    def sun_spread(self) -> float:
+        """tan of a sun's half-angle, the angle clamped at SUN_MAX_SPREAD_ANGLE:
+        how far its penumbra widens per unit distance from the blocker (finite)."""
+        half = 0.5 * min(self.angle, SUN_MAX_SPREAD_ANGLE)
+        return math.tan(half) if half > 0 else 0.0
+
+    @property
     def is_spot(self) -> bool:
         return self.kind == "sphere" and self.spot_size < np.pi - 1e-6
+
+    @property
+    def spot_half_angle(self) -> float:
+        """Half-angle of a spot's cone (pi / 2 for a light without one)."""
+        return 0.5 * min(self.spot_size, math.pi)
+
+    @property
+    def spot_cos(self) -> float:
+        """Cosine of ``spot_half_angle``: points with a smaller cosine to the
+        axis are outside the cone."""
+        return math.cos(self.spot_half_angle)
 
     @property
     def extent(self) -> float:

@@ -245,7 +245,7 @@ def light_view_faces(light: Light, receivers: np.ndarray, scene_bounds, map_size
         origin = center - fwd * (diag + 1e-6 * diag)   # every caster lies in front
         vfw = view_from_world(rot, origin)
         p = receivers @ vfw[:3, :3].T + vfw[:3, 3]
-        pad = math.tan(0.5 * min(light.angle, math.radians(179))) * diag
+        pad = light.sun_spread * diag
         l, r = _padded(p[:, 0].min() - pad, p[:, 0].max() + pad, FIT_MARGIN)
         b, t = _padded(p[:, 1].min() - pad, p[:, 1].max() + pad, FIT_MARGIN)
         eps = 1e-6 * diag
@@ -266,9 +266,9 @@ def light_view_faces(light: Light, receivers: np.ndarray, scene_bounds, map_size
         use_single = front.any() and (cosang[front].min() >= math.cos(MAX_SINGLE_VIEW_HALF_ANGLE))
         rec = receivers[front] if front.any() else receivers
     elif light.is_spot:
-        inside = cosang >= math.cos(min(light.spot_size * 0.5, math.pi / 2 - 1e-3) + 1e-3)
+        inside = cosang >= math.cos(min(light.spot_half_angle, math.pi / 2 - 1e-3) + 1e-3)
         rec = receivers[inside] if inside.any() else receivers[:0]
-        use_single = light.spot_size * 0.5 <= MAX_SINGLE_VIEW_HALF_ANGLE or (
+        use_single = light.spot_half_angle <= MAX_SINGLE_VIEW_HALF_ANGLE or (
             len(rec) > 0 and (rec - eye) @ fwd / np.maximum(np.linalg.norm(rec - eye, axis=1), 1e-300)
             >= math.cos(MAX_SINGLE_VIEW_HALF_ANGLE)).all()
     else:

@@ -3,7 +3,8 @@
 A method names the buffers it needs (``needs``), the passes it writes
 (``passes``, each with its kind of V), and its parameters as a dataclass whose
 field names are the paper's. The planner unions the needs of the chosen
-methods and builds each buffer once (``core/buffers.py``).
+methods and builds each buffer once (``core/buffers.py``); ``run()`` sees
+only the buffers its needs declare (``buffers.NEED_BUILDERS``).
 """
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ from typing import Dict, FrozenSet, Mapping, Optional, Tuple
 
 import numpy as np
 
-# buffer names a method can ask for
+# buffer names a method can ask for (each built by FrameBuffers: buffers.NEED_BUILDERS)
 GBUFFER = "gbuffer"                 # camera G-buffer at pixel centres
 LIGHT_VIEW = "light_view"           # depth + object-id map(s) from the light centre
 SHADOW_GEOMETRY = "shadow_geometry" # Embree BVH of the shadow-casting triangles
+SHADOW_TRIANGLES = "shadow_triangles"  # the shadow-casting triangles themselves (no BVH)
 LIGHT_SAMPLE_VIEWS = "light_sample_views"  # depth maps from N points on the light
 
 AVERAGE = "average"        # Agrawala et al. equation 2
@@ -42,6 +44,8 @@ class Method:
     physical: bool = False                  # claims to converge to the reference
 
     def run(self, buffers, light, params) -> MethodResult:  # pragma: no cover - abstract
+        """``buffers``: the frame's ``FrameBuffers``, or the view of it that
+        shows only ``needs`` (``FrameBuffers.view``, what ``render_frame`` passes)."""
         raise NotImplementedError
 
     # helpers -------------------------------------------------------------

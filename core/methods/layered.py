@@ -6,7 +6,7 @@ Precompute (section 4, "procedure Precompute"):
        stratified, jittered points on the light's real shape -- one set for
        every pixel, as the paper does (``sampling.light_sample_set`` +
        ``sampling.light_sample``) -- each rendered as a depth + object-id map
-       by the skeleton's Embree renderer (``raycast.render_light_view``),
+       by the skeleton's Embree renderer (``FrameBuffers.sample_view``),
        looking the way the view from the light's centre looks;
   5.   each map warped into the view from the light's centre: for a planar
        (area) light whose centre view is one perspective face parallel to
@@ -116,7 +116,7 @@ Lights other than a planar area light (DESIGN.md light domains):
     receivers behind the sample's image plane) gets a view fitted from the
     sample point and the projective warp.
 
-Cost: the precompute renders the N maps (Embree) on ``RENDER_WORKERS``
+Cost: the precompute renders the N maps (Embree) on ``render_workers``
 threads ahead of the main thread, which warps and inserts each (Numba,
 serial, in sample order so the LDI is the same for any thread count); the
 display is one parallel pass over the camera pixels and does not depend on
@@ -138,7 +138,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .. import raycast, sampling, views
+from .. import sampling, views
 from ..kernels import face_project, pick_face
 from ..sampling import concentric_disk, light_sample, rand01
 from ..scene import Light, ViewFace
@@ -154,7 +154,6 @@ FOOTPRINT_OVERLAP = 0.02     # footprints reach this much past half a step: no c
 LAYERS_START = 8             # initial per-pixel layer capacity (grows on demand)
 PAD_TEXELS = 2               # texels of a sample map beyond the receivers it must see
 PAD_CAP = 1.0                # at most this many map sizes of padding per side (else a fitted view)
-RENDER_WORKERS = None        # threads rendering sample maps ahead (None: Numba's thread count - 1, >= 1)
 
 
 @dataclass
@@ -794,9 +793,12 @@ def _sample_plans(light: Light, centre: List[ViewFace], receivers, bounds, map_s
     return plans, "projective"
 
 
-def precompute(buffers, light: Light, params: LayeredParams) -> Optional[LDI]:
+def precompute(buffers, light: Light, params: LayeredParams,
+               render_workers: Optional[int] = None) -> Optional[LDI]:
     """Procedure Precompute: the LDI with per-layer counts from N light samples
-    (None when no visible receiver lies in the light's view)."""
+    (None when no visible receiver lies in the light's view). ``render_workers``
+    threads render sample maps ahead (None: Numba's thread count - 1, at least
+    1; 0: rendered in the main thread, in turn)."""
     if params.splat not in ("neighbours", "footprint"):
         raise ValueError(f"layered: unknown splat {params.splat!r} (neighbours | footprint)")
     if params.warp not in ("auto", "projective"):
@@ -823,16 +825,15 @@ def precompute(buffers, light: Light, params: LayeredParams) -> Optional[LDI]:
     ldi_n = np.zeros(npix, np.int32)
     cfaces = np.ascontiguousarray(np.stack([f.packed() for f in centre]))
     footprint = params.splat == "footprint"
-    tri_scene = buffers.shadow_scene
-    tri_object = scene.tri_object
+    buffers.shadow_scene      # built here, not in the render threads
 
     def render(i):
         faces, eye, _, _ = plans[i]
         t = time.perf_counter()
-        lv = raycast.render_light_view(faces, tri_scene, tri_object, eye)
+        lv = buffers.sample_view(faces, eye)
         return lv, time.perf_counter() - t
 
-    workers = RENDER_WORKERS if RENDER_WORKERS is not None else max(1, numba.get_num_threads() - 1)
+    workers = render_workers if render_workers is not None else max(1, numba.get_num_threads() - 1)
     render_s = 0.0
     insert_s = 0.0
     by_n: Dict[str, float] = {}
@@ -892,7 +893,7 @@ def precompute(buffers, light: Light, params: LayeredParams) -> Optional[LDI]:
                 insert_s += time.perf_counter() - t
     if light.kind == "sun":
         axis = -light.direction
-        ctr, reach = axis, math.sin(min(0.5 * light.angle, math.pi / 2)) + 1e-12
+        ctr, reach = axis, math.sin(light.sun_half_angle) + 1e-12
     else:
         ctr = light.position
         reach = float(np.linalg.norm(pts - ctr, axis=1).max(initial=0.0)) * (1 + 1e-9) + 1e-300

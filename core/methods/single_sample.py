@@ -709,12 +709,12 @@ def pack_params(params: SingleSampleParams, light, hard_only: bool, coord_mag: f
     prm[P_BIAS] = max(float(params.bias_texels), 0.0)
     prm[P_RATIO] = 1.0 if params.blocker == "ratio" else 0.0
     prm[P_SEED] = float(int(params.seed) & 0x7FFFFFFF)
-    prm[P_KIND] = {"area": 0.0, "sphere": 1.0, "sun": 2.0}[light.kind]
+    prm[P_KIND] = light.kind_code
     prm[P_RADIUS] = float(light.radius)
-    prm[P_SUNTAN] = math.tan(0.5 * min(float(light.angle), math.radians(179.0)))
+    prm[P_SUNTAN] = light.sun_spread
     if params.ramp not in ("slope", "extent"):
         raise ValueError(f"single_sample: ramp must be 'slope' or 'extent', not {params.ramp!r}")
-    rect = light.kind == "area" and light.shape in ("SQUARE", "RECTANGLE")
+    rect = light.kind == "area" and not light.is_round
     if params.ramp == "extent":          # the ramp spans the whole penumbra
         prm[P_NORM] = 1.0 if rect else 0.0
         prm[P_GSCALE] = 1.0
@@ -733,14 +733,13 @@ def face_info(lv, light) -> np.ndarray:
     nearest finite depth in the face (the nearest possible blocker)."""
     F = len(lv.faces)
     out = np.zeros((F, 8), np.float64)
-    m = light.world_from_light
-    ax = m[:3, 0] / np.linalg.norm(m[:3, 0])
-    ay = m[:3, 1] / np.linalg.norm(m[:3, 1])
+    ax, ay, _ = light.axes
+    hx, hy = light.half_size
     for k, face in enumerate(lv.faces):
         R = np.asarray(face.view_from_world, np.float64)[:3, :3]
         if light.kind == "area":
-            out[k, 0:3] = R @ ax * 0.5 * light.size
-            out[k, 3:6] = R @ ay * 0.5 * light.size_y
+            out[k, 0:3] = R @ ax * hx
+            out[k, 3:6] = R @ ay * hy
         d = lv.depth[k]
         fin = d[np.isfinite(d)]
         out[k, 6] = float(fin.min()) if fin.size else np.inf

@@ -114,8 +114,8 @@ from .coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M
                              absorb, begin_point, blocker_capacity, finish_point)
 from .maps import ReferenceMaps, build_reference_maps
 from .trace import LN, MAXI, trace_ray
-from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method,
-                   MethodResult, PhaseTimer)
+from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, SHADOW_TRIANGLES,
+                   Method, MethodResult, PhaseTimer)
 
 
 @dataclass
@@ -437,11 +437,12 @@ def camera_footprint(buffers) -> np.ndarray:
     return np.where(np.isfinite(d), d * per, 0.0)
 
 
-def casters_box(scene, scale):
-    m = scene.tri_casts_shadow
-    if not m.any():
+def casters_box(casters, scale):
+    """Box around the finite vertices of the shadow-casting triangles
+    ``casters``, padded (None when there are none)."""
+    if not len(casters):
         return None
-    v = scene.triangles[m].reshape(-1, 3).astype(np.float64)
+    v = casters.reshape(-1, 3).astype(np.float64)
     v = v[np.isfinite(v).all(1)]
     if not len(v):
         return None
@@ -460,7 +461,7 @@ class DepthRaytrace(Method):
     id = "depth_raytrace"
     paper = "Agrawala, Ramamoorthi, Heirich, Moll 2000, section 5"
     passes = {"depth_raytrace": AVERAGE, "depth_raytrace_irr": IRRADIANCE}
-    needs = frozenset({GBUFFER, SHADOW_GEOMETRY, LIGHT_SAMPLE_VIEWS})
+    needs = frozenset({GBUFFER, SHADOW_GEOMETRY, SHADOW_TRIANGLES, LIGHT_SAMPLE_VIEWS})
     Params = DepthRaytraceParams
     physical = True
 
@@ -481,7 +482,7 @@ class DepthRaytrace(Method):
         S = max(1, int(params.subgrid))
         stats: Dict[str, object] = {"samples": C, "strata": [nx, ny], "pixels": int(len(idx)),
                                     "tracer": params.tracer, "coherence": coherent}
-        box = casters_box(buffers.scene, buffers.scale)
+        box = casters_box(buffers.shadow_triangles[0], buffers.scale)
         if len(idx) == 0 or box is None:
             stats["rays_per_pixel"] = 0.0
             return MethodResult({"depth_raytrace": out_a.reshape(H, W),

@@ -19,7 +19,7 @@
     - a light of size zero: its centre (hard shadows).
 
 * Each eye's faces come from ``views.light_view_faces`` and are rendered with
-  the skeleton's Embree depth renderer ``raycast.render_light_view``. The
+  the skeleton's Embree depth renderer ``FrameBuffers.sample_view``. The
   window is fitted to the visible receivers *and* to the shadow-casting
   vertices inside the bounding box of receivers and light: an occluder the
   camera does not see (off screen, hidden) still has to be in the map for the
@@ -55,7 +55,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from ... import raycast, views
+from ... import views
 from ...scene import Light, ViewFace
 
 # packed face layout: ViewFace.packed() (24) then these
@@ -91,14 +91,13 @@ class ReferenceMaps:
 def reference_eyes(light: Light, ref_points: int = 4):
     """[(eye point, Light used for the faces)] - see the module docstring."""
     c = light.position
-    m = light.world_from_light
-    ax, ay, az = (m[:3, k] / np.linalg.norm(m[:3, k]) for k in range(3))
+    ax, ay, az = light.axes
     if light.is_zero_size:
         return [(c, light)]
     n = max(3, int(ref_points))
     if light.kind == "area":
-        hx, hy = 0.5 * light.size, 0.5 * light.size_y
-        if light.shape in ("SQUARE", "RECTANGLE"):
+        hx, hy = light.half_size
+        if not light.is_round:
             pts = [c + sx * hx * ax + sy * hy * ay for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
         else:
             pts = [c + hx * math.cos(2 * math.pi * k / n) * ax + hy * math.sin(2 * math.pi * k / n) * ay
@@ -108,7 +107,7 @@ def reference_eyes(light: Light, ref_points: int = 4):
         r = light.radius
         return [(c + s * r * a, light) for a in (ax, ay, az) for s in (1.0, -1.0)]
     # sun: boundary directions of the cone; each a rotated copy of the light
-    half = 0.5 * min(light.angle, math.pi)
+    half = light.sun_half_angle
     out = []
     for k in range(n):
         phi = 2 * math.pi * k / n
@@ -293,9 +292,9 @@ def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
                          gap_abs: Optional[float], gap_texels: float,
                          threads: Optional[int] = None) -> ReferenceMaps:
     scene = buffers.scene
-    tri_scene = buffers.shadow_scene
+    buffers.shadow_scene      # built here, not in the render threads
     eyes = reference_eyes(light, ref_points)
-    casters = scene.triangles[scene.tri_casts_shadow].reshape(-1, 3).astype(np.float64)
+    casters = buffers.shadow_triangles[0].reshape(-1, 3).astype(np.float64)
     pts = fit_points(buffers, light, casters)
     bounds = scene.bounds()
     face_lists = [[_overlapping(f) for f in views.light_view_faces(lt, pts, bounds, map_size, eye)]
@@ -303,7 +302,7 @@ def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
 
     def render(k):
         eye, _ = eyes[k]
-        return raycast.render_light_view(face_lists[k], tri_scene, scene.tri_object, eye)
+        return buffers.sample_view(face_lists[k], eye)
 
     workers = max(1, min(len(eyes), int(threads or numba.get_num_threads())))
     if workers > 1:

@@ -77,7 +77,7 @@ from .grid import (assign_faces, bin_entries_from_ranges, bin_quads, counting_so
                         edge_quads, penumbra_bins, penumbra_brute_force, rect_k,
                         triangle_ranges, umbra_bins, umbra_brute_force)
 from .mesh import classify, mesh_adjacency
-from ..base import AVERAGE, GBUFFER, Method, MethodResult, PhaseTimer
+from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 
 SINGLE_FACE_HALF_ANGLE = math.radians(60.0)   # as views.MAX_SINGLE_VIEW_HALF_ANGLE
 MAX_GRID_SIDE = 4096
@@ -134,17 +134,16 @@ LINE_ASPECT = 1e-6
 
 def light_model(light, rect_kernel: bool = True) -> LightModel:
     if light.kind == "sun":
-        half = 0.5 * min(float(light.angle), math.radians(179.0))
-        return LightModel(True, SHAPE_DISK, -light.direction, math.tan(half) if half > 0 else 0.0,
+        return LightModel(True, SHAPE_DISK, -light.direction, light.sun_spread,
                           approx="gnomonic disk treated as uniform")
     c = light.position
     if light.kind == "sphere":
         return LightModel(False, SHAPE_DISK, c, float(light.radius))
-    hx, hy = 0.5 * float(light.size), 0.5 * float(light.size_y)
+    hx, hy = light.half_size
     # a line light (one side 0): a rectangle / ellipse of relative width
     # LINE_ASPECT, so the kernels' divisions by the half sizes stay finite
     hx, hy = max(hx, LINE_ASPECT * hy), max(hy, LINE_ASPECT * hx)
-    if light.shape in ("DISK", "ELLIPSE"):
+    if light.is_round:
         return LightModel(False, SHAPE_DISK, c, max(hx, hy), hx, hy)
     if rect_kernel:
         return LightModel(False, SHAPE_SQUARE, c, math.hypot(hx, hy), hx, hy)
@@ -179,10 +178,7 @@ def receiver_frames(light, lm: LightModel, Ps: np.ndarray) -> np.ndarray:
         RF[:, 6:9] = nrm
         RF[:, 9] = np.where(h > lm.rL * 1e-9, h, 0.0)
         return RF
-    m = light.world_from_light
-    ax = m[:3, 0] / np.linalg.norm(m[:3, 0])
-    ay = m[:3, 1] / np.linalg.norm(m[:3, 1])
-    az = m[:3, 2] / np.linalg.norm(m[:3, 2])
+    ax, ay, az = light.axes
     side = np.where(d @ az >= 0.0, 1.0, -1.0)
     nrm = side[:, None] * az[None]
     h = np.einsum("ij,ij->i", d, nrm)
@@ -289,8 +285,7 @@ class Grid:
         self.near_u = np.zeros(F)        # umbra: triangles clipped to depth >= near_u
         axis = None
         if light.kind == "area":
-            m = light.world_from_light
-            axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
+            axis = light.axes[2]
         for f, fc in enumerate(faces):
             if fc.ortho:
                 continue
@@ -417,7 +412,7 @@ class SoftIrregularShadowMapping(Method):
     id = "irregular"
     paper = "Johnson, Hunt, Hux, Mark, Burns, Junkins 2009"
     passes = {"irregular": AVERAGE}
-    needs = frozenset({GBUFFER})
+    needs = frozenset({GBUFFER, SHADOW_TRIANGLES})
     Params = IrregularParams
 
     def run(self, buffers, light, params: IrregularParams) -> MethodResult:
@@ -426,12 +421,9 @@ class SoftIrregularShadowMapping(Method):
         H, W = g.shape
         with timer("select"):
             idx, P, Nrm = g.hit_points()
-            sc = buffers.scene
-            mask = sc.tri_casts_shadow
-            tris = sc.triangles[mask]
-            tobj = sc.tri_object[mask]
+            tris, tobj = buffers.shadow_triangles
         V, _, _, stats = soft_irregular(P, Nrm, tris, tobj, light, params, buffers.scale, timer,
-                                        bounds=sc.bounds())
+                                        bounds=buffers.scene.bounds())
         out = np.ones(H * W, np.float32)
         out[idx] = V
         return MethodResult(passes={"irregular": out.reshape(H, W)}, time_s=timer.result(), stats=stats)

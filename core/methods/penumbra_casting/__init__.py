@@ -89,7 +89,7 @@ from .hierarchy import build_hierarchy, node_umbra_bits
 from .light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, all_sample_points,
                         assign_sets, block_polygon_2d, box_to_homog, disk_polygon, fixed_sample_table,
                         group_layout, min_rotations, polygon_to_homog, sphere_disk_table)
-from ..base import AVERAGE, GBUFFER, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
+from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 
 
 @dataclass
@@ -217,8 +217,7 @@ def _light_setup(light, params: PenumbraCastingParams, Pg: np.ndarray, tol: floa
     lp = sampling.pack_light(light)
     seed = int(params.seed)
     centre = light.position.astype(np.float64)
-    m = light.world_from_light
-    ax, ay, az = [m[:3, k] / np.linalg.norm(m[:3, k]) for k in range(3)]
+    ax, ay, az = light.axes
     DVg = np.zeros((G, MAXV, 4))
     DEg = np.zeros((G, MAXE, 2), np.int64)
     nvg = np.zeros(G, np.int64)
@@ -229,8 +228,9 @@ def _light_setup(light, params: PenumbraCastingParams, Pg: np.ndarray, tol: floa
     w0 = None
     if light.kind == "area":
         mode = MODE_SHARED if shared else MODE_FIXED
-        disk = light.shape in ("DISK", "ELLIPSE")
-        ex, ey = ax * (0.5 * light.size), ay * (0.5 * light.size_y)
+        disk = light.is_round
+        hx, hy = light.half_size
+        ex, ey = ax * hx, ay * hy
         full = disk_polygon(1.0) if disk else block_polygon_2d(0, 1, 0, 1, False)
         DVL, nvl, DEL, nel = polygon_to_homog(full, centre, ex, ey, 1.0, tol)
         for g in range(G):
@@ -571,7 +571,11 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
 
 def scene_blockers(scene) -> np.ndarray:
     """Shadow-casting, finite triangles as float64[T,3,3]."""
-    tris = scene.triangles[scene.tri_casts_shadow]
+    return finite_blockers(scene.triangles[scene.tri_casts_shadow])
+
+
+def finite_blockers(tris) -> np.ndarray:
+    """The finite ones of shadow-casting triangles ``tris``, as float64[T,3,3]."""
     ok = np.isfinite(tris.reshape(len(tris), -1)).all(axis=1)
     return np.ascontiguousarray(tris[ok], np.float64)
 
@@ -581,7 +585,7 @@ class PenumbraCasting(Method):
     id = "penumbra_casting"
     paper = "Laine, Aila 2005: Hierarchical Penumbra Casting"
     passes = {"penumbra_casting": AVERAGE}
-    needs = frozenset({GBUFFER, SHADOW_GEOMETRY})
+    needs = frozenset({GBUFFER, SHADOW_TRIANGLES})   # it casts the triangles themselves: no BVH
     Params = PenumbraCastingParams
     physical = True
 
@@ -591,7 +595,7 @@ class PenumbraCasting(Method):
         H, W = g.shape
         with timer("setup"):
             setup = prepare(buffers, light, params)
-            tris = scene_blockers(buffers.scene)
+            tris = finite_blockers(buffers.shadow_triangles[0])
         V, stats = cast(setup, tris, params, timer)
         out = np.ones(H * W, np.float32)
         out[setup.idx] = np.clip(V, 0.0, 1.0).astype(np.float32)

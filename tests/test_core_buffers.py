@@ -1,0 +1,130 @@
+"""``needs`` is a contract (issue 19): a method's ``run()`` sees only the
+buffers it declared, every need has a builder, and the buffer phases billed to
+a method do not depend on which method ran first."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from penumbra.core import buffers as buffers_mod
+from penumbra.core import methods as registry
+from penumbra.core.buffers import NEED_BUILDERS, NEED_PHASE, FrameBuffers, UndeclaredBufferError
+from penumbra.core.frame import render_frame
+from penumbra.core.methods import base
+from penumbra.core.methods.base import GBUFFER, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES
+from synthetic import area_light, half_plane_scene, sphere_light, sun_light
+
+RES = 20
+FAST = {"samples": 4, "seed": 3}
+METHODS = sorted(registry.producers())
+LIGHTS = {"area": lambda: area_light(1.0), "spot": lambda: sphere_light(0.4, spot_size=1.2),
+          "sun": lambda: sun_light(0.2)}
+NEEDS = {v for k, v in vars(base).items() if k.isupper() and isinstance(v, str)} - {base.AVERAGE, base.IRRADIANCE}
+
+
+def _scene(light="area"):
+    return half_plane_scene(LIGHTS[light](), res=RES)
+
+
+def _run(fb, m, light):
+    with fb.view(m.needs, m.id) as view:
+        res = m.run(view, light, m.make_params(FAST))
+    return res, view.phase_times()
+
+
+def test_every_need_has_a_builder_and_a_phase():
+    assert NEEDS == {GBUFFER, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES, base.LIGHT_SAMPLE_VIEWS}
+    assert set(NEED_BUILDERS) == NEEDS and set(NEED_PHASE) == NEEDS
+    for need, members in NEED_BUILDERS.items():
+        assert members, need
+        for name in members:
+            assert hasattr(FrameBuffers, name), f"{need}: FrameBuffers has no {name}"
+    for m in registry.producers().values():
+        assert m.needs <= NEEDS, m.id
+
+
+@pytest.mark.parametrize("kind", sorted(LIGHTS))
+@pytest.mark.parametrize("method", METHODS)
+def test_every_method_runs_on_its_declared_buffers(method, kind):
+    """A method touching a buffer it did not declare fails here."""
+    scene = _scene(kind)
+    fb = FrameBuffers(scene, RES, RES)
+    m = registry.producers()[method]
+    res, phases = _run(fb, m, scene.lights[0])
+    for pid in m.passes:
+        v = res.passes[pid]
+        assert v.shape == (RES, RES) and np.isfinite(v).all()
+        assert v.min() >= 0.0 and v.max() <= 1.0
+        assert v.min() < 0.5, "the occluder casts no shadow"
+    assert set(phases) == {NEED_PHASE[n] for n in buffers_mod._with_sources(m.needs)}
+
+
+def test_undeclared_access_raises():
+    fb = FrameBuffers(_scene(), RES, RES)
+    view = fb.view({GBUFFER}, "probe")
+    assert view.gbuffer.shape == (RES, RES)
+    assert view.scene is fb.scene and view.scale == fb.scale
+    for name in ("shadow_scene", "shadow_scene_for", "light_view", "shadow_triangles", "sample_view"):
+        with pytest.raises(UndeclaredBufferError, match=f"probe uses FrameBuffers.{name} without declaring"):
+            getattr(view, name)
+    with pytest.raises(UndeclaredBufferError, match="no need exposes"):
+        view.build_times
+    with pytest.raises(ValueError, match="no buffer builds"):
+        fb.view({"no_such_buffer"})
+
+
+def test_a_method_with_too_few_needs_fails():
+    pc = registry.producers()["penumbra_casting"]
+    short = type("Short", (type(pc),), {"needs": frozenset({GBUFFER})})()
+    fb = FrameBuffers(_scene(), RES, RES)
+    with pytest.raises(UndeclaredBufferError, match="shadow_triangles"):
+        _run(fb, short, fb.scene.lights[0])
+
+
+def test_penumbra_casting_builds_no_bvh():
+    fb = FrameBuffers(_scene(), RES, RES)
+    _, phases = _run(fb, registry.producers()["penumbra_casting"], fb.scene.lights[0])
+    assert "bvh" not in phases and "shadow_triangles" in phases
+    assert "bvh_shadow" not in fb.build_times and not any(k.startswith("bvh_culled") for k in fb.build_times)
+
+
+class _Clock:
+    """perf_counter for buffers.py: every build takes exactly one second."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def perf_counter(self):
+        self.t += 1.0
+        return self.t
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_buffer_phases_do_not_depend_on_the_order(method, monkeypatch):
+    """Billed build times: the same whether the method runs first or last."""
+    monkeypatch.setattr(buffers_mod, "time", _Clock())
+    light_kind = "area"
+    m = registry.producers()[method]
+    fb = FrameBuffers(_scene(light_kind), RES, RES)
+    _, first = _run(fb, m, fb.scene.lights[0])
+    fb = FrameBuffers(_scene(light_kind), RES, RES)
+    for other in METHODS:
+        if other != method:
+            _run(fb, registry.producers()[other], fb.scene.lights[0])
+    _, last = _run(fb, m, fb.scene.lights[0])
+    assert first == last
+    # one second per buffer used: the camera BVH + G-buffer, one shadow BVH, one view
+    expect = {"gbuffer": 2.0, "bvh": 1.0, "light_view": 1.0, "shadow_triangles": 1.0}
+    assert first == {k: expect[k] for k in first}
+
+
+def test_render_frame_bills_phases_by_use():
+    scene = _scene()
+    out = render_frame(scene, ["penumbra_casting", "pcf", "embree"], overrides=FAST).to_json()
+    rec = out["lights"][0]["methods"]
+    assert set(rec["penumbra_casting"]["time_s"]) >= {"gbuffer", "shadow_triangles", "total"}
+    assert "bvh" not in rec["penumbra_casting"]["time_s"]
+    for mid in ("pcf", "embree"):
+        t = rec[mid]["time_s"]
+        assert t["bvh"] > 0.0, mid
+        assert t["total"] == pytest.approx(sum(v for k, v in t.items() if k != "total"), abs=1e-5)
