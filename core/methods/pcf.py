@@ -33,6 +33,7 @@ width follows ResFactor and the pixel footprint, not the light's size.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass
 from typing import Optional
 
@@ -243,6 +244,16 @@ def plane_depth(pl, uc, vc, z):
 TILE = 8
 PIXEL_CHUNK = 4096   # pixels per scheduling chunk in pcf_kernel
 
+# argument groups of ``pcf_kernel``
+CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays")
+"""G-buffer positions, normals and hit flags (row-major, ``width`` wide) and
+the camera's per-pixel ray terms (``pixel_ray_terms``)."""
+ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi")
+"""Packed light-view faces, their depth maps, finite-depth boxes and the
+per-tile depth min / max (``tile_minmax``)."""
+Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles")
+"""The filter's parameters (the paper's names), ``receiver_plane`` and ``tiles``."""
+
 
 @njit(cache=True, parallel=True)
 def tile_minmax(depth):
@@ -304,22 +315,25 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
 
 
 @njit(cache=True, parallel=True)
-def pcf_kernel(P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
-               NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out):
-    """Every camera pixel i (row-major, ``width`` wide) where ``hit[i]``:
+def pcf_kernel(cam, smap, flt, out):
+    """Every camera pixel i (row-major, ``cam.width`` wide) where ``cam.hit[i]``:
     out[i] = V; other pixels are left as they are. Pixels are handed to the
     threads in chunks of a few rows (dynamic), not in one contiguous half
     each: sky and ground rows differ widely in cost (the caller sets the
-    chunk size with ``kernels.parallel_chunks``)."""
-    for i in prange(P.shape[0]):
-        _pcf_pixel(i, P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor, MinSize,
-                   MaxSize, NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out)
+    chunk size with ``kernels.parallel_chunks``).
+    cam: CameraPixels; smap: ShadowMap; flt: Filter."""
+    for i in prange(cam.P.shape[0]):
+        _pcf_pixel(i, cam, smap, flt, out)
 
 
 @njit(cache=True, inline="always")
-def _pcf_pixel(i, P, Nrm, hit, width, rays, faces, depth, bbox, tlo, thi, ResFactor, MinSize, MaxSize,
-               NumSamples, MinSamples, Bias0, Bias1, seed, use_plane, use_tiles, out):
+def _pcf_pixel(i, cam, smap, flt, out):
     """``pcf_kernel``'s body for pixel i."""
+    P, Nrm, hit, width, rays = cam.P, cam.Nrm, cam.hit, cam.width, cam.rays
+    faces, depth, bbox, tlo, thi = smap.faces, smap.depth, smap.bbox, smap.tlo, smap.thi
+    ResFactor, MinSize, MaxSize, NumSamples = flt.ResFactor, flt.MinSize, flt.MaxSize, flt.NumSamples
+    MinSamples, Bias0, Bias1, seed = flt.MinSamples, flt.Bias0, flt.Bias1, flt.seed
+    use_plane, use_tiles = flt.use_plane, flt.use_tiles
     if not hit[i]:
         return
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
@@ -403,10 +417,11 @@ class PercentageCloserFiltering(Method):
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
                 with parallel_chunks(PIXEL_CHUNK):
-                    pcf_kernel(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
-                               pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)),
-                               lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi,
-                               res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                               b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles), out)
+                    cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
+                                       pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)))
+                    smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi)
+                    flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
+                                 b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles))
+                    pcf_kernel(cam, smap, flt, out)
         return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})

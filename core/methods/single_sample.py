@@ -112,6 +112,7 @@ occluder is never lit through, and an object never soft-shadows itself
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass
 from typing import Optional
 
@@ -133,6 +134,10 @@ N_PRM = 22
 TOL_REL = 4e-6
 TOL_ABS_PER_COORD = 2e-6
 TILE = 8   # texels per side of the depth-range tiles that skip hopeless search boxes
+# search gauge norms (``prm[P_NORM]``, ``Gauge.norm``)
+NORM_EUCLID = 0     # 2-norm: disk-like lights
+NORM_MAX = 1        # max-norm: the unit ball is the rectangle
+NORM_L1 = 2         # 1-norm: the diamond on the half axes
 
 
 @dataclass
@@ -291,10 +296,10 @@ def _shape(prm, finfo_f, fp, pvx, pvy, pvz, zr):
         det = n00 * n11 - n01 * n10
     gs = prm[P_GSCALE]
     norm = prm[P_NORM]
-    if norm == 1.0:      # max-norm: the unit ball is the rectangle
+    if norm == NORM_MAX:
         eu = abs(n00) + abs(n01)
         ev = abs(n10) + abs(n11)
-    elif norm == 2.0:    # 1-norm: the diamond on the half axes
+    elif norm == NORM_L1:
         eu = max(abs(n00), abs(n01))
         ev = max(abs(n10), abs(n11))
     else:
@@ -354,14 +359,30 @@ def _layer_range(A, B, C, iu, iv, c, ortho):
     return zlo, zhi
 
 
+# argument groups of ``_search``
+SearchPoint = namedtuple("SearchPoint", "u v zr inner pid pid_in_map")
+"""The receiver in the map: texel coordinates, depth, inner (own-object lit
+texel) or outer (blocker) search, its object id and whether that id is in
+the map."""
+Layer = namedtuple("Layer", "A B C ortho tol")
+"""The virtual layer P'_z per texel (s, t): A s + B t + C is its depth
+(orthographic face) or 1 / depth (perspective), with the depth tolerance."""
+Gauge = namedtuple("Gauge", "G00 G01 G10 G11 norm emax")
+"""The search gauge: texel offset -> rho by the matrix G and the norm
+(NORM_*), ``emax`` its largest stretch."""
+
+
 @njit(cache=True)
-def _search(depth_f, id_f, fidx, u, v, zr, inner, pid, pid_in_map, A, B, C, ortho, tol,
-            G00, G01, G10, G11, norm, emax, rho_max, crad, prm, zscale_max):
+def _search(depth_f, id_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_max):
     """Ring-ordered axis-aligned box scan (sections 4.2, 4.3, figure 4).
 
     Returns (found, rho, z) of the selected texel: the nearest in the gauge
     (``blocker="nearest"``), or for outer searches with ``blocker="ratio"``
-    the one with the least rho / r_max(z)."""
+    the one with the least rho / r_max(z). pt: SearchPoint; layer: Layer;
+    gauge: Gauge."""
+    u, v, zr, inner, pid, pid_in_map = pt.u, pt.v, pt.zr, pt.inner, pt.pid, pt.pid_in_map
+    A, B, C, ortho, tol = layer.A, layer.B, layer.C, layer.ortho, layer.tol
+    G00, G01, G10, G11, norm, emax = gauge.G00, gauge.G01, gauge.G10, gauge.G11, gauge.norm, gauge.emax
     h, w = depth_f.shape
     iu = int(math.floor(u))
     iv = int(math.floor(v))
@@ -434,9 +455,9 @@ def _search(depth_f, id_f, fidx, u, v, zr, inner, pid, pid_in_map, A, B, C, orth
                     dv = math.copysign(max(abs(dv) - 0.5, 0.0), dv)
                 x = G00 * du + G01 * dv
                 y = G10 * du + G11 * dv
-                if norm == 1:
+                if norm == NORM_MAX:
                     rho = max(abs(x), abs(y))
-                elif norm == 2:
+                elif norm == NORM_L1:
                     rho = abs(x) + abs(y)
                 else:
                     rho = math.sqrt(x * x + y * y)
@@ -490,7 +511,7 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
             rho_max = _s_of(finfo[f, 6], zr, ortho)
     else:
         G00, G01, G10, G11, emax = 1.0, 0.0, 0.0, 1.0, 1.0
-        norm = 0
+        norm = NORM_EUCLID
         rho_max = min(prm[P_RSCALE] * abs(zr) + prm[P_RBIAS], maxrad)
     if not (rho_max > 0.0):
         return hard, 0.0, 0
@@ -523,9 +544,9 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
         zs_max = rho_max * prm[P_RSHRINK] * (zr - finfo[f, 6])
     rtex = rho_max * emax
     crad = int(math.ceil(min(rtex + off, maxrad)))
-    found, rho, zb, nvis = _search(depth[f], ids[f], f, u, v, zr, inner, pid, pid_in_map, A, B, C,
-                             ortho, tol, G00, G01, G10, G11, norm, emax, rho_max, crad, prm,
-                             zs_max)
+    found, rho, zb, nvis = _search(depth[f], ids[f], f, SearchPoint(u, v, zr, inner, pid, pid_in_map),
+                                   Layer(A, B, C, ortho, tol), Gauge(G00, G01, G10, G11, norm, emax),
+                                   rho_max, crad, prm, zs_max)
     rtex += off
     if not found:
         return hard, rtex, nvis
@@ -716,10 +737,10 @@ def pack_params(params: SingleSampleParams, light, hard_only: bool, coord_mag: f
         raise ValueError(f"single_sample: ramp must be 'slope' or 'extent', not {params.ramp!r}")
     rect = light.kind == "area" and not light.is_round
     if params.ramp == "extent":          # the ramp spans the whole penumbra
-        prm[P_NORM] = 1.0 if rect else 0.0
+        prm[P_NORM] = NORM_MAX if rect else NORM_EUCLID
         prm[P_GSCALE] = 1.0
     else:                                # the ramp has the true slope at V = meet
-        prm[P_NORM] = 2.0 if rect else 0.0
+        prm[P_NORM] = NORM_L1 if rect else NORM_EUCLID
         prm[P_GSCALE] = 1.0 if rect else 4.0 / math.pi
     prm[P_HARD] = 1.0 if (hard_only or light.is_zero_size) else 0.0
     prm[P_TILES] = 1.0 if params.tile_skip else 0.0

@@ -111,9 +111,10 @@ from ...kernels import face_project, parallel_chunks, pick_face
 from ...sampling import strata
 from .. import register
 from .coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
-                             absorb, begin_point, blocker_capacity, finish_point)
+                        Points, Sampler, TileState, absorb, begin_point, blocker_capacity, finish_point,
+                        tile_row)
 from .maps import ReferenceMaps, build_reference_maps
-from .trace import LN, MAXI, trace_ray
+from .trace import LN, MAXI, ReferenceImages, TraceScratch, TraceSwitches, trace_ray
 from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, SHADOW_TRIANGLES,
                    Method, MethodResult, PhaseTimer)
 
@@ -182,9 +183,15 @@ def _segment_end(ox, oy, oz, ex, ey, ez, lo, hi):
 
 
 @njit(cache=True, parallel=True)
-def _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, seed, scale, big, blo, bhi,
-                 coherent, S, shortcut, fp, offs, dims, mn, mx, conn, zp,
-                 hier, clip, rank, clear_miss, occl, out_avg, out_irr, rays):
+def _depth_tiles(tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr, rays):
+    """The depth-image driver: per tile (in parallel) every point of
+    ``tile_ptr[ti]:tile_ptr[ti + 1]``, its queued rays traced through the
+    reference images. pts: Points; noff: normal offset per point; smp:
+    Sampler; blo, bhi: the casters' box; refs: trace.ReferenceImages; sw:
+    trace.TraceSwitches; ``rays[ti]``: the tile's ``misc`` (M_*)."""
+    P = pts.P
+    nx, ny, S, coherent = smp.nx, smp.ny, smp.S, smp.coherent
+    fp = refs.fp
     nt = tile_ptr.shape[0] - 1
     C = nx * ny
     F = fp.shape[0]
@@ -208,9 +215,10 @@ def _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, seed, scale, big,
         ws_key = np.empty(max(F, 1))
         U = np.empty((MAXI, 2))
         U2 = np.empty((MAXI, 2))
+        ts = TileState(origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue, pred, prevp, misc)
+        ws = TraceScratch(ws_line, ws_order, ws_key, U, U2)
         for i in range(tile_ptr[ti], tile_ptr[ti + 1]):
-            begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, tol[i], big,
-                        noff[i], origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue, pred, prevp, misc)
+            begin_point(smp, pts, i, noff[i], ts)
             ox, oy, oz = origin[0], origin[1], origin[2]
             while misc[M_QH] < misc[M_QT]:
                 c = queue[misc[M_QH]]
@@ -220,9 +228,7 @@ def _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, seed, scale, big,
                 blocked = False
                 th = 0.0
                 if F > 0 and t_end > 0.0:
-                    blocked, th = trace_ray(fp, offs, dims, mn, mx, conn, zp, ox, oy, oz, ex, ey, ez, t_end,
-                                            hier, clip, rank, clear_miss, occl,
-                                            ws_line, ws_order, ws_key, U, U2)
+                    blocked, th = trace_ray(refs, ox, oy, oz, ex, ey, ez, t_end, sw, ws)
                 absorb(c, blocked, ox + th * (ex - ox), oy + th * (ey - oy), oz + th * (ez - oz),
                        nx, ny, coherent, blk, vis, cst, queue, misc)
             a, r = finish_point(P, i, nx, ny, wts, vis, prevp, misc)
@@ -271,18 +277,18 @@ def normal_offsets(P, Nrm, lp, faces, factor):
 # ---------------------------------------------------------------------------
 # Embree wave driver: the same sampler, the queued rays of every tile per call
 @njit(cache=True, parallel=True)
-def _wave_emit(tile_ptr, cursor, phase, P, Nrm, pix, tol, lp, nx, ny, seed, scale, big,
-               coherent, S, shortcut, origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue,
-               pred, prevp, misc, r_cell, cnt):
+def _wave_emit(tile_ptr, cursor, phase, pts, smp, tiles, r_cell, cnt):
+    """Embree waves, first half: per tile, begin its next point if needed and
+    move its queued cells into ``r_cell[ti, :cnt[ti]]``. pts: Points; smp:
+    Sampler; tiles: TileState of every tile (first axis: the tile)."""
+    queue, misc = tiles.queue, tiles.misc
     nt = tile_ptr.shape[0] - 1
     for ti in prange(nt):
         cnt[ti] = 0
         if cursor[ti] >= tile_ptr[ti + 1]:
             continue
         if phase[ti] == 0:
-            begin_point(lp, P, Nrm, pix, cursor[ti], seed, scale, nx, ny, S, coherent, shortcut,
-                        tol[cursor[ti]], big, 0.0, origin[ti], tgt[ti], wts[ti], subi[ti], back[ti], blk[ti],
-                        stamp[ti], vis[ti], cst[ti], queue[ti], pred[ti], prevp[ti], misc[ti])
+            begin_point(smp, pts, cursor[ti], 0.0, tile_row(tiles, ti))
             phase[ti] = 1
         j = 0
         m = misc[ti]
@@ -319,8 +325,14 @@ def _wave_pack(cnt, off, origin, tgt, r_cell, is_sun, org, dirs, tfar):
 
 
 @njit(cache=True, parallel=True)
-def _wave_absorb(tile_ptr, cursor, phase, P, nx, ny, coherent, cnt, off, r_cell, hit_t, org, dirs,
-                 wts, blk, vis, cst, queue, prevp, misc, out_avg, out_irr):
+def _wave_absorb(tile_ptr, cursor, phase, P, smp, tiles, cnt, off, r_cell, hit_t, org, dirs,
+                  out_avg, out_irr):
+    """Embree waves, second half: the hits ``hit_t`` of the rays ``org + t dirs``
+    (tile ti's at ``off[ti]:off[ti] + cnt[ti]``) absorbed; finished points
+    shaded. smp: Sampler; tiles: TileState of every tile."""
+    nx, ny, coherent = smp.nx, smp.ny, smp.coherent
+    wts, blk, vis, cst, queue = tiles.wts, tiles.blk, tiles.vis, tiles.cst, tiles.queue
+    prevp, misc = tiles.prevp, tiles.misc
     nt = tile_ptr.shape[0] - 1
     for ti in prange(nt):
         if cursor[ti] >= tile_ptr[ti + 1] or phase[ti] == 0:
@@ -368,15 +380,16 @@ def _embree_waves(tri_scene, tile_ptr, P, Nrm, pix, tol, lp, nx, ny, seed, scale
     misc = np.zeros((nt, M_SIZE), np.int64)
     r_cell = np.zeros((nt, C), np.int32)
     cnt = np.zeros(nt, np.int64)
+    pts = Points(P, Nrm, pix, tol)
+    smp = Sampler(lp, seed, scale, nx, ny, S, coherent, shortcut, big)
+    tiles = TileState(origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue, pred, prevp, misc)
     is_sun = bool(lp[0] == 2.0)
     workers = max(1, int(threads or numba.get_num_threads()))
     pool = ThreadPoolExecutor(max_workers=workers) if workers > 1 else None
     waves = 0
     try:
         while (cursor < tile_ptr[1:]).any():
-            _wave_emit(tile_ptr, cursor, phase, P, Nrm, pix, tol, lp, nx, ny, seed, scale, big,
-                       coherent, S, shortcut, origin, tgt, wts, subi, back, blk, stamp, vis, cst,
-                       queue, pred, prevp, misc, r_cell, cnt)
+            _wave_emit(tile_ptr, cursor, phase, pts, smp, tiles, r_cell, cnt)
             off = np.zeros(nt, np.int64)
             np.cumsum(cnt[:-1], out=off[1:])
             m = int(cnt.sum())
@@ -397,8 +410,8 @@ def _embree_waves(tri_scene, tile_ptr, P, Nrm, pix, tol, lp, nx, ny, seed, scale
                 else:
                     tri, t, _, _ = tri_scene.intersect(org, dirs, tfar)
                     hit_t = np.where(tri >= 0, t, np.inf)
-            _wave_absorb(tile_ptr, cursor, phase, P, nx, ny, coherent, cnt, off, r_cell, hit_t, org,
-                         dirs, wts, blk, vis, cst, queue, prevp, misc, out_avg, out_irr)
+            _wave_absorb(tile_ptr, cursor, phase, P, smp, tiles, cnt, off, r_cell, hit_t, org, dirs,
+                         out_avg, out_irr)
             waves += 1
     finally:
         if pool is not None:
@@ -520,12 +533,13 @@ class DepthRaytrace(Method):
             # tiles differ widely in cost: hand them out one by one
             with parallel_chunks(1), timer("trace"):
                 noff = normal_offsets(P, Nrm, lp, maps.faces, float(params.normal_offset))
-                _depth_tiles(tile_ptr, P, Nrm, pix, tol, noff, lp, nx, ny, int(params.seed),
-                             float(buffers.scale), big, box[0], box[1], coherent, S,
-                             bool(params.subgrid_shortcut), maps.faces, maps.offs, maps.dims,
-                             maps.mn, maps.mx, maps.conn, maps.zp, hier, bool(params.minmax_clipping),
-                             bool(params.rank_images), bool(params.clear_miss),
-                             bool(params.occlusion_intervals), va, vi, rays_t)
+                smp = Sampler(lp, int(params.seed), float(buffers.scale), nx, ny, S, coherent,
+                              bool(params.subgrid_shortcut), big)
+                refs = ReferenceImages(maps.faces, maps.offs, maps.dims, maps.mn, maps.mx, maps.conn, maps.zp)
+                sw = TraceSwitches(hier, bool(params.minmax_clipping), bool(params.rank_images),
+                                   bool(params.clear_miss), bool(params.occlusion_intervals))
+                _depth_tiles(tile_ptr, Points(P, Nrm, pix, tol), noff, smp, box[0], box[1], refs, sw, va, vi,
+                             rays_t)
             rays = int(rays_t[:, M_RAYS].sum())
             n_pts = max(1, len(sel))
             stats["full_trace_points"] = int(rays_t[:, M_FULL].sum())

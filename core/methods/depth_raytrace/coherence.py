@@ -51,6 +51,7 @@ sampling of a tile for the same ray results.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 from numba import njit
 
@@ -65,6 +66,27 @@ M_NBLK, M_QH, M_QT, M_GEN, M_HAVEPREV, M_RAYS = 0, 1, 2, 3, 4, 5
 # prediction errors (traced verdict != prediction), blocker points projected
 M_FULL, M_FULLRAYS, M_SEEDED, M_FLOOD, M_ERR, M_BLK = 6, 7, 8, 9, 10, 11
 M_SIZE = 16
+
+# argument groups (built by the package's ``__init__``)
+Points = namedtuple("Points", "P Nrm pix tol")
+"""The shaded points in coherent order: positions, camera-facing normals,
+pixel ids and reset tolerances (5.2.1)."""
+Sampler = namedtuple("Sampler", "lp seed scale nx ny S coherent shortcut big")
+"""The sampling: packed light, seed, scene scale, ``nx x ny`` light cells,
+``S x S`` sub-cells per cell, coherence and sub-grid shortcut switches, and
+the length of a ray towards a direction (sun)."""
+TileState = namedtuple("TileState", "origin tgt wts subi back blk stamp vis cst queue pred prevp misc")
+"""One tile's state: ray origin, ray end / weight / sub-cell / back-facing
+flag per cell, blocker list and its sub-cell stamps, visibility, cell state
+(USEPREV / QUEUED / DONE), queue, prediction, previous point, ``misc`` (M_*)."""
+
+
+@njit(cache=True, inline="always")
+def tile_row(ts, ti):
+    """Tile ``ti``'s TileState from one whose arrays hold every tile (first axis)."""
+    return TileState(ts.origin[ti], ts.tgt[ti], ts.wts[ti], ts.subi[ti], ts.back[ti], ts.blk[ti],
+                     ts.stamp[ti], ts.vis[ti], ts.cst[ti], ts.queue[ti], ts.pred[ti], ts.prevp[ti],
+                     ts.misc[ti])
 
 
 @njit(cache=True, inline="always")
@@ -199,12 +221,17 @@ def _cell_of(u, v, nx, ny, S):
 
 
 @njit(cache=True)
-def begin_point(lp, P, Nrm, pix, i, seed, scale, nx, ny, S, coherent, shortcut, tol, big, noff,
-                origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue, pred, prevp, misc):
+def begin_point(smp, pts, i, noff, ts):
     """Samples for point i (rays start at the offset origin moved a further
     ``noff`` along the normal), then Predict (or a full trace without
     information). Fills ``origin``, ``tgt`` (ray end per cell), ``wts``,
-    ``vis`` (prediction), ``cst`` and the queue."""
+    ``vis`` (prediction), ``cst`` and the queue of ``ts``.
+    smp: Sampler; pts: Points; ts: TileState."""
+    lp, seed, scale, nx, ny, S = smp.lp, smp.seed, smp.scale, smp.nx, smp.ny, smp.S
+    coherent, shortcut, big = smp.coherent, smp.shortcut, smp.big
+    P, Nrm, pix, tol = pts.P, pts.Nrm, pts.pix, pts.tol[i]
+    origin, tgt, wts, subi, back, blk = ts.origin, ts.tgt, ts.wts, ts.subi, ts.back, ts.blk
+    stamp, vis, cst, queue, pred, prevp, misc = ts.stamp, ts.vis, ts.cst, ts.queue, ts.pred, ts.prevp, ts.misc
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
     n0, n1, n2 = Nrm[i, 0], Nrm[i, 1], Nrm[i, 2]
     ox, oy, oz = offset_origin(px, py, pz, n0, n1, n2, scale)

@@ -55,6 +55,7 @@ traversal.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -64,6 +65,17 @@ from .maps import FP_FOOT, FP_GAPABS, FP_GAPTEX, FP_K, FP_MNROOT, FP_MXROOT
 MAXI = 48            # occlusion intervals kept per ray (extra ones merge: conservative)
 LN = 12              # per-face line record: u0 v0 du dv k0 dk tlo thi w0 w1 inv_du inv_dv
 INF = np.inf
+
+# argument groups of ``trace_ray`` (built by the package's ``__init__``)
+ReferenceImages = namedtuple("ReferenceImages", "fp offs dims kmn kmx conn zp")
+"""The reference images as the tracer reads them (``maps.ReferenceMaps``):
+packed faces, quadtree level offsets and sizes, min / max key quadtrees,
+connectedness bits and the biased depths."""
+TraceSwitches = namedtuple("TraceSwitches", "hier clip rank clear_miss occl")
+"""The accelerations of 5.1.1 / 5.1.2 (see above)."""
+TraceScratch = namedtuple("TraceScratch", "line order key U U2")
+"""Per-thread scratch: F x LN line records, F face order and keys, two
+MAXI x 2 interval lists."""
 
 
 @njit(cache=True, inline="always")
@@ -486,11 +498,13 @@ def _trace_piece(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, a, b, hier, clip, ou
 
 
 @njit(cache=True, inline="always")
-def trace_ray(fp, offs, dims, kmn, kmx, conn, zp, ox, oy, oz, ex, ey, ez, t_end,
-              hier, clip, rank, clear_miss, occl, ws_line, ws_order, ws_key, U, U2):
+def trace_ray(refs, ox, oy, oz, ex, ey, ez, t_end, sw, ws):
     """Is the segment o + t (E - o), t in [0, t_end], blocked in the
-    reference images? Returns (blocked, t_hit). ``ws_*``, ``U``, ``U2`` are
-    per-thread scratch arrays (F x LN, F, F, MAXI x 2, MAXI x 2)."""
+    reference images? Returns (blocked, t_hit).
+    refs: ReferenceImages; sw: TraceSwitches; ws: TraceScratch."""
+    fp, offs, dims, kmn, kmx, conn, zp = refs.fp, refs.offs, refs.dims, refs.kmn, refs.kmx, refs.conn, refs.zp
+    hier, clip, rank, clear_miss, occl = sw.hier, sw.clip, sw.rank, sw.clear_miss, sw.occl
+    ws_line, ws_order, ws_key, U, U2 = ws.line, ws.order, ws.key, ws.U, ws.U2
     F = fp.shape[0]
     if not (t_end > 0.0):
         return False, 0.0

@@ -72,10 +72,11 @@ import numpy as np
 from ... import views
 from ...sampling import offset_points
 from .. import register
-from .geom import SHAPE_DISK, SHAPE_SQUARE
-from .grid import (assign_faces, bin_entries_from_ranges, bin_quads, counting_sort_cells,
-                        edge_quads, penumbra_bins, penumbra_brute_force, rect_k,
-                        triangle_ranges, umbra_bins, umbra_brute_force)
+from .geom import SHAPE_DISK, SHAPE_SQUARE, SILHOUETTE_CENTRE, SILHOUETTE_LIGHT
+from .grid import (QUAD_WHOLE_FACE, BinList, Bins, FaceBounds, KernelLight, Occluders, Quads, ReceiverGrid,
+                   Receivers, Records, assign_faces, bin_entries_from_ranges, bin_quads, counting_sort_cells,
+                   edge_quads, penumbra_bins, penumbra_brute_force, rect_k, triangle_ranges, umbra_bins,
+                   umbra_brute_force)
 from .mesh import classify, mesh_adjacency
 from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 
@@ -335,7 +336,7 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
                    z, np.zeros(0, np.bool_))
         if params.silhouette_from not in ("centre", "light"):
             raise ValueError(f"silhouette_from must be 'centre' or 'light', not {params.silhouette_from!r}")
-        mode = 0 if params.silhouette_from == "centre" else 1
+        mode = SILHOUETTE_CENTRE if params.silhouette_from == "centre" else SILHOUETTE_LIGHT
         reach = lm.rL / math.sqrt(1.0 + lm.rL ** 2) if lm.is_sun else lm.rL
         counted, facing, orient, rec_t, rec_k = classify(
             tv, nv, valid, *adj, cx, cy, cz, lm.is_sun, bool(params.adjacency), bool(params.silhouettes),
@@ -365,6 +366,10 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
     cnt_s = np.zeros(ns, np.int64)
     pen_s = np.zeros(ns, np.float64)
     F = len(g.faces)
+    lit = KernelLight(cx, cy, cz, lm.is_sun, lm.shape, lm.rL, lm.rL if lm.is_sun else 0.0)
+    occ = Occluders(tv, nv, facing, orient, side_light)
+    bins = Bins(g.perm, g.bin_face, g.bin_bx, g.bin_by, g.B, g.binmax)
+    grid = ReceiverGrid(g.packed, g.col_base, g.gd, g.zlo, g.zhi, g.logz, g.cell_start, g.colmax)
     with timer("umbra"):
         if params.brute_force:
             umbra_brute_force(Ps, tri_ids, tv, nv, side_light, cx, cy, cz, lm.is_sun, cnt_s)
@@ -373,30 +378,25 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
             rng, zmin = triangle_ranges(tv, tri_ids, g.packed, g.near_u)
             bstart, bitems = bin_entries_from_ranges(rng, g.bin_base, g.nbx, g.B)
             tests = np.zeros(int(g.bin_base[-1]), np.int64)
-            umbra_bins(g.perm, g.bin_face, g.bin_bx, g.bin_by, g.B, bstart, bitems, rng, zmin,
-                       tri_ids, tv, nv, side_light, g.packed, g.col_base, g.gd, g.zlo, g.zhi,
-                       g.logz, g.cell_start, g.colmax, Ps, cx, cy, cz, lm.is_sun, cnt_s, tests)
+            umbra_bins(bins, BinList(bstart, bitems), rng, zmin, tri_ids, occ, grid, Ps, lit, cnt_s, tests)
             stats["umbra_bin_entries"] = int(len(bitems))
             stats["umbra_tests"] = int(tests.sum())
     with timer("penumbra"):
         if len(rec_t) and ns:
             if params.brute_force:
-                penumbra_brute_force(Ps, RF, rec_t, rec_k, tv, nv, facing, orient, mode, lm.shape, cx, cy, cz, lm.is_sun, pen_s)
+                penumbra_brute_force(Receivers(Ps, g.xyz, RF), Records(rec_t, rec_k), occ, lit, mode, pen_s)
                 stats["penumbra_evals"] = int(ns * len(rec_t))
             elif F:
-                tan_a = lm.rL if lm.is_sun else 0.0
                 ep, flag, rng = edge_quads(tv, rec_t, rec_k, g.packed, g.zhi, g.k, g.rho, g.near,
-                                           g.rnear, lm.rL, tan_a)
+                                           g.rnear, lit.rL, lit.tan_a)
                 bstart, bitems = bin_quads(ep, flag, rng, g.packed, g.bin_base, g.nbx, g.B, g.binmax,
-                                           g.rho, g.k, g.par, lm.rL, tan_a, bool(params.bin_refine))
+                                           g.rho, g.k, g.par, lit.rL, lit.tan_a, bool(params.bin_refine))
                 evals = np.zeros(int(g.bin_base[-1]), np.int64)
-                penumbra_bins(g.perm, g.bin_face, g.bin_bx, g.bin_by, g.B, bstart, bitems, ep, flag,
-                              rng, g.packed, g.zhi, g.k, g.rho, g.par, g.binmax,
-                              bool(params.bin_refine), bool(params.wedge_test), lm.rL, tan_a,
-                              g.col_base, g.gd, g.zlo, g.zhi, g.logz, g.cell_start, g.colmax,
-                              Ps, g.xyz, RF, rec_t, rec_k, tv, nv, facing, orient, mode, lm.shape, cx, cy,
-                              cz, lm.is_sun, pen_s, evals)
-                stats["quads_whole_face"] = int((flag == 2).sum())
+                penumbra_bins(bins, BinList(bstart, bitems), Quads(ep, flag, rng), grid,
+                              FaceBounds(g.zhi, g.k, g.rho, g.par), Receivers(Ps, g.xyz, RF),
+                              Records(rec_t, rec_k), occ, lit, mode, bool(params.bin_refine),
+                              bool(params.wedge_test), pen_s, evals)
+                stats["quads_whole_face"] = int((flag == QUAD_WHOLE_FACE).sum())
                 stats["quad_bin_entries"] = int(len(bitems))
                 stats["penumbra_evals"] = int(evals.sum())
     umbra[g.order] = cnt_s

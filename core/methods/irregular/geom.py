@@ -30,6 +30,10 @@ from numba import njit
 SHAPE_DISK = 0      # unit disk (disk, ellipse, sphere and sun lights)
 SHAPE_SQUARE = 1    # [-1, 1]^2 (square and rectangle area lights)
 
+# ``mode``: where silhouettes and "inside" are decided from (``silhouette_from``)
+SILHOUETTE_CENTRE = 0   # the light centre (the paper)
+SILHOUETTE_LIGHT = 1    # any point of the light; inside decided from each receiver
+
 INV_2PI = 1.0 / (2.0 * math.pi)
 
 
@@ -293,19 +297,19 @@ def blocks_centre(px, py, pz, dx, dy, dz, tv, nv, side_light, t, is_sun):
 
 
 @njit(cache=True, inline="always")
-def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, shape, cx, cy, cz,
-                  e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, hp, p2x, p2y, is_sun):
+def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s):
     """Signed term of edge k of triangle t at receiver p (section 2.3):
     + minor-segment area when p is outside the edge, - when inside.
+    ``lit``: grid.KernelLight; ``RF[s]``: receiver s's frame (below).
 
-    ``mode`` 0 (the paper): "inside" is decided by the edge equation in the
+    ``mode`` SILHOUETTE_CENTRE (the paper): "inside" is decided by the edge equation in the
     light view (p' on the triangle's side of the edge's image from the light
     centre; ``fl`` = the triangle's facing towards the light). Interior edges
     of a consistently wound mesh then cancel exactly for every receiver, so
     silhouettes only need to be found from the centre (2.1); each triangle
     contributes its projected area signed by whether it lies between p and
     the light's centre plane (5.1's single point of projection).
-    ``mode`` 1 (receiver): "inside" is decided in the projection from p
+    ``mode`` SILHOUETTE_LIGHT (receiver): "inside" is decided in the projection from p
     itself, which makes the sum over a triangle's edges its exact projected
     area; triangles of closed meshes only count when they face p (``ot`` =
     orientation of the closed component, 0 = open surface: always).
@@ -317,7 +321,10 @@ def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, shape, cx,
     and only 0 <= lam <= 1 (between the light and the receiver) occludes.
     Sun: gnomonic projection of the direction q - p (e1, e2 scaled by
     1/tan(half angle), n = direction to the sun)."""
-    if mode == 0:
+    shape, cx, cy, cz, is_sun = lit.shape, lit.cx, lit.cy, lit.cz, lit.is_sun
+    e1x, e1y, e1z, e2x, e2y, e2z = RF[s, 0], RF[s, 1], RF[s, 2], RF[s, 3], RF[s, 4], RF[s, 5]
+    nx, ny, nz, hp, p2x, p2y = RF[s, 6], RF[s, 7], RF[s, 8], RF[s, 9], RF[s, 10], RF[s, 11]
+    if mode == SILHOUETTE_CENTRE:
         ref = fl
         if ref == 0:
             return 0.0

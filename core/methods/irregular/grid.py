@@ -34,12 +34,46 @@ orthographic face gives |q' - p'| <= tan(a/2) (z_p - z_q).
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
 
 from ...kernels import face_project, pick_face
 from .geom import blocks_centre, penumbra_term
+
+# penumbra quad of a (record, face): ``edge_quads``' flag
+QUAD_NONE = 0           # no receiver of the face can be reached
+QUAD_EDGE = 1           # the convex hull of the two endpoint disks
+QUAD_WHOLE_FACE = 2     # unbounded (edge through the light's near ball): every column
+
+# argument groups of the binned kernels (built by the package's ``__init__``)
+Bins = namedtuple("Bins", "perm face bx by size maxz")
+"""Bins in processing order ``perm``; per bin its face, column block (bx, by)
+of ``size x size`` columns and its largest receiver depth (-inf: empty)."""
+BinList = namedtuple("BinList", "start items")
+"""What each bin holds: ``items[start[b]:start[b + 1]]``."""
+ReceiverGrid = namedtuple("ReceiverGrid", "faces col_base gd zlo zhi logz cell_start colmax")
+"""The light-space grid (figure 3): packed faces, first column of each face,
+depth slices per column and their range, cell -> first receiver, and the
+largest receiver depth of each column."""
+FaceBounds = namedtuple("FaceBounds", "Z k rho par")
+"""Per face: largest receiver depth, k and rho of the quad bound, and whether
+the face is parallel to the light (k = 1, rho = 0)."""
+Receivers = namedtuple("Receivers", "Ps XYZ RF")
+"""Receivers in cell order: offset positions, light-view coordinates
+(face u, v, depth) and frames (``receiver_frames``: e1, e2, n, h_p, p2)."""
+Occluders = namedtuple("Occluders", "tv nv facing orient side_light")
+"""Triangles (float64[T,3,3]), unnormalized normals, facing towards the light
+centre, orientation of the closed component (0: open) and side of the light."""
+Records = namedtuple("Records", "t k")
+"""Silhouette records: edge ``k`` of triangle ``t``."""
+Quads = namedtuple("Quads", "ep flag rng")
+"""Per (record, face): projected endpoints, QUAD_* flag and column/row range
+(``edge_quads``)."""
+KernelLight = namedtuple("KernelLight", "cx cy cz is_sun shape rL tan_a")
+"""The light's centre (sun: unit direction towards it), kind, shape
+(SHAPE_*), bounding radius r_L and, for the sun, tan of the half angle."""
 
 
 # --------------------------------------------------------------------------
@@ -350,13 +384,21 @@ def bin_entries_from_ranges(rng, bin_base, nbx, bin_size):
 
 
 @njit(cache=True, parallel=True)
-def umbra_bins(perm, bin_face, bin_bx, bin_by, bin_size, bin_start, bin_items, rng, zmin,
-               tri_ids, tv, nv, side_light, faces, col_base, gd, zlo, zhi, logz,
-               cell_start, colmax, Ps, cx, cy, cz, is_sun, count, tests):
+def umbra_bins(bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests):
     """Hard irregular shadow mapping (section 2.4, figure 2b): per bin, every
     triangle listed in it is tested against the receivers of the columns it
     covers at or beyond its nearest depth; ``count`` = depth complexity
-    between each receiver and the light centre (counted triangles)."""
+    between each receiver and the light centre (counted triangles).
+
+    bins: Bins; blist: BinList of entries j of ``tri_ids`` (ranges ``rng``,
+    nearest depths ``zmin`` from ``triangle_ranges``); occ: Occluders; grid:
+    ReceiverGrid; Ps: receiver positions; lit: KernelLight; ``tests`` per bin."""
+    perm, bin_face, bin_bx, bin_by, bin_size = bins.perm, bins.face, bins.bx, bins.by, bins.size
+    bin_start, bin_items = blist.start, blist.items
+    tv, nv, side_light = occ.tv, occ.nv, occ.side_light
+    faces, col_base, gd, zlo, zhi = grid.faces, grid.col_base, grid.gd, grid.zlo, grid.zhi
+    logz, cell_start, colmax = grid.logz, grid.cell_start, grid.colmax
+    cx, cy, cz, is_sun = lit.cx, lit.cy, lit.cz, lit.is_sun
     for jb in prange(perm.shape[0]):
         b = perm[jb]
         f = bin_face[b]
@@ -421,7 +463,7 @@ def edge_quads(tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, fac
     R = rec_t.shape[0]
     F = faces.shape[0]
     ep = np.zeros((R, F, 6))
-    flag = np.zeros((R, F), np.int8)      # 0 none, 1 quad, 2 whole face
+    flag = np.zeros((R, F), np.int8)      # QUAD_*
     rng = np.empty((R, F, 4), np.int64)
     for r in prange(R):
         t = rec_t[r]
@@ -463,7 +505,7 @@ def edge_quads(tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, fac
                     ax, ay = ax / az, ay / az
                     bx, by = bx / bz, by / bz
             if whole:
-                flag[r, f] = 2
+                flag[r, f] = QUAD_WHOLE_FACE
                 rng[r, f, 0] = 0
                 rng[r, f, 1] = int(fp[21]) - 1
                 rng[r, f, 2] = 0
@@ -479,7 +521,7 @@ def edge_quads(tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, fac
             wa = _quad_width(persp, rL, face_k[f], face_rho[f], tan_a, Z, az)
             wb = _quad_width(persp, rL, face_k[f], face_rho[f], tan_a, Z, bz)
             if wa < 0.0 or wb < 0.0:
-                flag[r, f] = 2
+                flag[r, f] = QUAD_WHOLE_FACE
                 rng[r, f, 0] = 0
                 rng[r, f, 1] = int(fp[21]) - 1
                 rng[r, f, 2] = 0
@@ -491,7 +533,7 @@ def edge_quads(tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, fac
             r0, r1 = row_range(fp, min(ay - wa, by - wb), max(ay + wa, by + wb))
             if c0 > c1 or r0 > r1:
                 continue
-            flag[r, f] = 1
+            flag[r, f] = QUAD_EDGE
             rng[r, f, 0] = c0
             rng[r, f, 1] = c1
             rng[r, f, 2] = r0
@@ -526,7 +568,7 @@ def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, f
             items = np.empty(cnt[nbins], np.int64)
         for r in range(R):
             for f in range(F):
-                if flag[r, f] == 0:
+                if flag[r, f] == QUAD_NONE:
                     continue
                 fp = faces[f]
                 persp = fp[16] == 0.0
@@ -538,7 +580,7 @@ def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, f
                         Zb = binmax[b]
                         if not (Zb > -np.inf):
                             continue           # empty bin
-                        if refine and flag[r, f] == 1:
+                        if refine and flag[r, f] == QUAD_EDGE:
                             c0 = bx * bin_size
                             c1 = min(c0 + bin_size, gw) - 1
                             r0 = by * bin_size
@@ -563,15 +605,27 @@ def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, f
 
 
 @njit(cache=True, parallel=True)
-def penumbra_bins(perm, bin_face, bin_bx, bin_by, bin_size, bin_start, bin_items, ep, flag,
-                  rng, faces, face_Z, face_k, face_rho, face_par, binmax, refine, wedge,
-                  rL, tan_a, col_base, gd, zlo, zhi, logz, cell_start, colmax,
-                  Ps, XYZ, RF, rec_t, rec_k, tv, nv, facing, orient, mode, shape, cx, cy, cz, is_sun,
-                  pen, evals):
+def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, evals):
     """Soft shadow kernel (sections 2.3, 2.5): per bin, every quad listed in
     it is rasterized over the bin's columns; the wedge test (second
     optimization) or the quad test selects the receivers, and each gets the
-    signed analytic term of the edge."""
+    signed analytic term of the edge.
+
+    bins: Bins; blist: BinList of records; quads: Quads; grid: ReceiverGrid;
+    fb: FaceBounds; rec: Receivers; records: Records; occ: Occluders; lit:
+    KernelLight; mode: geom.SILHOUETTE_*; refine / wedge: the two overdraw
+    reductions; ``pen`` per receiver, ``evals`` per bin."""
+    perm, bin_face, bin_bx, bin_by, bin_size = bins.perm, bins.face, bins.bx, bins.by, bins.size
+    binmax = bins.maxz
+    bin_start, bin_items = blist.start, blist.items
+    ep, flag = quads.ep, quads.flag
+    faces, col_base, gd, zlo, zhi = grid.faces, grid.col_base, grid.gd, grid.zlo, grid.zhi
+    logz, cell_start, colmax = grid.logz, grid.cell_start, grid.colmax
+    face_Z, face_k, face_rho, face_par = fb.Z, fb.k, fb.rho, fb.par
+    Ps, XYZ, RF = rec.Ps, rec.XYZ, rec.RF
+    rec_t, rec_k = records.t, records.k
+    tv, nv, facing, orient = occ.tv, occ.nv, occ.facing, occ.orient
+    cx, cy, cz, is_sun, rL, tan_a = lit.cx, lit.cy, lit.cz, lit.is_sun, lit.rL, lit.tan_a
     for jb in prange(perm.shape[0]):
         b = perm[jb]
         f = bin_face[b]
@@ -592,7 +646,7 @@ def penumbra_bins(perm, bin_face, bin_bx, bin_by, bin_size, bin_start, bin_items
             r = bin_items[e]
             t = rec_t[r]
             k = rec_k[r]
-            whole = flag[r, f] == 2
+            whole = flag[r, f] == QUAD_WHOLE_FACE
             ax, ay, az = ep[r, f, 0], ep[r, f, 1], ep[r, f, 2]
             qx, qy, qz = ep[r, f, 3], ep[r, f, 4], ep[r, f, 5]
             zq = min(az, qz)
@@ -670,19 +724,20 @@ def penumbra_bins(perm, bin_face, bin_bx, bin_by, bin_size, bin_start, bin_items
                         else:
                             dx, dy, dz = cx - px, cy - py, cz - pz
                         nev += 1
-                        pen[s] += penumbra_term(px, py, pz, dx, dy, dz, tv, nv, facing[t], orient[t], mode, t, k, shape,
-                                                cx, cy, cz, RF[s, 0], RF[s, 1], RF[s, 2],
-                                                RF[s, 3], RF[s, 4], RF[s, 5],
-                                                RF[s, 6], RF[s, 7], RF[s, 8],
-                                                RF[s, 9], RF[s, 10], RF[s, 11], is_sun)
+                        pen[s] += penumbra_term(px, py, pz, dx, dy, dz, tv, nv, facing[t], orient[t], mode, t, k,
+                                                lit, RF, s)
         evals[b] = nev
 
 
 @njit(cache=True, parallel=True)
-def penumbra_brute_force(Ps, RF, rec_t, rec_k, tv, nv, facing, orient, mode, shape, cx, cy, cz,
-                         is_sun, pen):
+def penumbra_brute_force(rec, records, occ, lit, mode, pen):
     """Every record against every receiver (no quads): the ground truth the
-    quads and both overdraw reductions must reproduce (tests, ablation)."""
+    quads and both overdraw reductions must reproduce (tests, ablation).
+    rec: Receivers; records: Records; occ: Occluders; lit: KernelLight."""
+    Ps, RF = rec.Ps, rec.RF
+    rec_t, rec_k = records.t, records.k
+    tv, nv, facing, orient = occ.tv, occ.nv, occ.facing, occ.orient
+    cx, cy, cz, is_sun = lit.cx, lit.cy, lit.cz, lit.is_sun
     for s in prange(Ps.shape[0]):
         px, py, pz = Ps[s, 0], Ps[s, 1], Ps[s, 2]
         if RF[s, 9] <= 0.0:
@@ -694,10 +749,7 @@ def penumbra_brute_force(Ps, RF, rec_t, rec_k, tv, nv, facing, orient, mode, sha
         acc = 0.0
         for r in range(rec_t.shape[0]):
             acc += penumbra_term(px, py, pz, dx, dy, dz, tv, nv, facing[rec_t[r]], orient[rec_t[r]], mode,
-                                 rec_t[r], rec_k[r], shape,
-                                 cx, cy, cz, RF[s, 0], RF[s, 1], RF[s, 2], RF[s, 3], RF[s, 4],
-                                 RF[s, 5], RF[s, 6], RF[s, 7], RF[s, 8], RF[s, 9], RF[s, 10],
-                                 RF[s, 11], is_sun)
+                                 rec_t[r], rec_k[r], lit, RF, s)
         pen[s] = acc
 
 

@@ -36,6 +36,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .geom import SILHOUETTE_CENTRE
+
 
 @njit(cache=True)
 def _mix(h, x):
@@ -182,10 +184,10 @@ def classify(tv, nv, valid, tri_edge, count, t0, t1, d0, d1, root, closed,
 
     tv float64[T,3,3], nv float64[T,3] (unnormalized normals), valid: nonzero
     normal. For a sun (cx, cy, cz) is the unit direction towards it.
-    ``mode`` 0 (the paper): counted = entries from the light centre for
-    closed components (exits when the centre is inside), records = edges
-    that are silhouettes from the centre. ``mode`` 1 (receiver): the umbra
-    counts the exits from the centre (= entries seen from the receiver),
+    ``mode`` SILHOUETTE_CENTRE (the paper): counted = entries from the light
+    centre for closed components (exits when the centre is inside), records
+    = edges that are silhouettes from the centre. SILHOUETTE_LIGHT (receiver):
+    the umbra counts the exits from the centre (= entries seen from the receiver),
     the penumbra decides per receiver (``orient``), and records are the
     edges that are silhouettes from *some* point of the light (its bounding
     ball of radius ``reach``; sun: directions within asin(reach) of it).
@@ -215,7 +217,7 @@ def classify(tv, nv, valid, tri_edge, count, t0, t1, d0, d1, root, closed,
             qx, qy, qz = tv[t, 2, 0] - ox, tv[t, 2, 1] - oy, tv[t, 2, 2] - oz
             vol[r] += (ax * (by * qz - bz * qy) - ay * (bx * qz - bz * qx)
                        + az * (bx * qy - by * qx)) / 6.0
-            if not is_sun and mode == 0:
+            if not is_sun and mode == SILHOUETTE_CENTRE:
                 wind[r] += _solid_angle(ax, ay, az, bx, by, bz, qx, qy, qz)
     counted = np.zeros(T, np.bool_)
     orient = np.zeros(T, np.int8)
@@ -227,7 +229,7 @@ def classify(tv, nv, valid, tri_edge, count, t0, t1, d0, d1, root, closed,
             o = 1 if vol[r] > 0.0 else -1
             orient[t] = o
             f = facing[t] * o
-            if mode == 0:
+            if mode == SILHOUETTE_CENTRE:
                 inside = abs(wind[r]) > 2.0 * math.pi      # winding number > 1/2
                 counted[t] = (f < 0) if inside else (f > 0)
             else:
@@ -237,7 +239,7 @@ def classify(tv, nv, valid, tri_edge, count, t0, t1, d0, d1, root, closed,
     n = 0
     keep = np.zeros((T, 3), np.bool_)
     for t in range(T):
-        if not valid[t] or (mode == 0 and not counted[t]):
+        if not valid[t] or (mode == SILHOUETTE_CENTRE and not counted[t]):
             continue
         for k in range(3):
             ok = True
@@ -245,7 +247,7 @@ def classify(tv, nv, valid, tri_edge, count, t0, t1, d0, d1, root, closed,
                 e = tri_edge[t, k]
                 if e >= 0 and count[e] == 2 and d0[e] != d1[e]:
                     o = t1[e] if t0[e] == t else t0[e]
-                    if mode == 0:
+                    if mode == SILHOUETTE_CENTRE:
                         if counted[o] and facing[o] == facing[t] and facing[t] != 0:
                             ok = False
                     elif valid[o] and facing[o] == facing[t] and facing[t] != 0:

@@ -83,10 +83,12 @@ from numba import njit, prange
 from ... import sampling
 from .. import register
 from .blockers import MAXB, coplanar_blockers, pad_triangles
-from .cast import cast_chunk, chunk_visibility
+from .cast import (N_ST, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LIVE, ST_NODES, ST_PEAK,
+                   ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers, CastSwitches,
+                   Hierarchy, LightGroups, Masks, Receivers, UmbraBits, cast_chunk, chunk_visibility)
 from .geometry import MAXP, _newell, box_vs_volume, penumbra_volume
 from .hierarchy import build_hierarchy, node_umbra_bits
-from .light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, all_sample_points,
+from .light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, LightSamples, all_sample_points,
                         assign_sets, block_polygon_2d, box_to_homog, disk_polygon, fixed_sample_table,
                         group_layout, min_rotations, polygon_to_homog, sphere_disk_table)
 from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
@@ -307,11 +309,14 @@ class Setup:
     tol: float
     eps: float
 
-    def sample_points(self, rows) -> np.ndarray:
+    def light_samples(self) -> LightSamples:
         L = self.light
+        return LightSamples(L.mode, L.SP, L.Q, L.centre, L.lp, self.seed, L.bit2s, L.nx, L.ny)
+
+    def sample_points(self, rows) -> np.ndarray:
         rows = np.ascontiguousarray(rows, np.int64)
-        return all_sample_points(L.mode, rows, L.S, self.set_id, L.SP, L.Q, self.M, L.centre, L.lp,
-                                 self.seed, self.idx, self.Pg, L.bit2s, L.nx, L.ny)
+        return all_sample_points(self.light_samples(), rows, self.light.S,
+                                 Receivers(self.pts, self.set_id, self.idx, self.Pg, self.M))
 
 
 def prepare(buffers, light, params: PenumbraCastingParams) -> Setup:
@@ -359,7 +364,7 @@ class _Chunk:
     pix: np.ndarray
     Pg: np.ndarray
     M: np.ndarray
-    hier: tuple = None
+    hier: Hierarchy = None
     fu: np.ndarray = None
     gu: np.ndarray = None
     slot: np.ndarray = None
@@ -468,6 +473,11 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
                                  setup.idx[rows].copy(), np.ascontiguousarray(setup.Pg[rows]),
                                  np.ascontiguousarray(setup.M[rows]) if L.mode == MODE_SPHERE else setup.M))
     stats["chunks"] = len(chunks)
+    blk = Blockers(order, blockers, blocker_nv, VL, nVL)
+    grp = LightGroups(L.DVg, L.nvg, L.DEg, L.neg, L.g_start)
+    smp = setup.light_samples()
+    switches = CastSwitches(optA, optB, optC, optD, float(params.RebuildFraction), leaf, setup.tol, setup.eps,
+                            bool(params.materialize_hard_volumes))
 
     def run_pool(fn):
         if workers == 1 or len(chunks) == 1:
@@ -481,21 +491,21 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
     def build(c: _Chunk):
         t = time.perf_counter()
         m = len(c.rows)
-        c.hier = build_hierarchy(c.pts, np.arange(m, dtype=np.int64), leaf, midl)
+        c.hier = Hierarchy(*build_hierarchy(c.pts, np.arange(m, dtype=np.int64), leaf, midl))
         # receivers stored in leaf order: a leaf's points are contiguous in memory
-        perm = c.hier[0]
+        perm = c.hier.perm
         c.rows, c.pts, c.set_id, c.pix, c.Pg = (c.rows[perm], np.ascontiguousarray(c.pts[perm]), c.set_id[perm],
                                                 c.pix[perm], np.ascontiguousarray(c.Pg[perm]))
         if L.mode == MODE_SPHERE:
             c.M = np.ascontiguousarray(c.M[perm])
-        c.hier = (np.arange(m, dtype=np.int64),) + tuple(c.hier[1:])
-        nn = len(c.hier[2])
+        c.hier = c.hier._replace(perm=np.arange(m, dtype=np.int64))
+        nn = len(c.hier.left)
         c.hier_nodes_peak = nn
         c.fu = np.zeros(m, np.uint8)
         c.gu = np.zeros((m, L.G), np.uint8)
         c.node_gu = np.zeros((nn, L.G), np.uint8)
         c.node_fu = np.zeros(nn, np.uint8)
-        c.st = np.zeros(16, np.int64)
+        c.st = np.zeros(N_ST, np.int64)
         # zeroed on allocation: pages are committed on first touch (see cast)
         c.pool = np.zeros((m, nwords), np.uint64)
         if optD:
@@ -504,36 +514,32 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         else:
             c.free = np.zeros(1, np.int64)
             c.slot = np.arange(m, dtype=np.int64)
-            c.st[1] = c.st[2] = c.st[11] = m
-        c.st[4] = m
+            c.st[ST_LIVE] = c.st[ST_PEAK] = c.st[ST_SLOTS] = m
+        c.st[ST_POINTS] = m
         c.build_s = time.perf_counter() - t
 
     def run(c: _Chunk):
         t_start = time.perf_counter()
         t0 = 0
+        rec = Receivers(c.pts, c.set_id, c.pix, c.Pg, c.M)
+        masks = Masks(c.slot, c.pool, c.free)
         while True:
-            perm, bb, left, right, start, count, depth = c.hier
-            t0 = cast_chunk(
-                t0, order, blockers, blocker_nv, VL, nVL, L.DVg, L.nvg, L.DEg, L.neg, L.g_start,
-                L.mode, L.SP, L.Q, c.M, L.centre, L.lp, setup.seed, c.pix, c.Pg, L.bit2s, L.nx, L.ny,
-                c.pts, c.set_id, perm, bb, left, right, start, count, depth, c.node_gu, c.node_fu,
-                c.fu, c.gu, c.slot, c.pool, c.free, c.st, optA, optB, optC, optD,
-                float(params.RebuildFraction), leaf, setup.tol, setup.eps,
-                bool(params.materialize_hard_volumes))
+            t0 = cast_chunk(t0, blk, grp, smp, rec, c.hier, UmbraBits(c.fu, c.gu, c.node_gu, c.node_fu),
+                            masks, c.st, switches)
             if t0 >= len(order):
                 break
             # line 29 (A): rebuild the hierarchy over the points not in full umbra
             tr = time.perf_counter()
             live = np.flatnonzero(c.fu == 0).astype(np.int64)
-            c.hier = build_hierarchy(c.pts, live, leaf, midl)
-            nn = len(c.hier[2])
+            c.hier = Hierarchy(*build_hierarchy(c.pts, live, leaf, midl))
+            nn = len(c.hier.left)
             c.node_gu = np.zeros((nn, L.G), np.uint8)
             c.node_fu = np.zeros(nn, np.uint8)
             if len(live):
-                node_umbra_bits(c.hier[2], c.hier[3], c.hier[4], c.hier[5], c.hier[0], c.gu, c.fu,
+                node_umbra_bits(c.hier.left, c.hier.right, c.hier.start, c.hier.count, c.hier.perm, c.gu, c.fu,
                                 c.node_gu, c.node_fu)
-            c.st[3] = 0
-            c.st[4] = len(live)
+            c.st[ST_UMBRA] = 0
+            c.st[ST_POINTS] = len(live)
             c.rebuilds += 1
             c.rebuild_s += time.perf_counter() - tr
         c.V = np.empty(len(c.rows))
@@ -553,18 +559,18 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         "rebuild_thread_s": float(sum(c.rebuild_s for c in chunks)),
         "cast_thread_s": float(sum(c.cast_s for c in chunks)),
         "build_thread_s": float(sum(c.build_s for c in chunks)),
-        "peak_masks": int(st[2]),
-        "peak_mask_bytes": int(st[2] * bytes_per_mask),
-        "mask_pool_bytes": int(st[11] * bytes_per_mask),
+        "peak_masks": int(st[ST_PEAK]),
+        "peak_mask_bytes": int(st[ST_PEAK] * bytes_per_mask),
+        "mask_pool_bytes": int(st[ST_SLOTS] * bytes_per_mask),
         "hierarchy_bytes": int(sum(c.hier_nodes_peak * (6 * 8 + 4 * 8 + L.G + 1) + 8 * len(c.rows)
                                    for c in chunks)),
         "receiver_bytes": int(n * (3 * 8 + 8 + 1 + L.G)),
-        "nodes_visited": int(st[6]),
-        "point_tests": int(st[7]),
-        "hard_volume_tests": int(st[8]),
-        "triangles_with_group_volumes": int(st[9]),
-        "hard_volumes_built": int(st[10]),
-        "triangles_root_culled": int(st[12]),
+        "nodes_visited": int(st[ST_NODES]),
+        "point_tests": int(st[ST_POINT_TESTS]),
+        "hard_volume_tests": int(st[ST_HARD_TESTS]),
+        "triangles_with_group_volumes": int(st[ST_GROUP_VOLUMES]),
+        "hard_volumes_built": int(st[ST_HARD_BUILT]),
+        "triangles_root_culled": int(st[ST_ROOT_CULLED]),
     })
     return V, stats
 

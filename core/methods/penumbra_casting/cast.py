@@ -8,13 +8,12 @@ calling again. Every switch only prunes work (conservatively) or changes
 what is stored; the relation ``l_i -> r_j`` is marked blocked by one exact
 test (``in_hard_volume``), so the output does not depend on the switches.
 
-Per-chunk counters ``st`` (int64):
-  0 released mask slots (on the free stack), 1 live masks, 2 peak live masks,
-  3 points of the current hierarchy in full umbra, 4 points in the current
-  hierarchy, 5 triangle stamp, 6 nodes visited, 7 point-vs-V_L tests, 8 hard
-  shadow volume tests, 9 triangles whose group volumes were built, 10 hard
-  volumes built, 11 mask slots handed out (pool rows ever touched),
-  12 triangles culled at the root.
+Arguments travel in named groups (the namedtuple types below, built by the
+package's ``__init__``): the blockers, the light's sample groups and sample
+table (``light.LightSamples``), the chunk's receivers, its hierarchy, its
+umbra bits (A), its masks (D), the counters ``st`` and the switches.
+
+Per-chunk counters ``st`` (int64[N_ST]): the slots ``ST_*`` below.
 
 Speed (what the profile showed, not the paper): line 70 runs 64 samples of a
 mask word at a time with unsigned indices and shifts, which LLVM turns into
@@ -32,14 +31,53 @@ reference count updates on every iteration.
 """
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
 from .geometry import MAXB, MAXP, blocked_by_edges, box_vs_volume, hard_volume, in_hard_volume, \
     penumbra_volume, point_in_volume, receiver_edge_functions, triangle_plane
-from .light import sample_point
+from .light import MODE_FIXED, MODE_SHARED, MODE_SPHERE, sample_point
 
 ALLP = np.int64(-1)
+
+# counter slots of ``st``
+ST_FREE = 0             # released mask slots (on the free stack)
+ST_LIVE = 1             # live masks
+ST_PEAK = 2             # peak live masks
+ST_UMBRA = 3            # points of the current hierarchy in full umbra
+ST_POINTS = 4           # points in the current hierarchy
+ST_STAMP = 5            # triangle stamp
+ST_NODES = 6            # nodes visited
+ST_POINT_TESTS = 7      # point-vs-V_L tests
+ST_HARD_TESTS = 8       # hard shadow volume tests
+ST_GROUP_VOLUMES = 9    # triangles whose group volumes were built
+ST_HARD_BUILT = 10      # hard volumes built
+ST_SLOTS = 11           # mask slots handed out (pool rows ever touched)
+ST_ROOT_CULLED = 12     # triangles culled at the root
+N_ST = 16
+
+# argument groups of ``cast_chunk``
+Blockers = namedtuple("Blockers", "tri_sel tris nverts VL nVL")
+"""Blocker polygons (float64[T, MAXB, 3], corners ``nverts``), their light
+volumes V_L (planes ``VL[t, :, :nVL[t]]``) and the cast order ``tri_sel``."""
+LightGroups = namedtuple("LightGroups", "DVg nvg DEg neg g_start")
+"""Bounding polygons Delta_Gk (vertices DVg/nvg, edges DEg/neg) and the bit
+range ``g_start[k]:g_start[k + 1]`` of each group G_k."""
+Receivers = namedtuple("Receivers", "pts set_id pix Pg M")
+"""Receiver points r_j, their sample set, pixel id, G-buffer position and
+(sphere) rotation rows M."""
+Hierarchy = namedtuple("Hierarchy", "perm bb left right start count depth")
+"""The receiver hierarchy (``hierarchy.build_hierarchy``)."""
+UmbraBits = namedtuple("UmbraBits", "fu gu node_gu node_fu")
+"""Optimization A: full / group umbra bits of receivers and of nodes."""
+Masks = namedtuple("Masks", "slot pool free")
+"""Optimization D: the mask row of each receiver (-1: none), the mask pool
+and the stack of released rows."""
+CastSwitches = namedtuple("CastSwitches", "optA optB optC optD rebuild_frac leaf_size tol eps materialize")
+"""Optimizations A-D, ``RebuildFraction``, ``LeafSize``, tolerances, and
+``materialize_hard_volumes``."""
 
 
 @njit(cache=True, inline="always")
@@ -82,7 +120,7 @@ def _coefficients(ef, tn, rho, mode, r, M, centre, co):
             ax, ay, az, k = sr * ef[e, 0], sr * ef[e, 1], sr * ef[e, 2], sr * ef[e, 3]
         else:
             ax, ay, az, k = -sr * tn[0], -sr * tn[1], -sr * tn[2], -sr * tn[3]
-        if mode == 1:
+        if mode == MODE_SPHERE:
             bx = M[r, 0] * ax + M[r, 3] * ay + M[r, 6] * az
             by = M[r, 1] * ax + M[r, 4] * ay + M[r, 7] * az
             bz = M[r, 2] * ax + M[r, 5] * ay + M[r, 8] * az
@@ -148,15 +186,24 @@ def chunk_visibility(fu, slot, pool, S, out):
 
 
 @njit(cache=True, nogil=True)
-def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
-               DVg, nvg, DEg, neg, g_start,
-               mode, SP, Q, M, centre, lp, seed, pix, Pg, bit2s, nx, ny,
-               pts, set_id,
-               perm, bb, left, right, start, count, depth, node_gu, node_fu,
-               fu, gu, slot, pool, free, st,
-               optA, optB, optC, optD, rebuild_frac, leaf_size, tol, eps, materialize):
+def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
+    """Cast ``blk.tri_sel[t0:]`` against one chunk; returns where it stopped.
+
+    blk: Blockers; grp: LightGroups; smp: light.LightSamples; rec: Receivers
+    (the chunk's, in leaf order); hier: Hierarchy; umb: UmbraBits (A);
+    masks: Masks (D); st: counters (``ST_*``); opt: CastSwitches."""
+    tri_sel, tris, nverts, VL, nVL = blk.tri_sel, blk.tris, blk.nverts, blk.VL, blk.nVL
+    DVg, nvg, DEg, neg, g_start = grp.DVg, grp.nvg, grp.DEg, grp.neg, grp.g_start
+    mode, SP, Q, centre, bit2s = smp.mode, smp.SP, smp.Q, smp.centre, smp.bit2s
+    pts, set_id, M = rec.pts, rec.set_id, rec.M
+    perm, bb, left, right = hier.perm, hier.bb, hier.left, hier.right
+    start, count, depth = hier.start, hier.count, hier.depth
+    fu, gu, node_gu, node_fu = umb.fu, umb.gu, umb.node_gu, umb.node_fu
+    slot, pool, free = masks.slot, masks.pool, masks.free
+    optA, optB, optC, optD = opt.optA, opt.optB, opt.optC, opt.optD
+    rebuild_frac, leaf_size, tol, eps = opt.rebuild_frac, opt.leaf_size, opt.tol, opt.eps
     G = g_start.shape[0] - 1
-    planes = materialize and mode == 0     # the paper's V_li planes per (set, sample)
+    planes = opt.materialize and mode == MODE_FIXED     # the paper's V_li planes per (set, sample)
     S = bit2s.shape[0]
     nsets = SP.shape[0]
     nwords = pool.shape[1]
@@ -178,7 +225,7 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
     # samples as structure of arrays (x, y, z, w rows): fixed points, or the
     # sphere's disk offsets with w = 1 (the per-receiver rotation goes into
     # the coefficients)
-    if mode == 1:
+    if mode == MODE_SPHERE:
         T4 = np.ones((Q.shape[0], 4, S))
         for jj in range(Q.shape[0]):
             for ii in range(S):
@@ -193,17 +240,17 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
     hv_stamp = np.full((hsets, G), -1, np.int64)
     for ti in range(t0, tri_sel.shape[0]):
         # line 29 (A): rebuild when enough points of the hierarchy are in umbra
-        if optA and st[4] > 2 * leaf_size and st[3] > rebuild_frac * st[4]:
+        if optA and st[ST_POINTS] > 2 * leaf_size and st[ST_UMBRA] > rebuild_frac * st[ST_POINTS]:
             return ti
-        if st[4] == 0:
+        if st[ST_POINTS] == 0:
             return tri_sel.shape[0]
         k = tri_sel[ti]
         nL = nVL[k]
         tri = tris[k]
         nb = nverts[k]
         triangle_plane(tri, nb, tn)
-        st[5] += 1
-        stamp = st[5]
+        st[ST_STAMP] += 1
+        stamp = st[ST_STAMP]
         vol_built = False
         if not optC:
             # basic algorithm, lines 2-3: every V_Gk and V_li up front
@@ -216,9 +263,9 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                                                   SP[j, i, 3], HV[j, i])
                     for g in range(G):
                         hv_stamp[j, g] = stamp
-                st[10] += nsets * S
+                st[ST_HARD_BUILT] += nsets * S
             vol_built = True
-            st[9] += 1
+            st[ST_GROUP_VOLUMES] += 1
         # lines 32-34
         PLv[0] = ALLP
         for g in range(G):
@@ -241,14 +288,14 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                     node_gu[node, g] = node_gu[ca, g] & node_gu[cb, g]
                 node_fu[node] = node_fu[ca] & node_fu[cb]
                 continue
-            st[6] += 1
+            st[ST_NODES] += 1
             if optA and node_fu[node]:                                   # line 35
                 continue
             ok, pl = box_vs_volume(bb, node, VL, k, nL, PLv[lev], optB, tol)  # line 36
             if first:
                 first = False
                 if not ok:
-                    st[12] += 1
+                    st[ST_ROOT_CULLED] += 1
             if not ok:
                 continue
             nl = lev + 1
@@ -291,30 +338,30 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                 if (optA or optD) and fu[r]:                             # line 57
                     continue
                 x, y, z = pts[r, 0], pts[r, 1], pts[r, 2]
-                st[7] += 1
+                st[ST_POINT_TESTS] += 1
                 if not point_in_volume(VL, k, nL, PLv[nl], x, y, z, tol):  # line 58
                     continue
                 if slot[r] < 0:                                          # line 59 (D)
-                    if st[0] > 0:
-                        st[0] -= 1
-                        sl = free[st[0]]
+                    if st[ST_FREE] > 0:
+                        st[ST_FREE] -= 1
+                        sl = free[st[ST_FREE]]
                     else:
-                        sl = st[11]
-                        st[11] += 1
+                        sl = st[ST_SLOTS]
+                        st[ST_SLOTS] += 1
                     for w in range(nwords):
                         pool[sl, w] = np.uint64(0)
                     slot[r] = sl
-                    st[1] += 1
-                    if st[1] > st[2]:
-                        st[2] = st[1]
+                    st[ST_LIVE] += 1
+                    if st[ST_LIVE] > st[ST_PEAK]:
+                        st[ST_PEAK] = st[ST_LIVE]
                 if not vol_built:                                        # lines 60-64 (C)
                     for g in range(G):
                         nVG[g] = max(0, penumbra_volume(tri, nb, DVg[g], nvg[g], DEg[g], neg[g],
                                                         eps, VG[g]))
                     vol_built = True
-                    st[9] += 1
+                    st[ST_GROUP_VOLUMES] += 1
                 sl = slot[r]
-                j = set_id[r] if mode != 2 else 0
+                j = set_id[r] if mode != MODE_SHARED else 0
                 rho = 0.0
                 have_ef = False
                 for g in range(G):                                       # line 65
@@ -330,13 +377,13 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                             hv_ok[j, i] = hard_volume(tri, nb, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
                                                       SP[j, i, 3], HV[j, i])
                         hv_stamp[j, g] = stamp
-                        st[10] += g_start[g + 1] - g_start[g]
+                        st[ST_HARD_BUILT] += g_start[g + 1] - g_start[g]
                     i0 = g_start[g]
                     i1 = g_start[g + 1]
                     if not planes and not have_ef:
                         # per receiver and triangle, on the first group that needs it
                         rho = receiver_edge_functions(tri, nb, tn, x, y, z, ef)
-                        if mode != 2 and rho != 0.0:
+                        if mode != MODE_SHARED and rho != 0.0:
                             _coefficients(ef, tn, rho, mode, r, M, centre, co)
                         have_ef = True
                     if planes:                                           # lines 68-71
@@ -345,18 +392,17 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                             b = np.uint64(1) << np.uint64(i & 63)
                             if pool[sl, w] & b:
                                 continue
-                            st[8] += 1
+                            st[ST_HARD_TESTS] += 1
                             if hv_ok[j, i] and in_hard_volume(HV[j, i], nb, x, y, z):
                                 pool[sl, w] |= b
-                    elif mode == 2:
+                    elif mode == MODE_SHARED:
                         for i in range(i0, i1):
                             w = i >> 6
                             b = np.uint64(1) << np.uint64(i & 63)
                             if pool[sl, w] & b:
                                 continue
-                            st[8] += 1
-                            px, py, pz, pw = sample_point(mode, i, r, set_id, SP, Q, M, centre, lp,
-                                                          seed, pix, Pg, bit2s, nx, ny)
+                            st[ST_HARD_TESTS] += 1
+                            px, py, pz, pw = sample_point(smp, i, r, rec)
                             if blocked_by_edges(ef, rho, tn, px, py, pz, pw):
                                 pool[sl, w] |= b
                     elif rho != 0.0:
@@ -365,7 +411,7 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                             a = max(i0, w << 6)
                             e = min(i1, (w + 1) << 6)
                             pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co, nb > 3)
-                            st[8] += e - a
+                            st[ST_HARD_TESTS] += e - a
                     if optA:                                             # line 72
                         if _bits_full(pool, sl, g_start[g], g_start[g + 1]):
                             gu[r, g] = 1
@@ -377,15 +423,15 @@ def cast_chunk(t0, tri_sel, tris, nverts, VL, nVL,
                             break
                     if allg:
                         fu[r] = 1
-                        st[3] += 1
+                        st[ST_UMBRA] += 1
                 if optD:                                                 # line 75
                     full = fu[r] == 1 if optA else _bits_full(pool, sl, 0, S)
                     if full:
                         fu[r] = 1
-                        free[st[0]] = sl
-                        st[0] += 1
+                        free[st[ST_FREE]] = sl
+                        st[ST_FREE] += 1
                         slot[r] = -1
-                        st[1] -= 1
+                        st[ST_LIVE] -= 1
             if optA:                                                     # lines 77-80
                 lf = np.uint8(1)
                 for g in range(G):

@@ -39,6 +39,7 @@ Light kinds (DESIGN.md "Light domains"):
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -53,6 +54,12 @@ MODE_SPHERE = 1     # c + M_r q: per-receiver rotation of a fixed disk set
 MODE_SHARED = 2     # the reference's own per-pixel samples (sampling.light_sample)
 
 SET_KEY = 1 << 40   # pixel slot of rand01 used for the sample sets (beyond any pixel id)
+
+LightSamples = namedtuple("LightSamples", "mode SP Q centre lp seed bit2s nx ny")
+"""The light's sample table for the kernels: ``mode`` (MODE_*), the fixed
+sets SP[set, bit] (homogeneous) or the sphere's disk sets Q[set, bit] around
+``centre``, and for MODE_SHARED the reference's inputs (packed light ``lp``,
+``seed``, strata ``nx x ny``, bit -> stratum ``bit2s``)."""
 
 
 def group_layout(n_samples: int, group_size: int):
@@ -306,32 +313,36 @@ def min_rotations(P, centre, w0):
 
 
 @njit(cache=True)
-def sample_point(mode, i, r, set_id, SP, Q, M, centre, lp, seed, pix, Pg, bit2s, nx, ny):
-    """Homogeneous position of bit ``i`` of receiver ``r``'s light sample set."""
-    if mode == 0:
-        j = set_id[r]
+def sample_point(smp, i, r, rec):
+    """Homogeneous position of bit ``i`` of receiver ``r``'s light sample set
+    (smp: LightSamples; rec: cast.Receivers, whose set_id, pix, Pg and M are read)."""
+    if smp.mode == MODE_FIXED:
+        SP = smp.SP
+        j = rec.set_id[r]
         return SP[j, i, 0], SP[j, i, 1], SP[j, i, 2], SP[j, i, 3]
-    if mode == 1:
-        j = set_id[r]
+    if smp.mode == MODE_SPHERE:
+        Q, M, centre = smp.Q, rec.M, smp.centre
+        j = rec.set_id[r]
         qx, qy, qz = Q[j, i, 0], Q[j, i, 1], Q[j, i, 2]
         return (centre[0] + M[r, 0] * qx + M[r, 1] * qy + M[r, 2] * qz,
                 centre[1] + M[r, 3] * qx + M[r, 4] * qy + M[r, 5] * qz,
                 centre[2] + M[r, 6] * qx + M[r, 7] * qy + M[r, 8] * qz, 1.0)
-    s = bit2s[i]
-    u, v = stratum_uv(seed, pix[r], s, nx, ny)
-    x, y, z, is_dir, _ = light_sample(lp, Pg[r, 0], Pg[r, 1], Pg[r, 2], u, v)
+    Pg = rec.Pg
+    s = smp.bit2s[i]
+    u, v = stratum_uv(smp.seed, rec.pix[r], s, smp.nx, smp.ny)
+    x, y, z, is_dir, _ = light_sample(smp.lp, Pg[r, 0], Pg[r, 1], Pg[r, 2], u, v)
     return x, y, z, (0.0 if is_dir else 1.0)
 
 
 @njit(cache=True)
-def all_sample_points(mode, rows, S, set_id, SP, Q, M, centre, lp, seed, pix, Pg, bit2s, nx, ny):
-    """float64[len(rows), S, 4]: every sample of the given receivers, bit order."""
+def all_sample_points(smp, rows, S, rec):
+    """float64[len(rows), S, 4]: every sample of the given receivers, bit order
+    (smp: LightSamples; rec: cast.Receivers)."""
     out = np.empty((rows.shape[0], S, 4))
     for k in range(rows.shape[0]):
         r = rows[k]
         for i in range(S):
-            x, y, z, w = sample_point(mode, i, r, set_id, SP, Q, M, centre, lp, seed, pix, Pg,
-                                      bit2s, nx, ny)
+            x, y, z, w = sample_point(smp, i, r, rec)
             out[k, i, 0] = x
             out[k, i, 1] = y
             out[k, i, 2] = z
