@@ -1,10 +1,10 @@
 """``auto``: per light, the cheapest method whose measured error meets the
 scene's error budget (issue 6, "Only the effects a scene calls for").
 
-The measurements are the accuracy study's (``study.py``, issue 7): every
+The measurements are the accuracy study's (``bench/study.py``, issue 7): every
 method on the sample scenes against ``embree`` at 1024 samples. The study
 writes ``bench/results/auto_table.json``; a full run (``make bench``) also
-installs it here as ``core/auto_table.json`` (``python study.py
+installs it here as ``core/auto_table.json`` (``python -m penumbra.bench.study
 install-table`` copies a chosen one), which ships inside the extension.
 
 The rules, in order (each decision says which one in its reason):
@@ -112,7 +112,7 @@ def _number(x, what) -> float:
 
 
 def parse_table(data: Mapping, path: str = "") -> AutoTable:
-    """An AutoTable from the JSON object ``study.py`` writes."""
+    """An AutoTable from the JSON object ``bench/study.py`` writes."""
     where = path or "auto table"
     if not isinstance(data, Mapping) or data.get("format") != TABLE_FORMAT:
         raise TableError(f"{where}: not a {TABLE_FORMAT} table")

@@ -1,7 +1,7 @@
 """Penumbra's data model: what a captured frame holds (DESIGN.md, "Data model").
 
 Everything here is plain NumPy; the one bpy -> numpy boundary
-(``operators/capture.py``) fills these dataclasses, tests build them by hand.
+(``bridge/capture.py``) fills these dataclasses, tests build them by hand.
 
 Conventions
 -----------

@@ -19,16 +19,6 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PKG = "penumbra"
 #: folders that are not part of the package
 NOT_PACKAGE = {"tests", "scripts", "sample_blends"}
-#: circles this branch may not break (other parts of issue 19 own the files):
-#: the benchmark's (bench_methods.py imports bench.py back; the move into the
-#: ``bench/`` package removes it) and the method registry's (each
-#: ``core/methods/<id>`` does ``from .. import register`` while
-#: ``core/methods/__init__`` imports the method modules; moving ``register``
-#: out of the package ``__init__`` removes it). Only these edges are ignored,
-#: so any new circle through them still fails.
-def known_edge(a: str, b: str) -> bool:
-    return b == f"{PKG}.core.methods" and a.startswith(b + ".")
-
 def _module_files(root: str = ROOT) -> Dict[str, str]:
     """dotted module name -> path, for every .py of the package."""
     out = {}
@@ -208,12 +198,12 @@ def test_the_walker_sees_function_level_and_relative_imports(tmp_path):
 def test_no_cycle_between_modules():
     g = import_graph()
     assert len(g) > 40
-    cycle = find_cycle(g, known_edge)
+    cycle = find_cycle(g)
     assert cycle is None, "import circle: " + " -> ".join(cycle)
 
 
 def test_no_cycle_between_top_level_packages():
-    g = package_graph(import_graph(), known_edge)
+    g = package_graph(import_graph())
     cycle = find_cycle(g)
     assert cycle is None, "import circle between packages: " + " -> ".join(cycle)
     assert {"core", "bridge", "addon", "operators", "cli"} <= set(g)

@@ -1,32 +1,23 @@
 """Method registry: one module (or package, named by its id) per algorithm, keyed
 by DESIGN.md's method ids.
 
-A module registers a Method subclass with ``@register``; pass ids (``embree``
-and ``embree_irr`` come from one producer) map to their producer here.
+A module registers a Method subclass with ``@register`` (``registry.py``, which
+imports no method, so no module imports back the package that loads it); pass
+ids (``embree`` and ``embree_irr`` come from one producer) map to their producer
+here.
 """
 from __future__ import annotations
 
 from typing import Dict, List
 
 from .base import IRRADIANCE, Method
+from .registry import _PASS_TO_PRODUCER, _PRODUCERS, register  # noqa: F401
 
 # Passes produced outside core (they need Blender): id -> (V definition, what).
 # The caller hands ``core.frame.render_frame`` a producer for each it wants.
 EXTERNAL_PASSES = {
     "cycles": (IRRADIANCE, "Cycles render with / without the light's shadow"),
 }
-
-_PRODUCERS: Dict[str, Method] = {}     # producer id -> instance
-_PASS_TO_PRODUCER: Dict[str, str] = {} # pass id -> producer id
-
-
-def register(cls):
-    inst = cls()
-    _PRODUCERS[inst.id] = inst
-    for pid in inst.passes:
-        _PASS_TO_PRODUCER[pid] = inst.id
-    return cls
-
 
 def _load():
     # import order = display order

@@ -36,7 +36,7 @@ from numba import njit
 
 from .. import sampling
 from ..sampling import offset_origin, reference_sample, strata
-from . import register
+from .registry import register
 from .base import AVERAGE, GBUFFER, IRRADIANCE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
 SUN_TFAR = np.float32(1e30)

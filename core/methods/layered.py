@@ -142,7 +142,7 @@ from .. import sampling, views
 from ..kernels import face_project, pick_face
 from ..sampling import concentric_disk, light_sample, rand01
 from ..scene import Light, ViewFace
-from . import register
+from .registry import register
 from .base import AVERAGE, GBUFFER, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
 EPSILON_PER_EXTENT = 0.002   # default depth tolerance, x the scene's largest side

@@ -43,7 +43,7 @@ from numba import njit, prange
 from .. import views
 from ..kernels import face_project, finite_bbox, parallel_chunks, pick_face
 from ..sampling import stream_next, stream_start
-from . import register
+from .registry import register
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
 # Reeves et al.: "In worlds measuring 100 by 100 by 100 units, typical bias

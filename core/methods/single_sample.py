@@ -121,7 +121,7 @@ from numba import njit, prange
 
 from ..kernels import face_project, pick_face
 from ..sampling import rand01
-from . import register
+from .registry import register
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
 # packed parameter layout for the kernels

@@ -109,7 +109,7 @@ from numba import njit, prange
 from ... import sampling, views
 from ...kernels import face_project, parallel_chunks, pick_face
 from ...sampling import strata
-from .. import register
+from ..registry import register
 from .coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
                         Points, Sampler, TileState, absorb, begin_point, blocker_capacity, finish_point,
                         tile_row)

@@ -71,7 +71,7 @@ import numpy as np
 
 from ... import views
 from ...sampling import offset_points
-from .. import register
+from ..registry import register
 from .geom import SHAPE_DISK, SHAPE_SQUARE, SILHOUETTE_CENTRE, SILHOUETTE_LIGHT
 from .grid import (QUAD_WHOLE_FACE, BinList, Bins, FaceBounds, KernelLight, Occluders, Quads, ReceiverGrid,
                    Receivers, Records, assign_faces, bin_entries_from_ranges, bin_quads, counting_sort_cells,

@@ -81,7 +81,7 @@ import numpy as np
 from numba import njit, prange
 
 from ... import sampling
-from .. import register
+from ..registry import register
 from .blockers import MAXB, coplanar_blockers, pad_triangles
 from .cast import (N_ST, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LIVE, ST_NODES, ST_PEAK,
                    ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers, CastSwitches,
