@@ -123,8 +123,10 @@ def _client(scheduler: Optional[str], workers: Optional[int]):
         with client:
             yield client
         return
+    # no dashboard; the scheduler's HTTP server (health routes) on a free port, not 8787
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+                      dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
 
 
@@ -151,6 +153,9 @@ def run_farm(job: FarmJob, scheduler: Optional[str] = None, workers: Optional[in
     if todo:
         with _client(scheduler, workers) as client:
             n_workers = len(client.scheduler_info().get("workers", {}))
+            if not n_workers:
+                print(f"penumbra farm: no worker has joined {scheduler} yet; the chunks wait for one",
+                      file=sys.stderr)
             futures = [(frame_spec(c), client.submit(render_chunk, job.render_argv(c), key=job.key(c),
                                                      retries=RETRIES)) for c in todo]
             bar = tqdm(total=len(job.frames), initial=sum(done(f) for f in job.frames), unit="frame",

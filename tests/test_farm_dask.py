@@ -74,7 +74,7 @@ class Cluster:
         self.workers = {}
         self.logs = []
         sched_file = os.path.join(root, "scheduler.json")
-        self._spawn([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+        self._spawn([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
                      "--scheduler-file", sched_file], "scheduler")
         _until(lambda: os.path.exists(sched_file) and os.path.getsize(sched_file) > 0, 60, "the scheduler")
         time.sleep(0.2)
@@ -113,6 +113,8 @@ class Cluster:
         return not any(render_children(p.pid) for p in self.workers.values() if p.poll() is None)
 
     def close(self):
+        for p in self.workers.values():     # they hold nothing; their render children follow them
+            p.kill()
         _stop(self.procs)
         for log in self.logs:
             log.close()
@@ -236,4 +238,112 @@ def test_a_crashing_chunk_is_retried_twice_then_reported(cluster, tmp_path, farm
     assert killed == {"1": 1, "2": 3}                     # retries=2: three attempts in all
     assert "3 frames in 3 chunks" in stdout and "2 written, 0 skipped (already there), 1 failed" in stdout
     assert "  failed 2: penumbra render exited -9" in stdout
+    assert "frame/s" not in stderr and "s/frame" not in stderr and "%|" not in stderr   # no bar: not a terminal
     assert sorted(os.listdir(out)) == [f"torus_plane.{f:04d}.{e}" for f in (1, 3) for e in ("exr", "json")]
+
+
+def _on_a_terminal(argv, timeout=FARM_TIMEOUT):
+    """Run ``argv`` with stderr on a pseudo-terminal; its exit code, stdout and
+    what it wrote to the terminal."""
+    import fcntl
+    import pty
+    import select
+    import struct
+    import termios
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))   # a 120-column terminal
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=slave, stdin=subprocess.DEVNULL, text=True)
+    os.close(slave)
+    screen = b""
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.2)
+            if ready:
+                try:
+                    chunk = os.read(master, 65536)
+                except OSError:       # the terminal closed with the process
+                    break
+                if not chunk:
+                    break
+                screen += chunk
+            elif p.poll() is not None:
+                break
+        stdout, _ = p.communicate(timeout=max(1.0, deadline - time.monotonic()))
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait(timeout=15)
+        os.close(master)
+    return p.returncode, stdout, screen.decode(errors="replace")
+
+
+def test_progress_on_a_terminal_and_quiet(cluster, tmp_path):
+    """On a terminal: frames done / total, rate and time left; --quiet (or a
+    stderr that is no terminal) shows none."""
+    cluster.ensure_workers(2)
+    out = tmp_path / "out"
+    rc, stdout, screen = _on_a_terminal(farm_argv(cluster, out, frames="1-2", chunk=1))
+    assert rc == 0, stdout + screen
+    assert "penumbra farm: 100%" in screen and "2/2" in screen, screen
+    assert "frame/s" in screen or "s/frame" in screen, screen      # the rate
+    assert "<00:00" in screen                                     # time left at the end
+    rc, stdout, screen = _on_a_terminal(farm_argv(cluster, out, frames="1-2", chunk=1, extra=["--force", "--quiet"]))
+    assert rc == 0 and "2 written, 0 skipped (already there), 0 failed" in stdout
+    assert screen.strip() == ""
+
+
+def test_local_workers_route(tmp_path):
+    """--workers N: a LocalCluster of N worker processes on 127.0.0.1."""
+    out = tmp_path / "out"
+    p = run_farm([PENUMBRA, "farm", SCENE, "--frames", "3,4", "--chunk", "1", "--workers", "2", "--out", str(out),
+                  *RENDER])
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "2 frames in 2 chunks on 2 workers: 2 written, 0 skipped (already there), 0 failed" in p.stdout
+    assert_frames_complete(out, [3, 4])
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--frames", "1-3", "--out", "{out}"], "one of the arguments --scheduler --workers is required"),
+    (["--frames", "1-3", "--workers", "0"], "argument --workers: --workers must be 1..1024, got 0"),
+    (["--frames", "1-3", "--workers", "1", "--chunk", "x"], "argument --chunk: expected a whole number"),
+    (["--frames", "3-1", "--workers", "1"], "bad --frames '3-1'"),
+    (["--workers", "1"], "the following arguments are required: --frames"),
+    (["--frames", "1", "--workers", "1", "--resolution", "3x"], "bad --resolution '3x'"),
+    (["--frames", "1", "--workers", "1", "--samples", "0"], "bad --samples '0'"),
+])
+def test_bad_farm_arguments_exit_2_with_one_line(tmp_path, argv, message):
+    argv = [a.replace("{out}", str(tmp_path / "out")) for a in argv]
+    p = run_farm([PENUMBRA, "farm", SCENE, *argv])
+    assert p.returncode == 2 and p.stdout == ""
+    assert p.stderr.splitlines() == [p.stderr.strip()] and message in p.stderr, p.stderr
+
+
+def test_bad_input_found_by_the_farm_exits_2(cluster, tmp_path):
+    cluster.ensure_workers(2)
+    p = run_farm([PENUMBRA, "farm", str(tmp_path / "missing.blend"), "--frames", "1", "--workers", "1"])
+    assert p.returncode == 2 and p.stderr.strip() == f"penumbra: error: no such file: {tmp_path / 'missing.blend'}"
+    fake = tmp_path / "fake.blend"
+    fake.write_text("not a blend")
+    p = run_farm([PENUMBRA, "farm", str(fake), "--frames", "1-3", "--scheduler", cluster.address,
+                  "--out", str(tmp_path / "out"), *RENDER])
+    assert p.returncode == 2 and p.stderr.strip() == f"penumbra: error: not a .blend file: {fake}"
+    assert "  failed 1-3: bad input: not a .blend file" in p.stdout        # once, not retried
+    with socket_closed() as address:
+        p = run_farm([PENUMBRA, "farm", SCENE, "--frames", "1", "--scheduler", address, "--out", str(tmp_path)])
+    assert p.returncode == 2 and p.stderr.startswith(f"penumbra: error: cannot reach the Dask scheduler at {address}")
+
+
+class socket_closed:
+    """A tcp://127.0.0.1 address nothing listens on."""
+
+    def __enter__(self):
+        import socket
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        self.port = s.getsockname()[1]
+        s.close()
+        return f"tcp://127.0.0.1:{self.port}"
+
+    def __exit__(self, *exc):
+        return False

@@ -4,8 +4,11 @@ Open Job Description's one-frame chunk ``5-5``, and the forms Flamenco's
 import os
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from penumbra.cli import main
+from penumbra.cli import _frame_list, main
+from penumbra.farm.chunks import chunk_frames, frame_spec
 from scenes import sample_path
 
 FAST = ["--resolution", "16x16", "--methods", "pcf", "--no-previews"]
@@ -29,3 +32,25 @@ def test_bad_chunk_strings_exit_2_with_one_line(tmp_path, capsys, chunk):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("penumbra: error: bad --frames")
     assert os.listdir(tmp_path) == []
+
+
+@given(st.sets(st.integers(-50, 400), min_size=1, max_size=60), st.integers(1, 12))
+def test_farm_chunks_cover_the_frames_and_read_back(frames, size):
+    """``penumbra farm``'s chunks: contiguous runs of the sorted frames, at
+    most ``size`` each, whose chunk strings ``--frames`` parses back exactly."""
+    chunks = chunk_frames(frames, size)
+    assert [f for c in chunks for f in c] == sorted(frames)
+    assert all(1 <= len(c) <= size for c in chunks) and all(len(c) == size for c in chunks[:-1])
+    for c in chunks:
+        assert _frame_list(frame_spec(c)) == c
+
+
+def test_frame_spec_forms():
+    assert frame_spec([47]) == "47"
+    assert frame_spec([9, 10, 20, 21]) == "9-10,20-21"
+    assert frame_spec([1, 2, 3, 4, 9, 20, 21, 22]) == "1-4,9,20-22"
+    assert frame_spec([-3, -2, -1, 0]) == "-3-0"
+    with pytest.raises(ValueError):
+        frame_spec([])
+    with pytest.raises(ValueError):
+        chunk_frames([1, 2], 0)
