@@ -145,10 +145,18 @@ def run_farm(argv, **kw):
     return subprocess.run(argv, capture_output=True, text=True, timeout=FARM_TIMEOUT, stdin=subprocess.DEVNULL, **kw)
 
 
+def _umask():
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def assert_frames_complete(out, frames):
-    """Every frame's EXR and JSON exist and read back; nothing else is there."""
+    """Every frame's EXR and JSON exist and read back, with the umask's mode
+    (the workers inherit it: 0644 under 022); nothing else is there."""
     names = sorted(os.listdir(out))
     assert names == sorted(f"torus_plane.{f:04d}.{e}" for f in frames for e in ("exr", "json")), names
+    assert {os.stat(out / n).st_mode & 0o777 for n in names} == {0o666 & ~_umask()}
     for f in frames:
         rec = json.loads((out / f"torus_plane.{f:04d}.json").read_text())
         assert rec["frame"] == f and rec["resolution"] == [32, 32] and rec["exr"] == f"torus_plane.{f:04d}.exr"
