@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml scripts/setup_system.sh
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON)"; exit 2; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[blender,dev]'
+	$(PY) -m pip install -q -e '.[blender,dev,farm,farm-dev]'
 	touch $(STAMP)
 
 demo: $(STAMP)

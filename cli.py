@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from typing import List, Optional
+
+from .farm.command import add_farm_parser, cmd_farm
 
 MAX_SIDE = 16384
 
@@ -124,6 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
     b.add_argument("--part", choices=("all", "skeleton", "methods", "study"), default="all",
                    help="pipeline phases, per-method tables, or the accuracy-versus-time study")
+    add_farm_parser(sub)
     return p
 
 
@@ -276,8 +280,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         from .core.planner import PlanError
         args = build_parser().parse_args(argv)
         if not args.command:
-            raise UsageError("expected a command: render, plan or bench")
-        return {"render": cmd_render, "plan": cmd_plan, "bench": cmd_bench}[args.command](args)
+            raise UsageError("expected a command: render, plan, bench or farm")
+        return {"render": cmd_render, "plan": cmd_plan, "bench": cmd_bench, "farm": cmd_farm}[args.command](args)
     except (UsageError, PlanError) as exc:
         print(f"penumbra: error: {exc}", file=sys.stderr)
         return 2
@@ -286,5 +290,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 130
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def console_main() -> None:
+    # A farm stops a task with SIGTERM (OpenJD's NOTIFY_THEN_TERMINATE, a Dask
+    # worker gone): handle it as Ctrl-C, so no half-written temporary file stays.
+    signal.signal(signal.SIGTERM, _interrupt)
     sys.exit(main())

@@ -8,19 +8,32 @@ temporary name in the same folder, then renamed.
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from typing import Dict, Mapping
 
 import numpy as np
 
 CHANNEL = "V"
+TEMP_PREFIX = ".penumbra-"
 
 
 def _atomic_target(path: str):
+    """Create an empty temporary file beside ``path`` and return its name.
+
+    It is created with mode 0666 less the process umask (0644 under 022), as
+    ``open()`` would create ``path`` itself, so the renamed file is readable
+    by whoever the umask allows (``tempfile.mkstemp`` would force 0600).
+    """
     d = os.path.dirname(os.path.abspath(path)) or "."
-    fd, tmp = tempfile.mkstemp(prefix=".penumbra-", suffix=os.path.splitext(path)[1], dir=d)
-    os.close(fd)
-    return tmp
+    suffix = os.path.splitext(path)[1]
+    while True:
+        tmp = os.path.join(d, f"{TEMP_PREFIX}{secrets.token_hex(6)}{suffix}")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:

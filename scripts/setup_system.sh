@@ -2,6 +2,12 @@
 # Debian libraries the PyPI bpy module loads even in background mode
 # (BLENDER_NOTES.md). Installs only what is missing; needs root or sudo.
 set -euo pipefail
+# node runs the Flamenco job type farm/flamenco/penumbra_render.js in tests/test_farm_flamenco.py
+if ! command -v node >/dev/null 2>&1; then
+  echo "installing nodejs (the Flamenco job type's tests)"
+  NSUDO=""; [ "$(id -u)" -ne 0 ] && NSUDO="sudo"
+  $NSUDO apt-get update -qq && $NSUDO apt-get install -y -qq nodejs >/dev/null
+fi
 need=()
 for lib in libGL.so.1 libX11.so.6 libXi.so.6 libXrender.so.1 libXfixes.so.3 \
            libxkbcommon.so.0 libSM.so.6 libICE.so.6 libXxf86vm.so.1; do

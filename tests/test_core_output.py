@@ -120,3 +120,20 @@ def test_external_pass_hook():
     assert rec["visibility"] == "irradiance" and rec["params"] == {"samples": 4}
     assert rec["time_s"] == {"render": 0.25, "total": 0.25}
     assert rec["error"]["reference"] == "embree_irr"
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o027, 0o640), (0o077, 0o600)])
+def test_written_files_honour_the_umask(tmp_path, umask, mode):
+    """EXR, JSON and PNG get 0666 less the process umask (as ``open`` would
+    create them), not the 0600 of a ``mkstemp`` temporary file."""
+    sc = half_plane_scene(area_light(1.0), res=8)
+    res = render_frame(sc, ["pcf"])
+    old = os.umask(umask)
+    try:
+        paths = write_frame(res, str(tmp_path))
+    finally:
+        os.umask(old)
+    files = sorted(os.listdir(tmp_path))
+    assert files == ["scene.0001.Area.pcf.png", "scene.0001.exr", "scene.0001.json"]
+    assert {f: os.stat(tmp_path / f).st_mode & 0o777 for f in files} == {f: mode for f in files}
+    assert exr.read_multilayer(paths["exr"])["Area"]["pcf"].shape == (8, 8)

@@ -211,6 +211,9 @@ def test_exclusions_and_platform_split_match_blenders_builder(blender_ext):
     assert "__init__.py" in ours and "core/frame.py" in ours and "operators/compute.py" in ours
     assert "bridge/pipeline.py" in ours
     assert "core/auto_table.json" in ours          # auto's measured table ships with the code
+    # the farm runner ships (cli.py imports it), the farm job definitions do not
+    assert "farm/command.py" in ours and "farm/dask_farm.py" in ours
+    assert not [rel for rel in ours if rel.startswith(("farm/flamenco/", "farm/openjd/"))]
     for rel in ours:
         assert not rel.startswith(("tests/", "sample_blends/", "scripts/", "bench/", "wheels/",
                                    "dist/", ".venv/", ".git/", "demo_out/")), rel
