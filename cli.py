@@ -13,6 +13,7 @@ import signal
 import sys
 from typing import List, Optional
 
+from .farm import watchdog
 from .farm.command import add_farm_parser, cmd_farm
 
 MAX_SIDE = 16384
@@ -298,4 +299,10 @@ def console_main() -> None:
     # A farm stops a task with SIGTERM (OpenJD's NOTIFY_THEN_TERMINATE, a Dask
     # worker gone): handle it as Ctrl-C, so no half-written temporary file stays.
     signal.signal(signal.SIGTERM, _interrupt)
+    if os.environ.get(watchdog.ENV):        # a farm chunk: exit with the worker that started it
+        watchdog.exit_with_parent()
     sys.exit(main())
+
+
+if __name__ == "__main__":
+    console_main()

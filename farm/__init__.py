@@ -7,7 +7,7 @@
   Deadline Cloud) with TASK_CHUNKING, one ``CHUNK[INT]`` task per chunk;
 - ``penumbra farm``: Dask distributed (``dask_farm.py``), one task per chunk
   on an existing scheduler or a LocalCluster, each rendering its chunk in a
-  child process of the worker (``render_child.py``).
+  child process of the worker (``python -m penumbra.cli``; ``watchdog.py`` ends it with its worker).
 
 Every route leans on what ``penumbra render`` already guarantees: each frame
 is written atomically (JSON last, so the JSON marks a finished frame), frames

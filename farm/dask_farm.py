@@ -2,7 +2,7 @@
 
 Each task (``render_chunk``, run on a worker) renders its chunk exactly as
 ``penumbra render SCENE --frames <chunk> --out DIR ...`` does, in a child
-process of the worker (``render_child.py``), and is retried twice when it
+process of the worker (``python -m penumbra.cli``, with ``watchdog.py``), and is retried twice when it
 fails. A worker that dies takes its child with it (the child's watchdog) and
 the scheduler gives the chunk to another worker; the frames the dead one had
 finished are skipped there, the one it was writing was never renamed into
@@ -32,12 +32,14 @@ from typing import Dict, List, Optional, Sequence, Tuple
 from tqdm import tqdm
 
 from ..core.output import output_paths
+from . import watchdog
 from .chunks import chunk_frames, frame_spec
 
 RETRIES = 2
 POLL_S = 0.5
 CONNECT_TIMEOUT = "10s"
-CHILD_MODULE = f"{__package__}.render_child"
+#: the child: the command line itself, as a module (``python -m penumbra.cli``)
+CHILD_MODULE = f"{__package__.rsplit('.', 1)[0]}.cli"
 ERROR_LINES = 3
 
 
@@ -85,8 +87,9 @@ def render_chunk(render_argv: Sequence[str]) -> dict:
     (so Dask retries) on any other failure.
     """
     t0 = time.perf_counter()
+    env = dict(os.environ, **{watchdog.ENV: "1"})
     proc = subprocess.run([sys.executable, "-m", CHILD_MODULE, "render", *render_argv],
-                          stdin=subprocess.DEVNULL, capture_output=True, text=True)
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, env=env)
     if proc.returncode == 2:
         return {"bad_input": _last_lines(proc.stderr, 1).removeprefix("penumbra: error: ")}
     if proc.returncode != 0:

@@ -49,7 +49,7 @@ def _until(condition, timeout, what):
 
 
 def render_children(pid):
-    """The chunk renders a worker process runs (its ``render_child`` children)."""
+    """The chunk renders a worker process runs (its ``python -m penumbra.cli`` children)."""
     try:
         kids = psutil.Process(pid).children(recursive=True)
     except psutil.NoSuchProcess:
@@ -57,7 +57,7 @@ def render_children(pid):
     out = []
     for k in kids:
         try:
-            if "penumbra.farm.render_child" in " ".join(k.cmdline()):
+            if "-m penumbra.cli render" in " ".join(k.cmdline()):
                 out.append(k)
         except psutil.NoSuchProcess:
             pass
