@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..addon import compositor
+from ..bridge import compat
 
 IMAGE_PREFIX = "Penumbra "          # pass images "Penumbra <layer> <pass>", "Penumbra Preview"
 GROUP_NAME = "Penumbra"             # the compositor node group (Blender 5.0)
@@ -38,6 +39,8 @@ def clear_penumbra_data():
             n_nodes += 1
     for g in groups:
         bpy.data.node_groups.remove(g)
+    for scene in bpy.data.scenes:
+        compat.remove_penumbra_effect(scene)
     images = penumbra_images()
     for img in images:
         bpy.data.images.remove(img)
