@@ -45,38 +45,56 @@ def collected(venv: str, part: str) -> list[str]:
     return [junit_id(ln.strip()) for ln in proc.stdout.splitlines() if "::" in ln]
 
 
-def run(venv: str, part: str, extra: list[str]) -> dict:
-    """One pytest run; returns what it ran and how it went."""
+def start(venv: str, part: str, extra: list[str], tmp: str, log: bool) -> dict:
+    """Start one pytest run (its output to a log file in ``tmp`` when ``log``)."""
     versions = subprocess.run([_python(venv), "-c", VERSIONS], capture_output=True, text=True,
                               cwd=ROOT).stdout.strip()
-    with tempfile.TemporaryDirectory() as tmp:
-        xml = os.path.join(tmp, "junit.xml")
-        print(f"\n=== {part} tests on {venv} ({versions})", flush=True)
-        t0 = time.monotonic()
-        proc = subprocess.run([_python(venv), "-m", "pytest", "-q", "--part", part,
-                               f"--junitxml={xml}", *extra, "tests"], cwd=ROOT)
-        secs = time.monotonic() - t0
-        ran, bad = [], []
-        if os.path.exists(xml):
-            for case in ET.parse(xml).getroot().iter("testcase"):
-                tid = f"{case.get('classname')}::{case.get('name')}"
-                ran.append(tid)
-                if case.find("failure") is not None or case.find("error") is not None \
-                        or case.find("skipped") is not None:
-                    bad.append(tid)
-    return {"venv": venv, "part": part, "versions": versions, "ran": ran, "bad": bad,
-            "rc": proc.returncode, "secs": secs}
+    name = f"{part}-{os.path.basename(venv.rstrip('/'))}"
+    xml = os.path.join(tmp, f"{name}.xml")
+    print(f"=== {part} tests on {venv} ({versions})", flush=True)
+    out = open(os.path.join(tmp, f"{name}.log"), "w") if log else None
+    proc = subprocess.Popen([_python(venv), "-m", "pytest", "-q", "--part", part,
+                             f"--junitxml={xml}", *extra, "tests"], cwd=ROOT, stdout=out, stderr=out)
+    return {"venv": venv, "part": part, "versions": versions, "xml": xml, "proc": proc,
+            "t0": time.monotonic(), "log": out}
+
+
+def finish(r: dict) -> dict:
+    """Wait for a run; what it ran and how it went."""
+    r["rc"] = r["proc"].wait()
+    r["secs"] = time.monotonic() - r["t0"]
+    if r["log"] is not None:
+        r["log"].close()
+        with open(r["log"].name) as f:
+            print(f"\n=== {r['part']} tests on {r['venv']}:\n" + f.read()[-4000:], flush=True)
+    r["ran"], r["bad"] = [], []
+    if os.path.exists(r["xml"]):
+        for case in ET.parse(r["xml"]).getroot().iter("testcase"):
+            tid = f"{case.get('classname')}::{case.get('name')}"
+            r["ran"].append(tid)
+            if case.find("failure") is not None or case.find("error") is not None \
+                    or case.find("skipped") is not None:
+                r["bad"].append(tid)
+    return r
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--core", required=True, metavar="VENV", help="venv for the core tests (run once)")
     ap.add_argument("--bpy", required=True, nargs="+", metavar="VENV", help="venvs for the bpy tests")
+    ap.add_argument("--parallel", action="store_true",
+                    help="start every run at once (output shown when each ends)")
     ap.add_argument("pytest_args", nargs="*", help="after --: passed to every pytest run")
     args = ap.parse_args(argv)
 
     every = collected(args.core, "all")
-    runs = [run(args.core, "core", args.pytest_args)] + [run(v, "bpy", args.pytest_args) for v in args.bpy]
+    plan = [(args.core, "core")] + [(v, "bpy") for v in args.bpy]
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.parallel:
+            started = [start(v, part, args.pytest_args, tmp, True) for v, part in plan]
+            runs = [finish(r) for r in started]
+        else:
+            runs = [finish(start(v, part, args.pytest_args, tmp, False)) for v, part in plan]
 
     problems = []
     core_ran = set(runs[0]["ran"])
