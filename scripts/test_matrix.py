@@ -53,8 +53,13 @@ def start(venv: str, part: str, extra: list[str], tmp: str, log: bool) -> dict:
     xml = os.path.join(tmp, f"{name}.xml")
     print(f"=== {part} tests on {venv} ({versions})", flush=True)
     out = open(os.path.join(tmp, f"{name}.log"), "w") if log else None
+    # a temp folder per run: tests check what they leave in theirs, and
+    # parallel runs must not see each other's files
+    run_tmp = os.path.join(tmp, f"{name}-tmp")
+    os.makedirs(run_tmp)
     proc = subprocess.Popen([_python(venv), "-m", "pytest", "-q", "--part", part,
-                             f"--junitxml={xml}", *extra, "tests"], cwd=ROOT, stdout=out, stderr=out)
+                             f"--junitxml={xml}", *extra, "tests"], cwd=ROOT, stdout=out, stderr=out,
+                            env={**os.environ, "TMPDIR": run_tmp})
     return {"venv": venv, "part": part, "versions": versions, "xml": xml, "proc": proc,
             "t0": time.monotonic(), "log": out}
 
