@@ -64,10 +64,23 @@ def start(venv: str, part: str, extra: list[str], tmp: str, log: bool) -> dict:
             "t0": time.monotonic(), "log": out}
 
 
+def ended(r: dict, block: bool) -> bool:
+    """Whether the run's pytest has ended (reaped here, with its wall and CPU
+    seconds, children included)."""
+    if "rc" in r:
+        return True
+    pid, status, usage = os.wait4(r["proc"].pid, 0 if block else os.WNOHANG)
+    if pid == 0:
+        return False
+    r["rc"] = r["proc"].returncode = os.waitstatus_to_exitcode(status)
+    r["secs"] = time.monotonic() - r["t0"]
+    r["cpu"] = usage.ru_utime + usage.ru_stime
+    return True
+
+
 def finish(r: dict) -> dict:
     """Wait for a run; what it ran and how it went."""
-    r["rc"] = r["proc"].wait()
-    r["secs"] = time.monotonic() - r["t0"]
+    ended(r, block=True)
     if r["log"] is not None:
         r["log"].close()
         with open(r["log"].name) as f:
@@ -97,6 +110,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         if args.parallel:
             started = [start(v, part, args.pytest_args, tmp, True) for v, part in plan]
+            while not all([ended(r, block=False) for r in started]):
+                time.sleep(1.0)
             runs = [finish(r) for r in started]
         else:
             runs = [finish(start(v, part, args.pytest_args, tmp, False)) for v, part in plan]
@@ -121,8 +136,8 @@ def main(argv=None) -> int:
     print(f"\n=== test matrix: {len(every)} tests collected; core tests once, bpy tests per Blender")
     for r in runs:
         print(f"  {r['part']:4s} {r['venv']:10s} {r['versions']:45s} {len(r['ran']):4d} tests "
-              f"{len(r['bad']):3d} bad {r['secs']:7.0f} s")
-    print(f"  total {sum(r['secs'] for r in runs):.0f} s")
+              f"{len(r['bad']):3d} bad {r['secs']:6.0f} s wall {r['cpu']:6.0f} s CPU")
+    print(f"  total {sum(r['secs'] for r in runs):.0f} s wall, {sum(r['cpu'] for r in runs):.0f} s CPU")
     for p in problems:
         print(f"test_matrix: {p}", file=sys.stderr)
     return 1 if problems else 0
