@@ -1,30 +1,41 @@
 # Penumbra: two commands do everything on a fresh machine.
 #   make demo   - set up .venv (and the Debian libraries bpy needs), render the sample scene
-#   make test   - set up .venv, run the test suite
-PYTHON ?= python3.11
+#   make test   - set up the three venvs below, run the test matrix
+#
+# .venv      the default development Blender: bpy 5.2.3 (the 5.2 LTS), Python 3.13, numpy 2
+# .venv-5.0  bpy 5.0.1, Python 3.11, numpy 1.26
+# .venv-5.3  bpy 5.3.0, Python 3.13, numpy 2
+# Python 3.13 / 3.11 are found by scripts/find_python.sh (PATH, then pyenv).
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+VENV_DEPS := pyproject.toml scripts/setup_system.sh scripts/find_python.sh scripts/make_venv.sh
 
 .PHONY: demo test bench setup clean samples wheels extension
 .DEFAULT_GOAL := demo
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/setup_system.sh
+$(STAMP): $(VENV_DEPS)
 	bash scripts/setup_system.sh
-	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON)"; exit 2; }
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[blender,dev,farm,farm-dev]'
-	touch $(STAMP)
+	bash scripts/make_venv.sh $(VENV) 3.13 blender52
+
+.venv-5.0/.installed: $(VENV_DEPS)
+	bash scripts/setup_system.sh
+	bash scripts/make_venv.sh .venv-5.0 3.11 blender50
+
+.venv-5.3/.installed: $(VENV_DEPS)
+	bash scripts/setup_system.sh
+	bash scripts/make_venv.sh .venv-5.3 3.13 blender53
 
 demo: $(STAMP)
 	$(VENV)/bin/penumbra render sample_blends/sphere_plane.blend --out demo_out --methods all --samples 64
 	@echo "passes written to demo_out/"
 
-test: $(STAMP)
-	$(PY) -m pytest -q tests
+# Core tests once (on .venv), every test that touches bpy on each Blender
+# (scripts/test_matrix.py checks that every collected test ran).
+test: $(STAMP) .venv-5.0/.installed .venv-5.3/.installed
+	$(PY) scripts/test_matrix.py --core $(VENV) --bpy $(VENV) .venv-5.0 .venv-5.3
 
 bench: $(STAMP)
 	$(VENV)/bin/penumbra bench --out bench/results
@@ -41,4 +52,4 @@ extension: $(STAMP)
 	$(PY) scripts/build_extension.py build --out dist
 
 clean:
-	rm -rf $(VENV) demo_out .pytest_cache
+	rm -rf $(VENV) .venv-5.0 .venv-5.3 demo_out .pytest_cache

@@ -28,7 +28,7 @@ from typing import Optional
 import bpy
 from bpy.app.handlers import persistent
 
-from ..bridge import settings
+from ..bridge import compat, settings
 from ..bridge.capture import is_capturing
 from ..bridge.cycles_reference import is_rendering
 from ..bridge.pipeline import (FrameRequest, NoCamera, check_out_dir, compute_frame, first_line,
@@ -143,23 +143,23 @@ def _renders_layers(scene) -> bool:
     """Whether Blender renders the scene (so frame_change_post will get the
     render depsgraph): not when the compositor is on and has no Render
     Layers node (then Blender only composites)."""
-    tree = getattr(scene, "compositing_node_group", None)
-    if tree is None or not scene.render.use_compositing:
+    trees = compat.render_trees(scene)
+    if not trees or not scene.render.use_compositing:
         return True
     seen = set()
 
-    def has_rlayers(t):
+    def has_rlayers(t, top):
         if t.as_pointer() in seen:
             return False
         seen.add(t.as_pointer())
         for n in t.nodes:
-            if n.bl_idname == "CompositorNodeRLayers":
+            if n.bl_idname == "CompositorNodeRLayers" or (top and n.bl_idname in compat.RENDER_INPUT_NODES):
                 return True
             sub = getattr(n, "node_tree", None)
-            if sub is not None and has_rlayers(sub):
+            if sub is not None and has_rlayers(sub, False):
                 return True
         return False
-    return has_rlayers(tree)
+    return any(has_rlayers(t, True) for t in trees)
 
 
 HANDLERS = (

@@ -25,6 +25,7 @@ from typing import Dict, Optional, Sequence
 
 import bpy
 
+from . import compat
 from .images import pass_image_name
 
 PREFIX = "Penumbra:"
@@ -32,18 +33,9 @@ FRAME_NAME = "Penumbra"
 
 
 def compositor_tree(scene) -> bpy.types.NodeTree:
-    """The scene's compositing node group; when it has none, a new one that
-    passes the render through (Render Layers -> Group Output)."""
-    tree = scene.compositing_node_group
-    if tree is None:
-        tree = bpy.data.node_groups.new("Compositor", "CompositorNodeTree")
-        tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-        rl = tree.nodes.new("CompositorNodeRLayers")
-        out = tree.nodes.new("NodeGroupOutput")
-        out.location = (400, 0)
-        tree.links.new(rl.outputs["Image"], out.inputs["Image"])
-        scene.compositing_node_group = tree
-    return tree
+    """The compositor node group Penumbra's nodes go in (made when missing;
+    per Blender line: ``bridge.compat.compositor_tree``)."""
+    return compat.compositor_tree(scene, create=True)
 
 
 def clear_nodes(tree) -> int:
@@ -393,7 +385,7 @@ def setup_compositor(scene, lights, exr_path: Optional[str] = None, view_layer: 
                 (x0 + 320.0, 0.0), frame)
     node.node_tree = group
     node.inputs["Error Scale"].default_value = float(error_scale)
-    tree.links.new(rl.outputs["Image"], node.inputs["Image"])
+    tree.links.new(compat.render_layers_socket(rl, "Image"), node.inputs["Image"])
     if lights:
         viewer = _new(tree, "CompositorNodeViewer", f"{SETUP_PREFIX}Viewer", "Penumbra side by side",
                       (x0 + 640.0, 0.0), frame)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..bridge import compositor
+from ..bridge import compat, compositor
 from ..bridge.compositor import GROUP_NAME
 from ..bridge.images import IMAGE_PREFIX     # pass images "Penumbra <layer> <pass>", "Penumbra Preview"
 
@@ -37,6 +37,8 @@ def clear_penumbra_data():
             n_nodes += 1
     for g in groups:
         bpy.data.node_groups.remove(g)
+    for scene in bpy.data.scenes:
+        compat.remove_penumbra_effect(scene)
     images = penumbra_images()
     for img in images:
         bpy.data.images.remove(img)

@@ -6,16 +6,19 @@
 
 ``wheels`` fetches the unmodified PyPI wheels that ``blender_manifest.toml``
 lists into ``./wheels/`` (only those not already there), one
-``pip download --only-binary=:all: --python-version=3.11 --implementation cp
---abi cp311 --platform=<tag> --no-deps <name>==<version>`` per package and
-platform, and checks that pip produced exactly the files the manifest names.
+``pip download --only-binary=:all: --python-version=3.X --implementation cp
+--abi cp3X --platform=<tag> --no-deps <name>==<version>`` per package,
+platform and Python (3.11 for Blender 5.0, 3.13 for 5.1 - 5.3), and checks
+that pip produced exactly the files the manifest names. A wheel PyPI lacks
+stops it with one line naming the package, version, Python and platform.
 
 ``build`` (which fetches missing wheels first) writes one zip per platform to
 ``dist/``, laid out the way ``blender --command extension build
 --split-platforms`` lays it out (``bl_pkg/cli/blender_ext.py`` in Blender
 5.0): ``<id>-<version>-<platform with _>.zip`` holding the manifest and
-``__init__.py`` at the top level, the platform's wheels (stored, not
-deflated) under ``wheels/``, every other file not matched by ``[build]
+``__init__.py`` at the top level, the platform's wheels for both Pythons
+(stored, not deflated) under ``wheels/``; Blender installs those matching its
+own Python and skips the others, every other file not matched by ``[build]
 paths_exclude_pattern``, and the source manifest with a ``[build.generated]``
 table appended that narrows ``platforms`` and ``wheels`` to that platform
 (Blender applies that table when it installs the zip).
@@ -47,17 +50,19 @@ PIP_PLATFORMS = {
     "windows-x64": "win_amd64",
 }
 
-#: Packages Blender 5.0 ships itself: not bundled.
+#: Packages Blender ships itself (numpy 1.26 in 5.0, 2.x in 5.1+): not bundled.
 BLENDER_SHIPS = {"numpy"}
 
 #: Where PyPI has no wheel of the pinned version for a platform: numba 0.68.1
 #: and llvmlite 0.50.0 publish no macOS x86_64 wheels (numba's last Intel-Mac
-#: wheels are 0.62.1, with llvmlite 0.45.1).
+#: wheels are 0.62.1, with llvmlite 0.45.1; cp311 and cp313 both exist).
 VERSION_OVERRIDES = {
     "macos-x64": {"numba": "0.62.1", "llvmlite": "0.45.1"},
 }
 
-PYTHON_TAG = "cp311"
+#: CPython tag per Python the supported Blenders run: 3.11 (Blender 5.0),
+#: 3.13 (5.1, 5.2 LTS, 5.3).
+PYTHON_TAGS = {"cp311": "3.11", "cp313": "3.13"}
 
 
 class BuildError(Exception):
@@ -78,11 +83,13 @@ def pinned_requirements(root: str = ROOT) -> dict[str, str]:
         deps = tomllib.load(f)["project"]["dependencies"]
     out = {}
     for dep in deps:
+        name = re.match(r"\s*([A-Za-z0-9_.\-]+)", dep)
+        if name is not None and _norm(name.group(1)) in BLENDER_SHIPS:
+            continue
         m = re.fullmatch(r"\s*([A-Za-z0-9_.\-]+)\s*==\s*([^\s;]+)\s*", dep)
         if m is None:
-            raise BuildError(f"pyproject dependency {dep!r} is not pinned as name==version")
-        if _norm(m.group(1)) not in BLENDER_SHIPS:
-            out[_norm(m.group(1))] = m.group(2)
+            raise BuildError(f"pyproject dependency {dep!r} is not pinned as name==version (no markers)")
+        out[_norm(m.group(1))] = m.group(2)
     return out
 
 
@@ -144,8 +151,8 @@ def load_manifest(root: str = ROOT) -> dict:
 
 
 def check_manifest_wheels(manifest: dict, platforms: list[str], root: str = ROOT) -> None:
-    """Each platform lists exactly one cp311 wheel per pinned package, at the
-    pinned (or overridden) version, under ./wheels/."""
+    """Each platform lists exactly one wheel per pinned package and Python
+    (cp311, cp313), at the pinned (or overridden) version, under ./wheels/."""
     wheels = manifest.get("wheels", [])
     for w in wheels:
         if not w.startswith("./wheels/") or "/" in w[len("./wheels/"):]:
@@ -157,25 +164,28 @@ def check_manifest_wheels(manifest: dict, platforms: list[str], root: str = ROOT
         have = {}
         for w in wheels_for_platform(wheels, platform):
             name, version, py, abi, _ = wheel_fields(w)
-            if name in have:
-                raise BuildError(f"{platform}: two wheels for {name}: {have[name][1]} and {w}")
-            have[name] = (version, w, py, abi)
-        if set(have) != set(want):
-            raise BuildError(f"{platform}: manifest wheels {sorted(have)} != needed {sorted(want)}")
-        for name, (version, w, py, abi) in have.items():
+            tags = [t for t in PYTHON_TAGS if t in py.split(".") and t in abi.split(".")]
+            if len(tags) != 1:
+                raise BuildError(f"{platform}: {w} is not a wheel for one of {sorted(PYTHON_TAGS)}")
+            key = (name, tags[0])
+            if key in have:
+                raise BuildError(f"{platform}: two {tags[0]} wheels for {name}: {have[key][1]} and {w}")
+            have[key] = (version, w)
+        need = {(name, tag) for name in want for tag in PYTHON_TAGS}
+        if set(have) != need:
+            raise BuildError(f"{platform}: manifest wheels {sorted(have)} != needed {sorted(need)}")
+        for (name, _tag), (version, w) in have.items():
             if version != want[name]:
                 raise BuildError(f"{platform}: {w} is version {version}, pinned {want[name]}")
-            if PYTHON_TAG not in py.split(".") or PYTHON_TAG not in abi.split("."):
-                raise BuildError(f"{platform}: {w} is not a {PYTHON_TAG} wheel")
 
 
 # ---------------------------------------------------------------------------
 # Wheels
 
-def pip_download_command(name: str, version: str, platform: str, dest: str) -> list[str]:
+def pip_download_command(name: str, version: str, platform: str, tag: str, dest: str) -> list[str]:
     return [sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
-            "--only-binary=:all:", "--python-version=3.11", "--implementation=cp",
-            f"--abi={PYTHON_TAG}", f"--platform={PIP_PLATFORMS[platform]}", "--no-deps",
+            "--only-binary=:all:", f"--python-version={PYTHON_TAGS[tag]}", "--implementation=cp",
+            f"--abi={tag}", f"--platform={PIP_PLATFORMS[platform]}", "--no-deps",
             "--dest", dest, f"{name}=={version}"]
 
 
@@ -188,24 +198,26 @@ def fetch_wheels(platforms: list[str], root: str = ROOT, log=print) -> list[str]
     os.makedirs(dest, exist_ok=True)
     needed = []
     for platform in platforms:
-        listed = {wheel_fields(w)[0]: w for w in wheels_for_platform(manifest["wheels"], platform)}
+        listed = {(wheel_fields(w)[0], wheel_fields(w)[2].split(".")[0]): w
+                  for w in wheels_for_platform(manifest["wheels"], platform)}
         for name, version in sorted(platform_requirements(platform, root).items()):
-            rel = listed[name]
-            needed.append(rel)
-            path = os.path.join(root, rel)
-            if os.path.isfile(path) and zipfile.is_zipfile(path):
-                continue
-            log(f"pip download {name}=={version} for {platform} ({PIP_PLATFORMS[platform]})")
-            before = set(os.listdir(dest))
-            proc = subprocess.run(pip_download_command(name, version, platform, dest),
-                                  capture_output=True, text=True)
-            if proc.returncode != 0:
-                raise BuildError(f"pip download {name}=={version} --platform="
-                                 f"{PIP_PLATFORMS[platform]} failed:\n{proc.stderr.strip()}")
-            if not os.path.isfile(path):
-                got = sorted(set(os.listdir(dest)) - before)
-                raise BuildError(f"pip fetched {got or 'nothing new'} for {name}=={version} on "
-                                 f"{platform}, but the manifest lists {rel}: update blender_manifest.toml")
+            for tag in PYTHON_TAGS:
+                rel = listed[(name, tag)]
+                needed.append(rel)
+                path = os.path.join(root, rel)
+                if os.path.isfile(path) and zipfile.is_zipfile(path):
+                    continue
+                log(f"pip download {name}=={version} for {platform} ({PIP_PLATFORMS[platform]}, {tag})")
+                before = set(os.listdir(dest))
+                proc = subprocess.run(pip_download_command(name, version, platform, tag, dest),
+                                      capture_output=True, text=True)
+                if proc.returncode != 0:
+                    raise BuildError(f"no wheel of {name}=={version} for Python {PYTHON_TAGS[tag]} on "
+                                     f"{platform} ({PIP_PLATFORMS[platform]}) on the package index")
+                if not os.path.isfile(path):
+                    got = sorted(set(os.listdir(dest)) - before)
+                    raise BuildError(f"pip fetched {got or 'nothing new'} for {name}=={version} on "
+                                     f"{platform}, but the manifest lists {rel}: update blender_manifest.toml")
     return needed
 
 

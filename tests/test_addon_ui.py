@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import penumbra
+from penumbra.bridge import compat
 from penumbra.bridge import compositor
 from penumbra.addon import properties as props
 from penumbra.bridge import settings
@@ -214,7 +215,8 @@ def test_compute_uses_per_light_settings(registered, tmp_path):
     scene.penumbra.seed = 5
     scene.penumbra.output_folder = str(tmp_path / "out")
     assert bpy.ops.penumbra.compute_passes() == {"FINISHED"}
-    ours = {n.name for n in scene.compositing_node_group.nodes if n.name.startswith(compositor.PREFIX)}
+    ours = {n.name for n in compat.compositor_tree(scene, create=False).nodes
+            if n.name.startswith(compositor.PREFIX)}
     assert ours == {f"{compositor.PREFIX}{layer}:embree_irr", f"{compositor.PREFIX}{layer}:embree"}
     for pid in ("embree_irr", "embree"):
         assert tuple(bpy.data.images[compositor.pass_image_name(layer, pid)].size) == (W, H)
@@ -234,7 +236,8 @@ def test_compute_uses_per_light_settings(registered, tmp_path):
     assert set(rec["lights"][0]["methods"]) == {"pcf"}
     assert rec["lights"][0]["methods"]["pcf"]["params"]["NumSamples"] == 9
     # the nodes show this run's passes; the earlier reference image is kept
-    ours = {n.name for n in scene.compositing_node_group.nodes if n.name.startswith(compositor.PREFIX)}
+    ours = {n.name for n in compat.compositor_tree(scene, create=False).nodes
+            if n.name.startswith(compositor.PREFIX)}
     assert ours == {f"{compositor.PREFIX}{layer}:pcf"}
     assert bpy.data.images.get(compositor.pass_image_name(layer, "embree")) is not None
 
@@ -250,7 +253,7 @@ def test_compute_with_cycles_reference(registered):
     img = bpy.data.images[compositor.pass_image_name("Key_Light", "cycles")]
     v = _pixels(img)
     assert tuple(img.size) == (24, 16) and np.isfinite(v).all() and v.min() < 0.5 < v.max()
-    nodes = {n.name for n in scene.compositing_node_group.nodes}
+    nodes = {n.name for n in compat.compositor_tree(scene, create=False).nodes}
     assert {f"{compositor.PREFIX}Key_Light:{p}" for p in ("pcf", "embree_irr", "cycles")} <= nodes
 
 
@@ -325,7 +328,7 @@ def test_clear_removes_only_penumbra_data(registered):
     assert "Penumbra" not in bpy.data.node_groups
     assert bpy.data.images.get("My Image") == user_img
     assert "My Blur" in tree.nodes and "My Group" in bpy.data.node_groups
-    assert scene.compositing_node_group == tree
+    assert compat.compositor_tree(scene, create=False) == tree
     assert bpy.ops.penumbra.clear() == {"FINISHED"}       # nothing left: still fine
 
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import penumbra
+from penumbra.bridge import compat
 from penumbra.bridge import compositor
 from scenes import sample_path
 
@@ -41,7 +42,7 @@ def test_compute_operator_makes_images_and_nodes(registered):
     user.location = (123.0, 45.0)
     n_user = len(user_tree.nodes)
     assert bpy.ops.penumbra.compute_passes(samples=8) == {"FINISHED"}
-    tree = scene.compositing_node_group
+    tree = compat.compositor_tree(scene, create=False)
     ours = [n for n in tree.nodes if n.name.startswith(compositor.PREFIX)]
     light_layers = [lt.name.replace(".", "_") for lt in bpy.data.objects if lt.type == "LIGHT"]
     assert len(ours) == 3 * len(light_layers)

@@ -14,6 +14,7 @@ import OpenEXR
 import pytest
 
 import penumbra
+from penumbra.bridge import compat
 from penumbra.bridge import compositor as C
 from penumbra.bridge import images
 from penumbra.core import exr
@@ -43,16 +44,24 @@ def _gradient():
 
 
 def _user_tree(scene):
-    """The user's compositor: Render Layers -> their Blur -> Group Output."""
-    tree = C.compositor_tree(scene)
-    rl = next(n for n in tree.nodes if n.bl_idname == "CompositorNodeRLayers")
-    out = next(n for n in tree.nodes if n.bl_idname == "NodeGroupOutput")
+    """The user's compositor: Render Layers -> their Blur -> Group Output
+    (the scene's group on 5.0 - 5.2, their own effect on 5.3)."""
+    tree = bpy.data.node_groups.new("My Compositor", "CompositorNodeTree")
+    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    rl = tree.nodes.new("CompositorNodeRLayers")
+    out = tree.nodes.new("NodeGroupOutput")
     blur = tree.nodes.new("CompositorNodeBlur")
     blur.name = "My Blur"
     blur.location = (123.0, 45.0)
     tree.links.new(rl.outputs["Image"], blur.inputs["Image"])
     tree.links.new(blur.outputs["Image"], out.inputs["Image"])
+    compat.set_compositor_tree(scene, tree)
     return tree, blur
+
+
+def _ours(scene):
+    """The tree Penumbra's nodes are in (the user's on 5.0 - 5.2, Penumbra's effect's on 5.3)."""
+    return compat.compositor_tree(scene, create=False)
 
 
 def _links(tree):
@@ -71,7 +80,7 @@ def _user_state(tree):
 def _composite(scene, socket, path):
     """Render once with ``socket`` wired to the compositor's output; the
     written EXR's RGB (row 0 at the top)."""
-    tree = scene.compositing_node_group
+    tree = compat.compositor_tree(scene, create=False)
     out = next(n for n in tree.nodes if n.bl_idname == "NodeGroupOutput")
     tree.links.new(socket, out.inputs["Image"])
     scene.render.image_settings.file_format = "OPEN_EXR"
@@ -101,17 +110,18 @@ def test_builds_twice_without_duplicates_and_leaves_user_nodes_alone():
     _store("Key_Light", g, g, 0.5 * g)
     _store("Fill", 1 - g, g, g)
     r1 = C.setup_compositor(scene, LIGHTS)
-    state1 = (len(tree.nodes), sorted(n.name for n in tree.nodes), len(r1.group.nodes),
+    ours_tree = _ours(scene)
+    state1 = (len(ours_tree.nodes), sorted(n.name for n in ours_tree.nodes), len(r1.group.nodes),
               sorted(n.name for n in r1.group.nodes), len(r1.group.links), _links(r1.group))
     ids1 = {s.name: s.identifier for s in r1.node.outputs}
     r2 = C.setup_compositor(scene, LIGHTS)
-    state2 = (len(tree.nodes), sorted(n.name for n in tree.nodes), len(r2.group.nodes),
+    state2 = (len(ours_tree.nodes), sorted(n.name for n in ours_tree.nodes), len(r2.group.nodes),
               sorted(n.name for n in r2.group.nodes), len(r2.group.links), _links(r2.group))
     assert state1 == state2
     assert r1.group == r2.group
     assert [g_ for g_ in bpy.data.node_groups if g_.name.startswith(C.GROUP_NAME)] == [r2.group]
     # exactly one group node, one Render Layers, one Viewer and the frame of ours in the scene tree
-    ours = sorted(n.name for n in tree.nodes if n.name.startswith(C.SETUP_PREFIX))
+    ours = sorted(n.name for n in ours_tree.nodes if n.name.startswith(C.SETUP_PREFIX))
     assert ours == [f"{C.SETUP_PREFIX}Penumbra", f"{C.SETUP_PREFIX}Render Layers", f"{C.SETUP_PREFIX}Viewer"]
     assert r2.node.bl_idname == "CompositorNodeGroup" and r2.node.node_tree == r2.group
     assert r2.node.parent.name == C.SETUP_FRAME
@@ -128,7 +138,7 @@ def test_builds_twice_without_duplicates_and_leaves_user_nodes_alone():
     # socket identifiers survive the rebuild (links from the user's own group nodes stay)
     assert {s.name: s.identifier for s in r2.node.outputs} == ids1
     # the viewer shows the first light's side by side
-    viewer = tree.nodes[f"{C.SETUP_PREFIX}Viewer"]
+    viewer = ours_tree.nodes[f"{C.SETUP_PREFIX}Viewer"]
     assert viewer.inputs["Image"].links[0].from_socket.name == C.socket_name("Key_Light", "side by side")
 
 
@@ -220,11 +230,13 @@ def test_side_by_side_nodes_and_setup_coexist():
     _store("Key_Light", g, g, g)
     C.setup_compositor(scene, LIGHTS[:1])
     C.build_side_by_side(scene, {"Key.Light": "Key_Light"}, ["pcf", "embree"])
-    assert f"{C.SETUP_PREFIX}Penumbra" in tree.nodes          # Compute Passes keeps the setup
-    assert f"{C.PREFIX}Key_Light:pcf" in tree.nodes
+    ours_tree = _ours(scene)
+    assert f"{C.SETUP_PREFIX}Penumbra" in ours_tree.nodes          # Compute Passes keeps the setup
+    assert f"{C.PREFIX}Key_Light:pcf" in ours_tree.nodes
     C.setup_compositor(scene, LIGHTS[:1])
-    assert f"{C.PREFIX}Key_Light:pcf" in tree.nodes          # and the setup keeps those
-    assert C.clear_nodes(tree) == 3 + 1 + 2 + 1              # setup (3 + frame), side by side (2 + frame)
+    assert f"{C.PREFIX}Key_Light:pcf" in ours_tree.nodes          # and the setup keeps those
+    assert C.clear_nodes(ours_tree) == 3 + 1 + 2 + 1              # setup (3 + frame), side by side (2 + frame)
+    assert not any(n.name.startswith(C.PREFIX) for n in ours_tree.nodes)
     assert "My Blur" in tree.nodes and not any(n.name.startswith(C.PREFIX) for n in tree.nodes)
 
 
@@ -246,12 +258,12 @@ def test_setup_operator_from_images(registered):
     scene.objects["Key.Light"].data.penumbra.method = "pcf"
     assert bpy.ops.penumbra.setup_compositor() == {"FINISHED"}
     assert bpy.ops.penumbra.setup_compositor() == {"FINISHED"}
-    node = tree.nodes[f"{C.SETUP_PREFIX}Penumbra"]
+    node = _ours(scene).nodes[f"{C.SETUP_PREFIX}Penumbra"]
     names = [s.name for s in node.outputs]
     # the Fill light has no stored passes: it is not shown
     assert "Key_Light: pcf" in names and not any(n.startswith("Fill") for n in names)
     assert _user_state(tree) == before
-    assert len([n for n in tree.nodes if n.name.startswith(C.SETUP_PREFIX)]) == 3
+    assert len([n for n in _ours(scene).nodes if n.name.startswith(C.SETUP_PREFIX)]) == 3
 
 
 def test_setup_operator_from_exr_and_bad_input(registered, tmp_path):
@@ -261,7 +273,7 @@ def test_setup_operator_from_exr_and_bad_input(registered, tmp_path):
     exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "cycles": g}})
     scene.objects["Key.Light"].data.penumbra.method = "pcf"        # not auto: a fixed pass name
     assert bpy.ops.penumbra.setup_compositor(source="EXR", filepath=path) == {"FINISHED"}
-    node = scene.compositing_node_group.nodes[f"{C.SETUP_PREFIX}Penumbra"]
+    node = compat.compositor_tree(scene, create=False).nodes[f"{C.SETUP_PREFIX}Penumbra"]
     assert [s.name for s in node.outputs][:4] == ["Image", "Key_Light: pcf", "Key_Light: embree",
                                                    "Key_Light: cycles"]
     with pytest.raises(RuntimeError, match="no such EXR"):

@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 
 import penumbra
+from penumbra.bridge import compat
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.metrics import reach_mask
@@ -55,7 +56,7 @@ def snapshot(scene) -> dict:
         "use_border": r.use_border, "world": scene.world.name if scene.world else None,
         "camera_dof": scene.camera.data.dof.use_dof if scene.camera else None,
         "materials": sorted(m.name for m in bpy.data.materials),
-        "compositing_node_group": getattr(scene.compositing_node_group, "name", None),
+        "compositor trees": [t.name for t in compat.render_trees(scene)],
         "penumbra.render_passes": getattr(getattr(scene, "penumbra", None), "render_passes", None),
     }
     for k in ("samples", "seed", "use_animated_seed", "use_adaptive_sampling", "use_denoising",

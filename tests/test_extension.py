@@ -1,16 +1,20 @@
 """The Blender extension: the manifest against the extension schema's rules,
-the per-platform zip ``make extension`` builds, and that zip installed by
-Blender's own extensions API into a fresh bpy session (in subprocesses whose
-HOME and BLENDER_USER_RESOURCES are temporary folders, so the real user folder
-is never touched).
+the per-platform zips ``make extension`` builds (cp311 and cp313 wheels in
+each), Blender's own validator on every zip, and the linux-x64 zip installed
+by Blender's own extensions API into a fresh bpy session (in subprocesses
+whose HOME and BLENDER_USER_RESOURCES are temporary folders, so the real user
+folder is never touched), where Compute Passes, Set Up Compositor and a
+render with "Passes in Every Render" run on a copy of a sample scene.
+``make test`` runs this file with each tested bpy (5.0.1, 5.2.3, 5.3.0).
 
-The linux-x64 wheels are downloaded from PyPI into ./wheels on the first run
-and reused after that.
+The wheels are downloaded from PyPI into ./wheels on the first run and
+reused after that.
 """
 from __future__ import annotations
 
 import copy
 import glob
+import shutil
 import hashlib
 import importlib.util
 import json
@@ -21,8 +25,10 @@ import sys
 import tomllib
 import zipfile
 
+import numpy as np
 import pytest
 
+from penumbra.core import exr
 from scenes import sample_path
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -46,6 +52,11 @@ def _bpy_scripts() -> str:
     found = glob.glob(os.path.join(bpy_dir, "[0-9]*.[0-9]*", "scripts"))
     assert len(found) == 1, found
     return found[0]
+
+
+def _bpy_version() -> tuple:
+    """The bpy module's (major, minor), from its scripts folder's name."""
+    return tuple(int(x) for x in os.path.basename(os.path.dirname(_bpy_scripts())).split("."))
 
 
 BLENDER_EXT = os.path.join(_bpy_scripts(), "addons_core", "bl_pkg", "cli", "blender_ext.py")
@@ -74,6 +85,9 @@ SEMVER = re.compile(
     r"(?:\+([0-9a-zA-Z-]+(?:\.[0-9a-zA-Z-]+)*))?$")
 PERMISSIONS = {"files", "network", "clipboard", "camera", "microphone"}
 PLATFORMS = {"linux-x64", "macos-arm64", "macos-x64", "windows-x64"}
+PYTHON_TAGS = ("cp311", "cp313")        # Blender 5.0; 5.1 - 5.3
+#: the newest Blender tested is 5.3.x; blender_version_max is exclusive
+VERSION_MAX = "5.4.0"
 
 
 def _empty_values(value, where=""):
@@ -125,8 +139,8 @@ def manifest_errors(m: dict) -> list[str]:
         errs.append("type")
     if _version_triple(m["blender_version_min"]) < (4, 2, 0):
         errs.append("blender_version_min below 4.2.0")
-    if m.get("blender_version_max") != "5.1.0":
-        errs.append("blender_version_max must be 5.1.0 (cp311 wheels)")
+    if m.get("blender_version_max") != VERSION_MAX:
+        errs.append(f"blender_version_max must be {VERSION_MAX} (tested up to 5.3)")
     if not all(lic.startswith("SPDX:") for lic in m["license"]):
         errs.append("license must be SPDX identifiers")
     if not set(m.get("platforms", [])) <= PLATFORMS:
@@ -136,8 +150,8 @@ def manifest_errors(m: dict) -> list[str]:
         if not (w.startswith("./wheels/") and w.endswith(".whl") and "\\" not in w
                 and 5 <= len(fields) <= 6):
             errs.append(f"wheel path {w}")
-        elif "cp311" not in fields[-3].split(".") or "cp311" not in fields[-2].split("."):
-            errs.append(f"not a cp311 wheel: {w}")
+        elif not any(t in fields[-3].split(".") and t in fields[-2].split(".") for t in PYTHON_TAGS):
+            errs.append(f"not a cp311 or cp313 wheel: {w}")
         elif fields[0].lower() == "numpy":
             errs.append("numpy is shipped by Blender")
     for key, reason in m.get("permissions", {}).items():
@@ -153,8 +167,9 @@ def test_manifest_follows_the_schema_rules():
     assert manifest_errors(m) == []
     assert m["id"] == "penumbra" and m["platforms"] == sorted(PLATFORMS)
     assert m["permissions"]["files"]
-    # one cp311 wheel per pinned package (numpy excluded) for every platform
+    # one cp311 and one cp313 wheel per pinned package (numpy excluded) for every platform
     build.check_manifest_wheels(m, m["platforms"])
+    assert _version_triple(m["blender_version_min"]) == (5, 0, 0)
     pins = build.pinned_requirements()
     assert set(pins) == {"numba", "llvmlite", "embreex", "openexr"}
     assert pins["embreex"] == "4.4.0.post1"
@@ -167,9 +182,9 @@ def test_manifest_follows_the_schema_rules():
     (lambda m: m.update(tagline="x" * 65), "tagline longer than 64 characters (65)"),
     (lambda m: m.update(version="0.1"), "version is not semver"),
     (lambda m: m.update(id="penumbra-ext"), "id is not a valid identifier"),
-    (lambda m: m.update(blender_version_max="5.2.0"), "blender_version_max must be 5.1.0 (cp311 wheels)"),
+    (lambda m: m.update(blender_version_max="5.5.0"), "blender_version_max must be 5.4.0 (tested up to 5.3)"),
     (lambda m: m["wheels"].append("./wheels/numba-0.68.1-cp312-cp312-win_amd64.whl"),
-     "not a cp311 wheel: ./wheels/numba-0.68.1-cp312-cp312-win_amd64.whl"),
+     "not a cp311 or cp313 wheel: ./wheels/numba-0.68.1-cp312-cp312-win_amd64.whl"),
     (lambda m: m["wheels"].append("wheels/x-1.0-cp311-cp311-win_amd64.whl"),
      "wheel path wheels/x-1.0-cp311-cp311-win_amd64.whl"),
     (lambda m: m["permissions"].update(internet="Downloads things"), "permission internet"),
@@ -180,8 +195,8 @@ def test_manifest_rules_reject_broken_manifests(mutate, broken, blender_ext):
     mutate(m)
     assert broken in manifest_errors(m)
     # Blender's strict validator rejects the same manifests (it does not
-    # know about the cp311/5.1 rules, which are ours)
-    if "cp311" not in broken and "5.1.0" not in broken and "wheel path" not in broken:
+    # know about the wheel-tag/5.4 rules, which are ours)
+    if "cp311" not in broken and "5.4.0" not in broken and "wheel path" not in broken:
         assert blender_ext.pkg_manifest_is_valid_or_error(m, from_repo=False, strict=True) is not None
 
 
@@ -227,13 +242,44 @@ def test_exclusions_and_platform_split_match_blenders_builder(blender_ext):
     for platform in PLATFORMS:
         mine = build.wheels_for_platform(wheels, platform)
         assert mine == blender_ext.paths_filter_wheels_by_platform(wheels, platform)
-        assert len(mine) == 4
+        assert len(mine) == 8
+        assert sorted(build.wheel_fields(w)[2] for w in mine) == ["cp311"] * 4 + ["cp313"] * 4
+
+
+def test_a_missing_wheel_stops_the_build_with_one_line(tmp_path, monkeypatch):
+    """A wheel PyPI lacks (here: numba 0.68.1 for macOS x86_64, which PyPI does
+    not publish) stops ``make wheels`` / ``make extension`` with one line
+    naming package, version, Python and platform (``main`` prints it and
+    exits 2)."""
+    root = tmp_path / "src"
+    (root / "wheels").mkdir(parents=True)
+    for name in ("pyproject.toml", "__init__.py"):
+        (root / name).write_bytes(open(os.path.join(ROOT, name), "rb").read())
+    for w in glob.glob(os.path.join(ROOT, "wheels", "*macosx*x86_64.whl")):
+        os.symlink(w, root / "wheels" / os.path.basename(w))     # no second download
+    text = open(os.path.join(ROOT, "blender_manifest.toml")).read()
+    for tag in PYTHON_TAGS:
+        text = text.replace(f"numba-0.62.1-{tag}-{tag}-macosx_10_15_x86_64", f"numba-0.68.1-{tag}-{tag}-macosx_10_15_x86_64")
+    (root / "blender_manifest.toml").write_text(text)
+    monkeypatch.setattr(build, "VERSION_OVERRIDES", {"macos-x64": {"llvmlite": "0.45.1"}})
+    with pytest.raises(build.BuildError) as exc:
+        build.fetch_wheels(["macos-x64"], root=str(root), log=lambda *_: None)
+    assert str(exc.value) == ("no wheel of numba==0.68.1 for Python 3.11 on macos-x64 "
+                              "(macosx_13_0_x86_64) on the package index")
 
 
 @pytest.fixture(scope="module")
-def linux_zip(tmp_path_factory):
-    build.fetch_wheels([PLATFORM])
-    return build.build_zip(PLATFORM, str(tmp_path_factory.mktemp("dist")), log=lambda *_: None)
+def zips(tmp_path_factory):
+    """Every platform's zip, as ``make extension`` builds them."""
+    platforms = sorted(PLATFORMS)
+    build.fetch_wheels(platforms)
+    out = str(tmp_path_factory.mktemp("dist"))
+    return {p: build.build_zip(p, out, log=lambda *_: None) for p in platforms}
+
+
+@pytest.fixture(scope="module")
+def linux_zip(zips):
+    return zips[PLATFORM]
 
 
 def _sha256(data: bytes) -> str:
@@ -275,9 +321,19 @@ def test_linux_zip_layout_and_wheels(linux_zip):
         excluded = ("tests/", "sample_blends/", "scripts/", "bench/", ".venv/", ".git/", "dist/")
         assert not [n for n in names if n.startswith(excluded) or "__pycache__" in n
                     or n in ("Makefile", "pyproject.toml")]
-    proc = subprocess.run([sys.executable, BLENDER_EXT, "validate", "--valid-tags", BLENDER_TAGS,
-                           linux_zip], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0 and "Success" in proc.stdout, proc.stdout + proc.stderr
+
+
+def test_blenders_validator_accepts_every_zip(zips):
+    assert sorted(zips) == sorted(PLATFORMS)
+    for platform, path in zips.items():
+        proc = subprocess.run([sys.executable, BLENDER_EXT, "validate", "--valid-tags", BLENDER_TAGS,
+                               path], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0 and "Success" in proc.stdout, (platform, proc.stdout + proc.stderr)
+        with zipfile.ZipFile(path) as zf:
+            generated = tomllib.loads(zf.read("blender_manifest.toml").decode())["build"]["generated"]
+            wheels = sorted(n for n in zf.namelist() if n.endswith(".whl"))
+        assert generated["platforms"] == [platform]
+        assert sorted(build.wheel_fields(w)[2] for w in wheels) == ["cp311"] * 4 + ["cp313"] * 4
 
 
 # ---------------------------------------------------------------------------
@@ -299,9 +355,14 @@ print("RESULT " + json.dumps(out))
 # site-packages before its own (here: before the venv's, which also has numba),
 # so the add-on runs on the wheels Blender installed from the zip.
 _RUN = r'''
-import glob, json, os, sys
+import glob, json, os, sys, warnings
 import bpy
+import numpy as np
+warnings.simplefilter("always")
+caught = warnings.catch_warnings(record=True)
+seen = caught.__enter__()
 out = {"registered_before": "PENUMBRA_OT_compute_passes" in dir(bpy.types)}
+out["blender"] = bpy.app.version_string
 out["imported_before"] = [m for m in ("numba", "llvmlite", "embreex", "OpenEXR") if m in sys.modules]
 out["enable"] = sorted(bpy.ops.preferences.addon_enable(module="bl_ext.user_default.penumbra"))
 out["registered"] = "PENUMBRA_OT_compute_passes" in dir(bpy.types)
@@ -310,6 +371,28 @@ scene = bpy.context.scene
 scene.render.resolution_x, scene.render.resolution_y = 32, 24
 scene.render.resolution_percentage = 100
 out["op"] = sorted(bpy.ops.penumbra.compute_passes(samples=4, methods="pcf,embree"))
+pcf = next(i for i in bpy.data.images if i.name.startswith("Penumbra") and i.name.endswith(" pcf"))
+px = np.empty(len(pcf.pixels), np.float32)
+pcf.pixels.foreach_get(px)
+out["pcf_size"], out["pcf_range"] = list(pcf.size), [float(px[0::4].min()), float(px[0::4].max())]
+out["setup"] = sorted(bpy.ops.penumbra.setup_compositor())
+compat = sys.modules["bl_ext.user_default.penumbra.bridge.compat"]
+out["setup_nodes"] = sorted(n.name for n in compat.compositor_tree(scene, create=False).nodes
+                            if n.name.startswith("Penumbra:"))
+for lt in bpy.data.lights:
+    lt.penumbra.method = "pcf"
+    lt.penumbra.light_samples = 4
+scene.penumbra.references = {"embree"}
+scene.penumbra.render_passes = True
+scene.render.engine = "CYCLES"
+scene.cycles.samples = 1
+scene.cycles.use_denoising = False
+render_dir = os.path.join(sys.argv[2], "render")
+scene.render.filepath = os.path.join(render_dir, "frame_")
+scene.render.image_settings.file_format = "OPEN_EXR"
+bpy.ops.render.render(write_still=True)
+out["render_errors"] = sys.modules["bl_ext.user_default.penumbra.addon.handlers"].state["errors"]
+out["written"] = sorted(os.listdir(render_dir))
 ac = sys.modules["bl_ext.user_default.penumbra.core.auto_choice"]
 out["auto_table"] = ac.TABLE_PATH
 out["auto_choice"] = ac.choose("area", 1.0).rule
@@ -323,6 +406,8 @@ out["cache_root"] = os.environ.get("PENUMBRA_NUMBA_CACHE_ROOT")
 out["cache_in_user"] = glob.glob(os.path.join(out["ext_user"], "**", "*.nbi"), recursive=True)
 out["cache_in_ext"] = [p for pat in ("*.nbi", "*.nbc")
                        for p in glob.glob(os.path.join(out["ext_dir"], "**", pat), recursive=True)]
+out["deprecations"] = [f"{w.filename}:{w.lineno}: {w.message}" for w in seen
+                       if issubclass(w.category, DeprecationWarning) and w.filename.startswith(out["ext_dir"])]
 print("RESULT " + json.dumps(out))
 '''
 
@@ -364,12 +449,34 @@ def test_zip_installs_and_runs_in_a_fresh_bpy_session(linux_zip, tmp_path):
     assert dist_infos == ["embreex-4.4.0.post1.dist-info", "llvmlite-0.50.0.dist-info",
                           "numba-0.68.1.dist-info", "openexr-3.5.3.dist-info"]
 
-    second, log = _run_bpy(_RUN, [sample_path("sphere_plane")], env)
+    work = tmp_path / "work"
+    work.mkdir()
+    blend = work / "shot.blend"                 # a copy: the sample itself is never opened for writing
+    shutil.copyfile(sample_path("sphere_plane"), blend)
+    second, log = _run_bpy(_RUN, [str(blend), str(work)], env)
+    assert second["blender"].startswith("{}.{}.".format(*_bpy_version()))
     assert not second["registered_before"] and second["imported_before"] == []
     assert second["enable"] == ["FINISHED"] and second["registered"]
     assert second["op"] == ["FINISHED"], log
     assert [n for n in second["images"] if n.endswith(" pcf")]
     assert [n for n in second["images"] if n.endswith(" embree")]
+    # Compute Passes: a 32 x 24 visibility image with shadow and light in it
+    assert second["pcf_size"] == [32, 24]
+    assert second["pcf_range"][0] < 0.5 < second["pcf_range"][1] <= 1.0
+    # Set Up Compositor: Penumbra's Render Layers, group node and Viewer
+    assert second["setup"] == ["FINISHED"], log
+    assert {"Penumbra:~Penumbra", "Penumbra:~Render Layers", "Penumbra:~Viewer"} <= set(second["setup_nodes"])
+    # a render with passes: the render and the passes (EXR + JSON) of its frame
+    assert second["render_errors"] == []
+    assert second["written"] == ["frame_.exr", "shot.0001.exr", "shot.0001.json"], log
+    passes = exr.read_multilayer(str(work / "render" / "shot.0001.exr"))
+    assert {"pcf", "embree"} <= set(next(iter(passes.values())))
+    for layer in passes.values():
+        for v in layer.values():
+            assert v.shape == (24, 32) and np.isfinite(v).all() and 0.0 <= v.min() and v.max() <= 1.0
+    rec = json.loads((work / "render" / "shot.0001.json").read_text())
+    assert rec["frame"] == 1 and rec["lights"]
+    assert second["deprecations"] == []
     # auto reads the table installed with the extension, not a fallback
     assert second["auto_table"] == os.path.join(ext_dir, "core", "auto_table.json")
     assert second["auto_choice"] in ("meets budget", "most accurate")

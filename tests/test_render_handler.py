@@ -8,6 +8,7 @@ import OpenEXR
 import pytest
 
 import penumbra
+from penumbra.bridge import compat
 from penumbra.addon import handlers
 from penumbra.bridge import compositor, pipeline
 from penumbra.cli import main
@@ -73,7 +74,7 @@ def _compositor_showing(scene, image_name):
     rl = tree.nodes.new("CompositorNodeRLayers")
     viewer = tree.nodes.new("CompositorNodeViewer")
     tree.links.new(rl.outputs["Image"], viewer.inputs[0])
-    scene.compositing_node_group = tree
+    compat.set_compositor_tree(scene, tree)
     return tree
 
 
