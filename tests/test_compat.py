@@ -10,7 +10,7 @@ import pytest
 
 import penumbra
 from penumbra.bridge import compat
-from penumbra.addon import compositor
+from penumbra.bridge import compositor
 from scenes import sample_path
 
 EFFECTS = bpy.app.version >= (5, 3, 0)
