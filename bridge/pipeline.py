@@ -134,7 +134,7 @@ def merge_results(captured, results):
             times[k] = times.get(k, 0.0) + v
     W, H = captured.resolution
     return FrameResult(captured.name, captured.frame, (W, H), plan, lights, times,
-                       sum(r.total_s for r in results))
+                       sum(r.total_s for r in results), sum(r.compile_s for r in results))
 
 
 def empty_result(captured):
