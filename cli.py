@@ -116,6 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--methods", default="auto",
                     help="comma-separated method ids, 'all', or 'auto' (the default: picked per light)")
     pl.add_argument("--lights", default=None)
+    pl.add_argument("--resolution", type=_resolution, default=None,
+                    help="WxH the lights' reach is judged at, as render's (default: the scene's)")
     pl.add_argument("--error-budget", type=_error_budget, default=None,
                     help="RMSE against the reference that 'auto' must meet (default: 0.05)")
     pl.add_argument("--quiet", action="store_true", help="accepted for symmetry with render (plan "
@@ -196,7 +198,10 @@ class _Progress:
         self.quiet = quiet
         self.bar = None
         if not quiet and sys.stderr.isatty():
-            from tqdm import tqdm
+            try:
+                from tqdm import tqdm
+            except ModuleNotFoundError:      # the extension bundles no tqdm: no bar in Blender
+                return
             self.bar = tqdm(total=n_frames, unit="frame", file=sys.stderr, dynamic_ncols=True,
                             bar_format="{l_bar}{bar}| {n:.2f}/{total_fmt} frames [{elapsed}<{remaining}]")
 
@@ -295,13 +300,13 @@ def _render_one(args, bpy_scene, path, out, stem, passes, lights, k, frame, bar)
 
 def cmd_plan(args) -> int:
     """The decisions ``render`` makes, from the same functions: the planner's
-    rules, then the reach of each light on the camera G-buffer at the scene's
-    resolution (``core.planner.plan_frame``)."""
+    rules, then the reach of each light on the camera G-buffer at the plan's
+    resolution (``--resolution``, default the scene's; ``core.planner.plan_frame``)."""
     from .core.buffers import FrameBuffers
     from .core.planner import plan_frame, resolve_passes
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     path = _check_blend(args.scene)
-    scene = load_scene(path)
+    scene = load_scene(path, resolution=args.resolution)
     if scene.camera is None:
         raise UsageError(f"{path}: the scene has no camera")
     lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
