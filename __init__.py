@@ -38,12 +38,19 @@ def register():
     operators.register()
     if _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command("penumbra", _cli_execute)
+    if not bpy.app.background:
+        # the first click finds the default method compiled (a daemon thread: it never
+        # holds up register() or Blender's exit; headless runs compile on first use)
+        from .bridge.pipeline import start_warm_up
+        start_warm_up()
 
 
 def unregister():
     global _cli_handle
     import bpy
     from . import addon, operators
+    from .bridge.pipeline import stop_warm_up
+    stop_warm_up()
     if _cli_handle is not None:
         bpy.utils.unregister_cli_command(_cli_handle)
         _cli_handle = None

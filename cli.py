@@ -94,9 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="compute shadow passes of one frame into a multilayer EXR + JSON")
     r.add_argument("scene", help="the .blend file (never modified)")
     r.add_argument("--out", default="penumbra_out", help="output folder (default: penumbra_out)")
-    r.add_argument("--methods", default="pcf,embree,embree_irr",
-                   help="comma-separated method ids, 'all', or 'auto' (picked per light, written under "
-                        "the picked id)")
+    r.add_argument("--methods", default="auto",
+                   help="comma-separated method ids, 'all', or 'auto' (the default: picked per light, "
+                        "written under the picked id)")
     r.add_argument("--lights", default=None, help="comma-separated light names (default: all)")
     fr = r.add_mutually_exclusive_group()
     fr.add_argument("--frame", type=_positive("--frame", -1048574, 1048574), default=None,
@@ -114,13 +114,18 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     r.add_argument("--error-budget", type=_error_budget, default=None,
                    help="RMSE against the reference that 'auto' must meet (default: 0.05)")
+    r.add_argument("--quiet", action="store_true", help="no progress bar and no compiling notice")
     pl = sub.add_parser("plan", help="print what the scene calls for, and why")
     pl.add_argument("scene")
-    pl.add_argument("--methods", default="all",
-                    help="comma-separated method ids, 'all', or 'auto' (picked per light)")
+    pl.add_argument("--methods", default="auto",
+                    help="comma-separated method ids, 'all', or 'auto' (the default: picked per light)")
     pl.add_argument("--lights", default=None)
+    pl.add_argument("--resolution", type=_resolution, default=None,
+                    help="WxH the lights' reach is judged at, as render's (default: the scene's)")
     pl.add_argument("--error-budget", type=_error_budget, default=None,
                     help="RMSE against the reference that 'auto' must meet (default: 0.05)")
+    pl.add_argument("--quiet", action="store_true", help="accepted for symmetry with render (plan "
+                                                         "compiles nothing and shows no bar)")
     b = sub.add_parser("bench", help="accuracy-versus-time study / per-phase timings")
     b.add_argument("--out", default=os.path.join("bench", "results"))
     b.add_argument("--scene", default=None, help="the .blend to time (default: sample grids)")
@@ -188,21 +193,47 @@ def _available_external():
     return ["cycles"]
 
 
-class _ProgressBar:
-    """A one-line progress bar on stderr when it is a terminal; silent otherwise."""
+class _Progress:
+    """Progress on stderr: a tqdm bar over the frames (and, within a frame, the
+    lights and methods) when stderr is a terminal and not ``--quiet``; the
+    notice that kernels are compiling (``core.warmup.CompileNotice``) as its
+    own line unless ``--quiet``."""
 
-    def __init__(self, label=""):
-        self.tty = sys.stderr.isatty()
-        self.label = label
+    def __init__(self, n_frames: int, quiet: bool = False):
+        self.quiet = quiet
+        self.bar = None
+        if not quiet and sys.stderr.isatty():
+            try:
+                from tqdm import tqdm
+            except ModuleNotFoundError:      # the extension bundles no tqdm: no bar in Blender
+                return
+            self.bar = tqdm(total=n_frames, unit="frame", file=sys.stderr, dynamic_ncols=True,
+                            bar_format="{l_bar}{bar}| {n:.2f}/{total_fmt} frames [{elapsed}<{remaining}]")
 
-    def __call__(self, message, fraction):
-        if not self.tty:
-            return
-        n = int(round(30 * max(0.0, min(1.0, fraction))))
-        sys.stderr.write(f"\r{self.label}[{'#' * n}{'.' * (30 - n)}] {100 * fraction:5.1f}% {message[:40]:40s}")
-        if fraction >= 1.0:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
+    def frame(self, k: int, frame: int):
+        """The callback for ``job.run`` of the ``k``-th frame (number ``frame``)."""
+        def progress(message, fraction):
+            from .core.warmup import CompileNotice
+            if isinstance(message, CompileNotice):
+                if not self.quiet:
+                    self.write(f"penumbra: {message}", sys.stderr)
+                return
+            if self.bar is not None:
+                self.bar.set_description_str(f"frame {frame}: {message}"[:48], refresh=False)
+                self.bar.update(k + max(0.0, min(1.0, fraction)) - self.bar.n)
+        return progress
+
+    def write(self, line: str, file=None):
+        """A line on stdout (or ``file``), above the bar."""
+        file = file or sys.stdout
+        if self.bar is not None:
+            self.bar.write(line, file=file)
+        else:
+            print(line, file=file, flush=True)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _summary(result) -> str:
@@ -215,15 +246,16 @@ def _summary(result) -> str:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
+    if result.compile_s > 0:
+        lines.append(f"kernel compilation: {result.compile_s:.3f} s (in no method's time)")
     return "\n".join(lines)
 
 
 def cmd_render(args) -> int:
     from .core.planner import resolve_passes
-    from .core.output import output_paths, write_frame
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     path = _check_blend(args.scene)
-    from .bridge.pipeline import FrameRequest, NoCamera, check_out_dir, prepare_frame, set_threads
+    from .bridge.pipeline import check_out_dir, set_threads
     out, err = check_out_dir(os.path.abspath(args.out))
     if err:
         raise UsageError(err)
@@ -235,38 +267,57 @@ def cmd_render(args) -> int:
     stem = _stem(path)
     frames = args.frames or [args.frame if args.frame is not None else bpy_scene.frame_current]
     lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
-    for k, frame in enumerate(frames):
-        done = output_paths(out, stem, frame)["json"]
-        if os.path.exists(done) and not args.force:
-            print(f"frame {frame}: already written ({os.path.basename(done)}), skipped; --force recomputes it")
-            continue
-        request = FrameRequest(frame=frame, resolution=args.resolution, use_light_settings=False,
-                               methods=passes, lights=lights, seed=args.seed, samples=args.samples,
-                               map_size=args.map_size, error_budget=args.error_budget,
-                               skip_deleted=False)
-        try:
-            job = prepare_frame(bpy_scene, request)
-        except NoCamera:
-            raise UsageError(f"{path}: the scene has no camera at frame {frame}")
-        except ValueError as exc:
-            raise UsageError(str(exc))
-        job.captured.name = stem
-        label = f"frame {frame} ({k + 1}/{len(frames)}) " if len(frames) > 1 else ""
-        result = job.run(_ProgressBar(label)).result()
-        for n in result.plan.notes:
-            print(f"penumbra: {n}")
-        paths = write_frame(result, out, previews=not args.no_previews)
-        print(_summary(result))
-        print(f"wrote {paths.get('exr', '(no EXR: no lights)')} and {paths['json']}")
+    bar = _Progress(len(frames), args.quiet)
+    try:
+        for k, frame in enumerate(frames):
+            _render_one(args, bpy_scene, path, out, stem, passes, lights, k, frame, bar)
+    finally:
+        bar.close()
     return 0
 
 
+def _render_one(args, bpy_scene, path, out, stem, passes, lights, k, frame, bar):
+    """One frame of ``penumbra render``: skipped when written (unless --force)."""
+    from .bridge.pipeline import FrameRequest, NoCamera, prepare_frame
+    from .core.output import output_paths, write_frame
+    done = output_paths(out, stem, frame)["json"]
+    if os.path.exists(done) and not args.force:
+        bar.write(f"frame {frame}: already written ({os.path.basename(done)}), skipped; --force recomputes it")
+        return
+    request = FrameRequest(frame=frame, resolution=args.resolution, use_light_settings=False,
+                           methods=passes, lights=lights, seed=args.seed, samples=args.samples,
+                           map_size=args.map_size, error_budget=args.error_budget,
+                           skip_deleted=False)
+    try:
+        job = prepare_frame(bpy_scene, request)
+    except NoCamera:
+        raise UsageError(f"{path}: the scene has no camera at frame {frame}")
+    except ValueError as exc:
+        raise UsageError(str(exc))
+    job.captured.name = stem
+    result = job.run(bar.frame(k, frame)).result()
+    for n in result.plan.notes:
+        bar.write(f"penumbra: {n}")
+    paths = write_frame(result, out, previews=not args.no_previews)
+    bar.write(_summary(result))
+    bar.write(f"wrote {paths.get('exr', '(no EXR: no lights)')} and {paths['json']}")
+
+
 def cmd_plan(args) -> int:
-    from .core.planner import make_plan, resolve_passes
+    """The decisions ``render`` makes, from the same functions: the planner's
+    rules, then the reach of each light on the camera G-buffer at the plan's
+    resolution (``--resolution``, default the scene's; ``core.planner.plan_frame``)."""
+    from .core.buffers import FrameBuffers
+    from .core.planner import plan_frame, resolve_passes
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
-    scene = load_scene(_check_blend(args.scene))
+    path = _check_blend(args.scene)
+    scene = load_scene(path, resolution=args.resolution)
+    if scene.camera is None:
+        raise UsageError(f"{path}: the scene has no camera")
     lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
-    print(make_plan(scene, passes, lights, error_budget=args.error_budget).describe())
+    W, H = scene.resolution
+    plan, _reach = plan_frame(scene, passes, lights, args.error_budget, FrameBuffers(scene, W, H))
+    print(plan.describe())
     return 0
 
 

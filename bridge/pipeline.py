@@ -11,10 +11,18 @@ them, ``job.result()`` merges them. :func:`compute_frame` is the three in a
 row. Nothing in ``bpy.data`` changes until the caller writes the result back
 (:func:`write_back`, ``core.output.write_frame``), so a cancelled run leaves
 no trace.
+
+:class:`BackgroundFrameJob` runs a FrameJob's steps in a worker thread so
+Blender's UI never waits on them: bpy is touched only on the main thread
+(capture before the worker starts, :meth:`BackgroundFrameJob.collect` and
+the write-back after it ends); the worker runs core only (Embree and the
+heavy Numba kernels release the GIL). :func:`start_warm_up` compiles the
+default method's kernels in a daemon thread when the add-on is enabled.
 """
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
@@ -134,7 +142,7 @@ def merge_results(captured, results):
             times[k] = times.get(k, 0.0) + v
     W, H = captured.resolution
     return FrameResult(captured.name, captured.frame, (W, H), plan, lights, times,
-                       sum(r.total_s for r in results))
+                       sum(r.total_s for r in results), sum(r.compile_s for r in results))
 
 
 def empty_result(captured):
@@ -190,18 +198,158 @@ class FrameJob:
         return not self.done
 
     def run(self, progress: Optional[Progress] = None) -> "FrameJob":
-        """Every remaining step; ``progress(message, fraction of the frame)``."""
+        """Every remaining step; ``progress(message, fraction of the frame)``.
+        One frame computes at a time in this process (:data:`COMPUTE_LOCK`)."""
         n = max(1, len(self.steps))
-        while not self.done:
-            i = self.index
-            self.step(None if progress is None else (lambda msg, f, i=i: progress(msg, (i + f) / n)))
+        with COMPUTE_LOCK:
+            while not self.done:
+                i = self.index
+                self.step(None if progress is None else (lambda msg, f, i=i: progress(msg, (i + f) / n)))
         return self
+
+    def drop_deleted_lights(self) -> None:
+        """Main thread, after a run with ``skip_deleted=False`` in a worker:
+        drop the results of lights deleted meanwhile, with a warning each."""
+        kept = []
+        for r in self.results:
+            gone = {lr.name for lr in r.lights if light_object(lr.name) is None}
+            for name in sorted(gone):
+                self.warnings.append(f"light {name!r} was deleted during the run: skipped")
+            r.lights = [lr for lr in r.lights if lr.name not in gone]
+            r.plan.lights = [lp for lp in r.plan.lights if lp.name not in gone]
+            if r.lights:
+                kept.append(r)
+        self.results = kept
 
     def result(self):
         """The merged FrameResult (an empty one when no step ran)."""
         if not self.results:
             return empty_result(self.captured)
         return merge_results(self.captured, self.results)
+
+
+#: one frame computation at a time in this process (a cancelled worker that
+#: has not reached its next check yet, the add-on's warm-up, a script's run)
+COMPUTE_LOCK = threading.RLock()
+
+
+class Cancelled(Exception):
+    """Raised from the progress callback once a run is cancelled."""
+
+
+class BackgroundFrameJob:
+    """A FrameJob's steps in a daemon worker thread.
+
+    ``start()`` returns at once; ``message`` / ``fraction`` follow the
+    worker's progress (read them from a timer); ``cancel()`` stops it at
+    the next light or method (the progress callback raises
+    :class:`Cancelled`); once ``done``, ``collect()`` (main thread) drops
+    lights deleted meanwhile and returns the FrameJob for the write-back.
+    The worker never touches bpy: steps with external producers (the Cycles
+    reference renders through bpy) cannot run here (``runs_in_background``).
+    """
+
+    def __init__(self, job: FrameJob):
+        self.job = job
+        self.skip_deleted = job.skip_deleted
+        job.skip_deleted = False              # light_object() reads bpy: checked in collect()
+        self.message = "starting"
+        self.fraction = 0.0
+        self.cancelled = False
+        self._cancel = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+
+    @staticmethod
+    def runs_in_background(job: FrameJob) -> bool:
+        return not job.external
+
+    def start(self) -> "BackgroundFrameJob":
+        self._thread = threading.Thread(target=self._work, name="penumbra-frame", daemon=True)
+        self._thread.start()
+        return self
+
+    def _progress(self, message: str, fraction: float) -> None:
+        if self._cancel.is_set():
+            raise Cancelled()
+        self.message, self.fraction = str(message), float(fraction)
+
+    def _work(self) -> None:
+        try:
+            self.job.run(self._progress)
+        except Cancelled:
+            self.cancelled = True
+        except Exception as exc:          # catch_errors=False: a report, not a traceback
+            self.job.error = f"{type(exc).__name__}: {exc}"
+        if self._cancel.is_set():
+            self.cancelled = True
+
+    @property
+    def done(self) -> bool:
+        return self._thread is not None and not self._thread.is_alive()
+
+    def cancel(self) -> None:
+        self._cancel.set()
+
+    def wait(self, timeout: Optional[float] = None) -> bool:
+        """Block until the worker ends (tests, unregister); True when it has."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+        return self.done
+
+    def collect(self) -> FrameJob:
+        """Main thread, once done: the FrameJob, lights deleted meanwhile dropped."""
+        if self.skip_deleted:
+            self.job.drop_deleted_lights()
+        return self.job
+
+
+def default_methods() -> List[str]:
+    """What a new light computes first: ``auto``'s pick for an area light of
+    size 1 under the default budget, and the preview's fast method."""
+    from ..core import auto_choice
+    from .jobs import FAST_METHODS
+    return list(dict.fromkeys([auto_choice.choose("area", 1.0).method, FAST_METHODS[0]]))
+
+
+def warm_up(methods: Optional[Sequence[str]] = None, stop: Optional[threading.Event] = None) -> None:
+    """Compile ``methods``' kernels (default: :func:`default_methods`) for an
+    area light at a light's default settings (``core.warmup``)."""
+    import numpy as np
+    from ..core import methods as registry
+    from ..core.scene import Light
+    from ..core.warmup import ensure_compiled
+    light = Light("warm-up", "area", np.eye(4), blender_type="AREA", size=1.0)
+    for mid in methods or default_methods():
+        if stop is not None and stop.is_set():
+            return
+        m = registry.producer_of(mid)
+        with COMPUTE_LOCK:
+            ensure_compiled(m, light, m.make_params({"seed": 0, "samples": 64}))
+
+
+_warm_thread: Optional[threading.Thread] = None
+_warm_stop = threading.Event()
+
+
+def start_warm_up(methods: Optional[Sequence[str]] = None) -> threading.Thread:
+    """:func:`warm_up` in a daemon thread (returns at once; never keeps
+    Blender from exiting); a failure is printed, never raised."""
+    global _warm_thread
+
+    def work():
+        try:
+            warm_up(methods, _warm_stop)
+        except Exception as exc:                 # the first real run reports it properly
+            print(f"Penumbra: kernel warm-up failed: {type(exc).__name__}: {exc}")
+    _warm_stop.clear()
+    _warm_thread = threading.Thread(target=work, name="penumbra-warm-up", daemon=True)
+    _warm_thread.start()
+    return _warm_thread
+
+
+def stop_warm_up() -> None:
+    """Ask the warm-up to stop before its next method (unregister)."""
+    _warm_stop.set()
 
 
 # --------------------------------------------------------------------------

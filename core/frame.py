@@ -14,9 +14,10 @@ import numpy as np
 from . import methods as method_registry
 from .buffers import FrameBuffers
 from .methods.base import AVERAGE, IRRADIANCE, params_dict
-from .metrics import errors, reach_mask
-from .planner import Plan, make_plan, refine_with_receivers
+from .metrics import errors
+from .planner import Plan, plan_frame
 from .scene import Scene
+from .warmup import ensure_compiled
 
 REFERENCE_FOR = {AVERAGE: "embree", IRRADIANCE: "embree_irr"}
 
@@ -39,6 +40,7 @@ class FrameResult:
     lights: List[LightResult]
     buffer_times: Dict[str, float]
     total_s: float
+    compile_s: float = 0.0          # kernel compilation (``core/warmup.py``), in no method's time
 
     def to_json(self) -> dict:
         return {
@@ -48,8 +50,30 @@ class FrameResult:
             "plan": self.plan.to_json(),
             "buffers_time_s": {k: round(v, 6) for k, v in self.buffer_times.items()},
             "total_time_s": round(self.total_s, 6),
+            "compile_s": round(self.compile_s, 6),
             "lights": [{"name": lr.name, "layer": lr.layer, "methods": lr.record} for lr in self.lights],
         }
+
+
+def _params(m, overrides, method_overrides):
+    ov = dict(overrides or {})
+    ov.update((method_overrides or {}).get(m.id, {}))
+    return m.make_params(ov)
+
+
+def _compile(plan: Plan, scene: Scene, overrides, method_overrides, progress) -> float:
+    """Compile the kernels of every planned (light, method) before anything
+    is timed (``core/warmup.py``); returns the seconds that took."""
+    registry = method_registry.producers()
+    spent = 0.0
+    for lp in plan.lights:
+        for prod_id in lp.producers if lp.action != "skip" else ():
+            if prod_id in registry:
+                m = registry[prod_id]
+                notify = None if progress is None else (lambda msg: progress(msg, 0.0))
+                spent += ensure_compiled(m, scene.light(lp.name), _params(m, overrides, method_overrides),
+                                         notify)
+    return spent
 
 
 def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
@@ -71,14 +95,10 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     """
     t0 = time.perf_counter()
     W, H = scene.resolution
-    plan = make_plan(scene, passes, light_names, error_budget=error_budget)
     buffers = FrameBuffers(scene, W, H, map_size)
+    plan, reach = plan_frame(scene, passes, light_names, error_budget, buffers)
+    compile_s = _compile(plan, scene, overrides, method_overrides, progress)
     registry = method_registry.producers()
-    reach = {}
-    if any(lp.action != "skip" for lp in plan.lights):
-        g = buffers.gbuffer
-        reach = {lp.name: reach_mask(g, scene.light(lp.name)) for lp in plan.lights if lp.action != "skip"}
-        refine_with_receivers(plan, scene, reach)
     results = []
     n_lights = max(1, len(plan.lights))
     for li, lp in enumerate(plan.lights):
@@ -104,9 +124,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                 done[prod_id] = (None, res.params or {}, res, phases)
                 continue
             m = registry[prod_id]
-            ov = dict(overrides or {})
-            ov.update((method_overrides or {}).get(prod_id, {}))
-            params = m.make_params(ov)
+            params = _params(m, overrides, method_overrides)
             with buffers.view(m.needs, m.id) as view:   # run() sees only what it declared
                 res = m.run(view, light, params)
             phases = view.phase_times()       # the buffers it used, whoever built them
@@ -144,4 +162,4 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     if progress:
         progress("done", 1.0)
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
-                       time.perf_counter() - t0)
+                       time.perf_counter() - t0, compile_s)

@@ -184,3 +184,19 @@ def refine_with_receivers(plan: Plan, scene: Scene, reach: Dict[str, np.ndarray]
             lp.producers, lp.buffers = [], []
     if plan.lights and all(lp.action == "skip" for lp in plan.lights) and not plan.notes:
         plan.notes.append("no light casts a shadow on what the camera sees: every pass is V = 1")
+
+
+def plan_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
+               error_budget: Optional[float] = None, buffers=None):
+    """The plan ``render`` follows: :func:`make_plan`, then
+    :func:`refine_with_receivers` with the reach masks (``metrics.reach_mask``)
+    of the camera G-buffer of ``buffers`` (a ``core.buffers.FrameBuffers``,
+    built only when some light is not skipped already). Returns (plan, reach)."""
+    from .metrics import reach_mask
+    plan = make_plan(scene, passes, light_names, error_budget=error_budget)
+    reach: Dict[str, np.ndarray] = {}
+    if buffers is not None and any(lp.action != "skip" for lp in plan.lights):
+        g = buffers.gbuffer
+        reach = {lp.name: reach_mask(g, scene.light(lp.name)) for lp in plan.lights if lp.action != "skip"}
+        refine_with_receivers(plan, scene, reach)
+    return plan, reach

@@ -2,11 +2,12 @@
 light (its own method and settings, plus the scene's references), through
 ``bridge.pipeline``.
 
-In the UI the operator is modal and runs one step (one light) per timer tick,
-reports progress through the window manager and stops on Esc; in background
-mode (and when called from a script) it runs every step at once. Nothing in
-``bpy.data`` changes until the last step is done, so a cancelled run leaves
-no trace and a finished one is a single undo step.
+In the UI the operator is modal (``modal_job.py``): the steps (one per
+light) run in a worker thread while the status bar and the window manager
+show the progress, and Esc cancels; in background mode (and when called
+from a script) it runs every step at once. Nothing in ``bpy.data`` changes
+until the last step is done, so a cancelled run leaves no trace and a
+finished one is a single undo step.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import bpy
 from ..bridge import settings
 from ..bridge.pipeline import (FrameJob, FrameRequest, check_out_dir, first_line,
                                no_light_reason, prepare_frame, scaled_resolution, write_back)
+from .modal_job import ModalFrameJob
 
 
 def finish(job: FrameJob, scene, out_dir: Optional[str], build_nodes: bool):
@@ -36,7 +38,7 @@ def finish(job: FrameJob, scene, out_dir: Optional[str], build_nodes: bool):
     return result, written
 
 
-class PENUMBRA_OT_compute_passes(bpy.types.Operator):
+class PENUMBRA_OT_compute_passes(ModalFrameJob, bpy.types.Operator):
     """Compute Penumbra's shadow passes of the current frame for every enabled
     light (its own method and settings, plus the scene's references), store
     them as images and show them in the compositor. Esc cancels"""
@@ -55,8 +57,8 @@ class PENUMBRA_OT_compute_passes(bpy.types.Operator):
     resolution_scale: bpy.props.FloatProperty(name="Resolution Scale", default=1.0, min=0.01, max=1.0)
     build_nodes: bpy.props.BoolProperty(name="Build Compositor Nodes", default=True)
 
-    _timer = None
-    _job: Optional[FrameJob] = None
+    _label = "computing shadow passes"
+    _modal_per_light = True
     _out_dir: Optional[str] = None
 
     @classmethod
@@ -118,62 +120,7 @@ class PENUMBRA_OT_compute_passes(bpy.types.Operator):
         self.report({"INFO"}, msg)
         return {"FINISHED"}
 
-    # -- synchronous (background, scripts) ----------------------------------
-    def execute(self, context):
-        job = self._prepare(context, per_light=False)
-        if job is None:
-            return {"CANCELLED"}
-        wm = context.window_manager
-        wm.progress_begin(0.0, 1.0)
-        try:
-            job.run(lambda _msg, f: wm.progress_update(f))
-        finally:
-            wm.progress_end()
-        return self._conclude(context, job)
-
-    # -- modal (UI): one step per timer tick, Esc cancels --------------------
-    def invoke(self, context, event):
-        if bpy.app.background or context.window is None:
-            return self.execute(context)
-        job = self._prepare(context, per_light=True)
-        if job is None:
-            return {"CANCELLED"}
-        self._job = job
-        wm = context.window_manager
-        wm.progress_begin(0.0, float(max(1, len(job.steps))))
-        self._timer = wm.event_timer_add(0.05, window=context.window)
-        wm.modal_handler_add(self)
-        context.workspace.status_text_set("Penumbra: computing shadow passes (Esc to cancel)")
-        return {"RUNNING_MODAL"}
-
-    def _stop(self, context):
-        wm = context.window_manager
-        if self._timer is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-        wm.progress_end()
-        if context.workspace is not None:
-            context.workspace.status_text_set(None)
-
-    def modal(self, context, event):
-        job = self._job
-        if event.type == "ESC":
-            self._stop(context)
-            self.report({"WARNING"}, f"Penumbra: cancelled after {job.index} of {len(job.steps)} "
-                                     "step(s); nothing was changed")
-            return {"CANCELLED"}
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        if not job.done:
-            job.step()
-            context.window_manager.progress_update(float(job.index))
-        if job.done:
-            self._stop(context)
-            return self._conclude(context, job)
-        return {"RUNNING_MODAL"}
-
-    def cancel(self, context):
-        self._stop(context)
+    # execute (headless, scripts: every step at once) and the modal invoke: ModalFrameJob
 
 
 classes = (PENUMBRA_OT_compute_passes,)

@@ -3,7 +3,8 @@
 
 Each enabled light uses its own method when that is fast (``FAST_METHODS``),
 else pcf, with no references. Several lights combine as their
-energy-weighted mean visibility (1 = every light fully visible).
+energy-weighted mean visibility (1 = every light fully visible). In the UI
+it computes in a worker thread (``modal_job.py``); headless, at once.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from ..bridge import settings
 from ..bridge.images import combine, show_preview
 from ..bridge.pipeline import (FrameRequest, first_line, no_light_reason, prepare_frame,
                                scaled_resolution)
+from .modal_job import ModalFrameJob
 
 
 def _show_in_image_editors(context, img) -> int:
@@ -28,13 +30,14 @@ def _show_in_image_editors(context, img) -> int:
     return n
 
 
-class PENUMBRA_OT_preview(bpy.types.Operator):
+class PENUMBRA_OT_preview(ModalFrameJob, bpy.types.Operator):
     """Quick look at the soft shadows: a fast method at reduced resolution,
     shown in the "Penumbra Preview" image"""
 
     bl_idname = "penumbra.preview"
     bl_label = "Preview Shadows"
     bl_options = {"REGISTER", "UNDO"}
+    _label = "preview"
 
     only_active: bpy.props.BoolProperty(
         name="Active Light Only", default=False,
@@ -47,40 +50,36 @@ class PENUMBRA_OT_preview(bpy.types.Operator):
     def poll(cls, context):
         return context.scene is not None
 
-    def execute(self, context):
+    def _prepare(self, context, per_light: bool = False):
         scene = context.scene
         if scene.camera is None:
             self.report({"ERROR"}, "Penumbra: the scene has no camera")
-            return {"CANCELLED"}
+            return None
         only = None
         if self.only_active:
             ob = context.object
             if ob is None or ob.type != "LIGHT":
                 self.report({"ERROR"}, "Penumbra: the active object is not a light")
-                return {"CANCELLED"}
+                return None
             only = [ob.name]
         ss = settings.scene_settings(scene)
         side = self.max_size or (int(ss.preview_size) if ss is not None else 256)
-        res = scaled_resolution(scene, 1.0, side)
-        request = FrameRequest(resolution=res, fast=True, references=(), only=only,
-                               threads=settings.preferred_threads())
+        request = FrameRequest(resolution=scaled_resolution(scene, 1.0, side), fast=True, references=(),
+                               only=only, per_light=per_light, threads=settings.preferred_threads())
         try:
             job = prepare_frame(scene, request)
         except (ValueError, RuntimeError) as exc:
             self.report({"ERROR"}, f"Penumbra: {first_line(exc)}")
-            return {"CANCELLED"}
+            return None
         if not job.steps:
             self.report({"ERROR"}, f"Penumbra: {no_light_reason(job)}")
+            return None
+        return job
+
+    def _conclude(self, context, job):
+        if job.error is not None:
+            self.report({"ERROR"}, f"Penumbra: preview failed: {job.error}")
             return {"CANCELLED"}
-        wm = context.window_manager
-        wm.progress_begin(0.0, 1.0)
-        try:
-            job.run(lambda _m, f: wm.progress_update(f))
-        except Exception as exc:          # a report, not a traceback
-            self.report({"ERROR"}, f"Penumbra: preview failed: {type(exc).__name__}: {first_line(exc)}")
-            return {"CANCELLED"}
-        finally:
-            wm.progress_end()
         if not job.results:
             self.report({"ERROR"}, "Penumbra: no light left to preview")
             return {"CANCELLED"}
@@ -89,6 +88,7 @@ class PENUMBRA_OT_preview(bpy.types.Operator):
         shown = _show_in_image_editors(context, img)
         methods = sorted({p for lr in result.lights for p in lr.passes})
         where = "" if shown or bpy.app.background else " (open an Image Editor to see it)"
+        res = job.captured.resolution
         self.report({"INFO"}, f"Penumbra: preview {res[0]}x{res[1]}, {len(result.lights)} light(s), "
                               f"{', '.join(methods)}, {result.total_s:.2f} s -> image "
                               f"'{img.name}'{where}")

@@ -52,6 +52,9 @@ PIP_PLATFORMS = {
 
 #: Packages Blender ships itself (numpy 1.26 in 5.0, 2.x in 5.1+): not bundled.
 BLENDER_SHIPS = {"numpy"}
+#: Packages only the console script uses (the ``penumbra render`` progress
+#: bar): not bundled; inside Blender the command runs without a bar.
+CONSOLE_ONLY = {"tqdm"}
 
 #: Where PyPI has no wheel of the pinned version for a platform: numba 0.68.1
 #: and llvmlite 0.50.0 publish no macOS x86_64 wheels (numba's last Intel-Mac
@@ -78,7 +81,7 @@ def _norm(name: str) -> str:
 
 def pinned_requirements(root: str = ROOT) -> dict[str, str]:
     """``{normalised name: version}`` from pyproject's ``name==version`` deps,
-    less what Blender ships."""
+    less what Blender ships and what only the console script uses."""
     with open(os.path.join(root, "pyproject.toml"), "rb") as f:
         deps = tomllib.load(f)["project"]["dependencies"]
     out = {}
@@ -89,7 +92,8 @@ def pinned_requirements(root: str = ROOT) -> dict[str, str]:
         m = re.fullmatch(r"\s*([A-Za-z0-9_.\-]+)\s*==\s*([^\s;]+)\s*", dep)
         if m is None:
             raise BuildError(f"pyproject dependency {dep!r} is not pinned as name==version (no markers)")
-        out[_norm(m.group(1))] = m.group(2)
+        if _norm(m.group(1)) not in CONSOLE_ONLY:
+            out[_norm(m.group(1))] = m.group(2)
     return out
 
 

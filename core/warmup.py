@@ -1,0 +1,173 @@
+"""Kernel compilation, kept apart from a method's own time (DESIGN.md "JSON
+sidecar": ``compile_s``, never inside a method's ``time_s``).
+
+Before a method runs on a light for the first time in a process,
+:func:`ensure_compiled` runs it once on a tiny synthetic scene lit by a copy
+of that light (same kind, shape, size, cone; the same parameters), so every
+Numba kernel the real run calls is compiled (or loaded from Numba's on-disk
+cache) there. Numba's compile time in it is the frame's compile time; the
+real run then has no compilation in it.
+
+:func:`kernels_cached` says, before compiling, whether a method's kernels
+are already in the on-disk cache (the CLI prints "compiling ... (first run
+only)" when they are not): a warm-up writes a marker into ``NUMBA_CACHE_DIR``
+(a folder keyed on a hash of every core source, ``core/__init__.py``) naming
+the dispatchers it compiled, and the check asks each one's Numba cache index
+for entries of the current source.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import threading
+from dataclasses import replace
+from typing import Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+
+from .scene import Camera, Light, ObjectInfo, Scene
+from .views import look_rotation
+
+#: side of the warm-up scene's camera view and light maps, pixels
+WARMUP_SIZE = 8
+MARKER_DIR = "penumbra-warm"
+
+_lock = threading.Lock()          # one warm-up at a time (the add-on's and a job's)
+_warm: set = set()                # keys warmed in this process
+
+
+class CompileNotice(str):
+    """The progress message sent before a method's kernels compile: a str
+    (the UI shows it as is) that says which method (``method_id``)."""
+
+    def __new__(cls, method_id: str):
+        s = super().__new__(cls, f"compiling {method_id} kernels (first run only)...")
+        s.method_id = method_id
+        return s
+
+
+def warmup_scene(light: Light) -> Scene:
+    """A tiny scene lit by a copy of ``light``: the light at height ``D`` shining
+    down on a ground quad, an occluder quad halfway, the camera at the light
+    looking down (so every pixel sees a receiver the light reaches)."""
+    D = max(4.0 * light.extent, 1.0) if light.kind != "sun" else 1.0
+    m = np.eye(4)
+    m[:3, :3] = look_rotation(np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]))
+    m[:3, 3] = (0.0, 0.0, D)
+    lt = replace(light, world_from_light=m.copy(), energy=1.0, casts_shadow=True)
+    g, o = 2.0 * D, 0.25 * D
+
+    def quad(h, z):
+        a, b, c, d = [-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]
+        return [[a, b, c], [a, c, d]]
+    tris = np.array(quad(g, 0.0) + quad(o, 0.5 * D), np.float32)
+    cam_m = m.copy()
+    cam_m[2, 3] = 0.9 * D
+    cam = Camera(cam_m, kind="PERSP", lens=20.0, clip_start=1e-3 * D, clip_end=10.0 * D)
+    objs = [ObjectInfo("ground", 0), ObjectInfo("occluder", 1)]
+    return Scene(tris, np.array([0, 0, 1, 1], np.int32), objs, cam, [lt],
+                 (WARMUP_SIZE, WARMUP_SIZE), name="warm-up")
+
+
+def _key(method, light: Light, params) -> Tuple:
+    from .methods.base import params_dict
+    return (method.id, light.kind, light.shape, light.is_spot, light.is_zero_size,
+            json.dumps(params_dict(params), sort_keys=True, default=str))
+
+
+# --------------------------------------------------------------------------
+# which Numba dispatchers exist, and which are in the on-disk cache
+def _dispatchers() -> Dict[str, object]:
+    """Every Numba dispatcher defined in ``penumbra.core``'s loaded modules,
+    by ``module:qualname``."""
+    from numba.core.dispatcher import Dispatcher
+    root = __name__.rsplit(".", 1)[0]
+    out = {}
+    for name, mod in list(sys.modules.items()):
+        if mod is None or not (name == root or name.startswith(root + ".")):
+            continue
+        for obj in list(vars(mod).values()):
+            if isinstance(obj, Dispatcher) and getattr(obj, "__module__", None) == name:
+                out[f"{name}:{obj.py_func.__qualname__}"] = obj
+    return out
+
+
+def _overload_counts() -> Dict[str, int]:
+    return {k: len(d.overloads) for k, d in _dispatchers().items()}
+
+
+def _in_disk_cache(disp) -> bool:
+    """The dispatcher's Numba cache index holds entries for its current source."""
+    try:
+        return bool(disp._cache._cache_file._load_index())
+    except Exception:        # no cache (cache=False) or an unreadable index
+        return False
+
+
+def _marker_path(method_id: str) -> str:
+    import numba
+    return os.path.join(numba.config.CACHE_DIR or os.environ.get("NUMBA_CACHE_DIR", ""),
+                        MARKER_DIR, f"{method_id}.json")
+
+
+def kernels_cached(method_id: str) -> bool:
+    """True when a warm-up of ``method_id`` left its kernels in the on-disk
+    cache of the current core sources (and they are still there)."""
+    try:
+        with open(_marker_path(method_id)) as f:
+            names = json.load(f)["dispatchers"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    disp = _dispatchers()
+    return all(n in disp and _in_disk_cache(disp[n]) for n in names)
+
+
+def _write_marker(method_id: str, names: List[str]) -> None:
+    path = _marker_path(method_id)
+    try:
+        old = []
+        if os.path.exists(path):
+            with open(path) as f:
+                old = json.load(f).get("dispatchers", [])
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        tmp = f"{path}.{os.getpid()}.{threading.get_ident()}.tmp"
+        with open(tmp, "w") as f:
+            json.dump({"dispatchers": sorted(set(old) | set(names))}, f)
+        os.replace(tmp, path)
+    except (OSError, ValueError):
+        pass                 # a read-only cache folder: the next run prints the notice again
+
+
+# --------------------------------------------------------------------------
+def ensure_compiled(method, light: Light, params,
+                    notify: Optional[Callable[[str], None]] = None) -> float:
+    """Compile (or load from the cache) every kernel ``method.run`` calls for
+    ``light`` with ``params``, once per process; returns the seconds Numba
+    spent compiling (its ``numba:compile`` events: 0.0 when every kernel came
+    from the on-disk cache or was compiled already; loading from the cache
+    and the tiny run are in no figure but the frame's total).
+    ``notify(CompileNotice)`` is called first when the kernels are not in the
+    on-disk cache."""
+    key = _key(method, light, params)
+    if key in _warm:
+        return 0.0
+    with _lock:
+        if key in _warm:
+            return 0.0
+        if notify is not None and not kernels_cached(method.id):
+            notify(CompileNotice(method.id))
+        from numba.core.event import install_timer
+        from .buffers import FrameBuffers
+        before = _overload_counts()
+        scene = warmup_scene(light)
+        spent: List[float] = []
+        with install_timer("numba:compile", spent.append):
+            buffers = FrameBuffers(scene, WARMUP_SIZE, WARMUP_SIZE, WARMUP_SIZE)
+            with buffers.view(method.needs, method.id) as view:   # as render_frame runs it
+                method.run(view, scene.lights[0], params)
+        after = _overload_counts()
+        _write_marker(method.id, [k for k, n in after.items() if n > before.get(k, 0)])
+        _warm.add(key)
+        return sum(spent)
+
