@@ -36,6 +36,7 @@ def test_pareto_front_is_the_points_nothing_beats(points):
             assert any(points[j] == p for j in front)
 
 
+@pytest.mark.bpy    # the study captures each scene's light (bench/harness.py -> tests/scenes.py)
 def test_table_rebuilt_from_the_committed_study_is_the_committed_table(tmp_path):
     out = study.table_from_csv(os.path.join(RESULTS, "study.csv"), str(tmp_path / "auto_table.json"))
     with open(out) as f, open(os.path.join(RESULTS, "auto_table.json")) as g:
