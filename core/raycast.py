@@ -9,7 +9,6 @@ is fixed at 0, so callers that shoot from a surface offset the origin
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from typing import Optional
 
 import numba
@@ -17,6 +16,7 @@ import numpy as np
 
 from .scene import GBuffer, LightView, Scene, ViewFace, Camera
 from . import pixel_rays, views
+from .kernels import each_in_threads
 
 BATCH = 1 << 20   # rays per embreex call: bounds the float32 temporaries
 BAND_RAYS = 1 << 18   # primary rays per band of rows (``trace_pixels``)
@@ -121,14 +121,7 @@ def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, heigh
         kw = {"dists": tfar} if bounded else {}
         finish(tri_scene._scene.run(org, dirs, output=1, **kw), row0, row1)
 
-    workers = max(1, int(threads or numba.get_num_threads()))
-    if workers == 1 or len(bands) == 1:
-        for rng in bands:
-            band(rng)
-    else:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            for f in [pool.submit(band, rng) for rng in bands]:
-                f.result()
+    each_in_threads(band, bands, max(1, int(threads or numba.get_num_threads())))
 
 
 def camera_params(cam: Camera, width: int, height: int) -> np.ndarray:
