@@ -15,7 +15,7 @@ import json
 
 from .harness import machine
 from .methods import run_method_benchmarks
-from .phases import bench_skeleton, bench_startup, write_results
+from .phases import BUFFER_COLUMNS, bench_buffers, bench_skeleton, bench_startup, write_results
 
 
 def run_bench(args) -> int:
@@ -27,6 +27,9 @@ def run_bench(args) -> int:
         rows = bench_skeleton(repeats, args.quick) + bench_startup()
         md = write_results(rows, args.out, "skeleton")
         print(f"pipeline phases, medians of {repeats} warm runs")
+        print(md)
+        md = write_results(bench_buffers(repeats, args.quick), args.out, "buffers", BUFFER_COLUMNS)
+        print(f"buffers beside raw embreex (one thread, same rays), medians of {repeats} warm runs")
         print(md)
     if args.part in ("all", "methods"):
         run_method_benchmarks(args.out, repeats, args.quick)

@@ -2,7 +2,8 @@
 light depth map, the ``pcf`` filter and the ``embree`` trace on ``grids``,
 ``pcf`` at 1920x1080, and the start-up of a tiny render with a cold and a warm
 Numba cache. Written as ``skeleton.csv`` / ``skeleton.md`` beside
-``machine.json``.
+``machine.json``; the 1080p buffer table (issue 15: each buffer beside raw
+embreex for its rays, ``bench_buffers``) as ``buffers.csv`` / ``buffers.md``.
 """
 from __future__ import annotations
 
@@ -16,12 +17,19 @@ import time
 
 import numba
 
+import numpy as np
+
+from ..core import pixel_rays, raycast
 from ..core.buffers import FrameBuffers
 from ..core.methods import producer_of
 from .harness import TESTS, load_sample, machine, median_run
 
 #: the columns of skeleton.csv / skeleton.md
 COLUMNS = ["scene", "size", "phase", "method", "threads", "samples", "seconds", "rays_per_s"]
+#: the columns of buffers.csv / buffers.md (issue 15: buffers at Embree's cost)
+BUFFER_COLUMNS = ["scene", "size", "buffer", "rays", "threads", "embree_1t_s", "seconds", "ratio", "target"]
+#: the scenes of the 1080p buffer table
+BUFFER_SCENES = ("grids", "sphere_plane")
 
 
 def bench_skeleton(repeats: int, quick: bool):
@@ -65,6 +73,65 @@ def bench_skeleton(repeats: int, quick: bool):
     return rows
 
 
+def raw_embree_seconds(tri_scene, params, width: int, height: int, bounded: bool, repeats: int) -> float:
+    """Median seconds of ONE embreex call on one thread intersecting the
+    rays through every pixel centre of ``params`` with hit output (the same
+    float32 rays the buffer traces, generated beforehand and not timed)."""
+    n = width * height
+    org = np.empty((n, 3), np.float32)
+    dirs = np.empty((n, 3), np.float32)
+    tfar = np.empty(n, np.float32)
+    pixel_rays.make_rays(params, width, height, 0, height, org, dirs, tfar)
+    kw = {"dists": tfar} if bounded else {}
+    t, _ = median_run(lambda: tri_scene._scene.run(org, dirs, output=1, **kw), repeats)
+    return t
+
+
+def bench_buffers(repeats: int, quick: bool):
+    """Issue 15's 1080p buffer table: per scene, the camera G-buffer and each
+    light's view beside raw embreex on one thread for the same rays (the
+    ratio's target: 1.5), and ``pcf``'s whole time from a fresh frame
+    (buffers, BVHs and filter) against the raw primary-ray time (target 4)."""
+    rows = []
+    res = (480, 270) if quick else (1920, 1080)
+    size = f"{res[0]}x{res[1]}"
+    threads = numba.get_num_threads()
+    pcf = producer_of("pcf")
+    for name in BUFFER_SCENES:
+        scene = load_sample(name, res)
+        fb = FrameBuffers(scene, *res)
+        cs = fb.camera_scene
+        cam_params = raycast.camera_params(scene.camera, *res)
+        raw = raw_embree_seconds(cs, cam_params, *res, True, repeats)
+        t, _ = median_run(lambda: raycast.camera_gbuffer(scene, *res, cs), repeats)
+        rows.append(dict(scene=name, size=size, buffer="camera G-buffer", rays=res[0] * res[1], threads=threads,
+                         embree_1t_s=raw, seconds=t, ratio=t / raw, target="<= 1.5"))
+        for light in scene.lights:
+            if not light.casts_shadow:
+                continue
+            lv = fb.light_view(light)
+            occ = fb.shadow_scene_for(light)
+            if occ._scene is None or not lv.faces:
+                continue
+            lraw = sum(raw_embree_seconds(occ, raycast.face_params(f), f.width, f.height, False, repeats)
+                       for f in lv.faces)
+            t, _ = median_run(lambda: fb.light_view(light, key=str(time.perf_counter())), repeats)
+            rays = sum(f.width * f.height for f in lv.faces)
+            rows.append(dict(scene=name, size=size, buffer=f"light view {light.name} ({len(lv.faces)} face(s))",
+                             rays=rays, threads=threads, embree_1t_s=lraw, seconds=t, ratio=t / lraw,
+                             target="<= 1.5"))
+        light = scene.lights[0]
+
+        def whole_pcf():
+            return pcf.run(FrameBuffers(scene, *res), light, pcf.make_params({"NumSamples": 16}))
+
+        t, _ = median_run(whole_pcf, repeats)
+        rows.append(dict(scene=name, size=size, buffer=f"pcf whole ({light.name}: BVHs, buffers, filter)",
+                         rays=res[0] * res[1], threads=threads, embree_1t_s=raw, seconds=t, ratio=t / raw,
+                         target="<= 4"))
+    return rows
+
+
 _STARTUP = r"""
 import time, sys
 t0 = time.perf_counter()
@@ -89,21 +156,23 @@ def bench_startup():
     return out
 
 
-def write_results(rows, out_dir, name):
+def write_results(rows, out_dir, name, columns=COLUMNS):
     """``<name>.csv``, ``<name>.md`` and ``machine.json`` under ``out_dir``;
     returns the Markdown table."""
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, f"{name}.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, COLUMNS)
+        w = csv.DictWriter(f, columns)
         w.writeheader()
         w.writerows(rows)
-    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     for r in rows:
         cells = []
-        for k in COLUMNS:
+        for k in columns:
             v = r[k]
-            if k == "seconds":
+            if k in ("seconds", "embree_1t_s"):
                 v = f"{v:.4f}"
+            elif k == "ratio":
+                v = f"{v:.2f}x"
             elif k == "rays_per_s" and v != "":
                 v = f"{v / 1e6:.2f} M/s"
             cells.append(str(v))

@@ -81,6 +81,7 @@ class FrameBuffers:
         self._builds: Dict[str, _Build] = {}
         self._used: Optional[Set[str]] = None     # the running view's record (``BufferView``)
         self._gbuffer: Optional[GBuffer] = None
+        self._receivers: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
         self._shadow: Optional[raycast.TriangleScene] = None
         self._camera_scene: Optional[raycast.TriangleScene] = None
         self._shadow_triangles: Optional[Tuple[np.ndarray, np.ndarray]] = None
@@ -184,14 +185,24 @@ class FrameBuffers:
                 e = local
         return e
 
+    def _receiver_points(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(subsampled hit positions, their box's lo, hi), gathered once per
+        frame from the G-buffer (a 1080p G-buffer holds 2 M of them)."""
+        if self._receivers is None:
+            g = self.gbuffer
+            pts = g.position[g.hit]
+            lo, hi = (pts.min(0), pts.max(0)) if len(pts) else (None, None)
+            if len(pts) > _FIT_POINTS:
+                step = int(np.ceil(len(pts) / _FIT_POINTS))
+                pts = np.concatenate([pts[::step], pts[[0, -1]]])
+            pts.setflags(write=False)    # shared by every caller
+            self._receivers = (pts, lo, hi)
+        self._use("gbuffer")
+        return self._receivers
+
     def receivers(self) -> np.ndarray:
         """World positions of the visible receivers (subsampled for fitting)."""
-        g = self.gbuffer
-        pts = g.position[g.hit]
-        if len(pts) > _FIT_POINTS:
-            step = int(np.ceil(len(pts) / _FIT_POINTS))
-            pts = np.concatenate([pts[::step], pts[[0, -1]]])
-        return pts
+        return self._receiver_points()[0]
 
     def occluder_mask(self, light: Light) -> np.ndarray:
         """bool[T]: shadow-casting triangles that can lie between ``light`` and
@@ -202,11 +213,9 @@ class FrameBuffers:
         is swept towards the sun across the scene, widened by the cone."""
         tris = self.scene.triangles
         casts = self.scene.tri_casts_shadow
-        g = self.gbuffer
-        if len(tris) == 0 or not g.hit.any():
+        _, lo, hi = self._receiver_points()
+        if len(tris) == 0 or lo is None:
             return np.zeros(len(tris), bool)
-        pts = g.position[g.hit]
-        lo, hi = pts.min(0), pts.max(0)
         pad = 1e-4 * self.scale
         if light.kind == "sun":
             to_sun = -light.direction

@@ -1,8 +1,10 @@
 """Small Numba helpers shared by the image-space methods: projecting a world
 point into a packed ``ViewFace``, picking the face that holds it, the
-bounding box of a map's finite depths, and the prange chunk size."""
+bounding box of a map's finite depths, the prange chunk size, and running
+chunks of work on worker threads (kernels with ``nogil=True``, embreex)."""
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import numba
@@ -23,6 +25,21 @@ def parallel_chunks(size: int):
         yield
     finally:
         numba.set_parallel_chunksize(prev)
+
+
+def each_in_threads(fn, items, workers: int) -> None:
+    """``fn(item)`` for every item, on ``workers`` threads (in turn in this
+    thread when there is one worker or one item); the first error is raised.
+    ``fn`` must release the GIL for the threads to pay (Numba ``nogil=True``
+    kernels, embreex's ``run()``) and write disjoint outputs."""
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        for it in items:
+            fn(it)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for f in [pool.submit(fn, it) for it in items]:
+            f.result()
 
 
 @njit(cache=True, inline="always")

@@ -1,6 +1,8 @@
 """Embree ray casting (embreex): the camera G-buffer and light-view depth/ID maps.
 
-embreex's ``run()`` is vectorized (one call per batch) and holds the GIL.
+embreex's ``run()`` is vectorized (one call per batch) and releases the GIL,
+so the primary rays of a view are traced in bands on several threads
+(``trace_pixels``).
 Origins, directions and distances are handed over as float32; Embree's tnear
 is fixed at 0, so callers that shoot from a surface offset the origin
 (``sampling.offset_origin``).
@@ -9,12 +11,15 @@ from __future__ import annotations
 
 from typing import Optional
 
+import numba
 import numpy as np
 
 from .scene import GBuffer, LightView, Scene, ViewFace, Camera
-from . import views
+from . import pixel_rays, views
+from .kernels import each_in_threads
 
 BATCH = 1 << 20   # rays per embreex call: bounds the float32 temporaries
+BAND_RAYS = 1 << 18   # primary rays per band of rows (``trace_pixels``)
 
 
 class TriangleScene:
@@ -90,59 +95,110 @@ class TriangleScene:
         return tri, t, u, v
 
 
+def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, height: int,
+                 bounded: bool, finish, threads: Optional[int] = None) -> None:
+    """Trace the rays through every pixel centre of the view ``params``
+    (``pixel_rays.pack_rays``) in bands of rows, ``threads`` bands at a time
+    (default: Numba's thread count): each band's rays are generated straight
+    into float32, traced by embreex (``bounded``: they stop at the far plane)
+    and handed to ``finish(hits, row0, row1)`` (hits: embreex's dict of
+    primID, u, v, tfar, ...; None when the BVH is empty: every ray misses).
+    The bands write disjoint rows, so the result does not depend on
+    ``threads``."""
+    rows = max(1, BAND_RAYS // max(1, width))
+    bands = [(r, min(height, r + rows)) for r in range(0, height, rows)]
+
+    def band(rng):
+        row0, row1 = rng
+        if tri_scene._scene is None:
+            finish(None, row0, row1)
+            return
+        m = (row1 - row0) * width
+        org = np.empty((m, 3), np.float32)
+        dirs = np.empty((m, 3), np.float32)
+        tfar = np.empty(m, np.float32)
+        pixel_rays.make_rays(params, width, height, row0, row1, org, dirs, tfar)
+        kw = {"dists": tfar} if bounded else {}
+        finish(tri_scene._scene.run(org, dirs, output=1, **kw), row0, row1)
+
+    each_in_threads(band, bands, max(1, int(threads or numba.get_num_threads())))
+
+
+def camera_params(cam: Camera, width: int, height: int) -> np.ndarray:
+    """The camera's primary rays as ``pixel_rays.pack_rays`` packs them:
+    ``views.camera_rays`` (from the near to the far clip plane)."""
+    m = np.asarray(cam.world_from_camera, np.float64)
+    rot = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+    return pixel_rays.pack_rays(rot, m[:3, 3], views.camera_viewplane(cam, width, height),
+                                cam.kind == "ORTHO", cam.clip_start, cam.clip_end)
+
+
+def face_params(face: ViewFace) -> np.ndarray:
+    """A light-view face's rays as ``pixel_rays.pack_rays`` packs them
+    (``views.face_rays``: from the eye, unbounded)."""
+    inv = np.linalg.inv(np.asarray(face.view_from_world, np.float64))
+    return pixel_rays.pack_rays(inv[:3, :3], inv[:3, 3], face.bounds, face.ortho)
+
+
 def camera_gbuffer(scene: Scene, width: int, height: int,
-                   tri_scene: Optional[TriangleScene] = None) -> GBuffer:
+                   tri_scene: Optional[TriangleScene] = None, threads: Optional[int] = None) -> GBuffer:
     """The camera G-buffer at pixel centres (DESIGN.md "GBuffer").
 
     Position comes from the hit's barycentrics on the float32 triangle (its
     error does not grow with the ray's length), the geometric normal from the
-    triangle's edges, flipped to face the camera; depth is along the view axis.
+    triangle's edges, flipped to face the camera; depth is along the view axis
+    (``pixel_rays.gbuffer_pixels``).
     """
     cam: Camera = scene.camera
     if tri_scene is None:
         tri_scene = TriangleScene.from_scene(scene, scene.tri_visible_camera)
-    org, d, tfar, axis_scale = views.camera_rays(cam, width, height)
     n = width * height
-    tri, t, u, v = tri_scene.intersect(org.reshape(n, 3), d.reshape(n, 3), tfar.reshape(n))
-    hit = tri >= 0
-    pos = np.zeros((n, 3), np.float64)
-    nrm = np.zeros((n, 3), np.float32)
-    if hit.any():
-        T = scene.triangles[tri[hit]].astype(np.float64)
-        uu, vv = u[hit][:, None], v[hit][:, None]
-        pos[hit] = (1.0 - uu - vv) * T[:, 0] + uu * T[:, 1] + vv * T[:, 2]
-        ng = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
-        ln = np.linalg.norm(ng, axis=1, keepdims=True)
-        ng = np.where(ln > 0, ng / np.where(ln > 0, ln, 1.0), 0.0)
-        dh = d.reshape(n, 3)[hit]
-        flip = np.einsum("ij,ij->i", ng, dh) > 0
-        ng[flip] *= -1.0
-        nrm[hit] = ng.astype(np.float32)
-    depth = np.full(n, np.inf, np.float32)
-    if hit.any():
-        depth[hit] = ((pos[hit] - cam.position) @ cam.forward).astype(np.float32)
-    obj = np.full(n, -1, np.int32)
-    obj[hit] = scene.tri_object[tri[hit]]
+    params = camera_params(cam, width, height)
+    pos = np.empty((n, 3), np.float64)
+    nrm = np.empty((n, 3), np.float32)
+    depth = np.empty(n, np.float32)
+    obj = np.empty(n, np.int32)
+    tri = np.empty(n, np.int32)
+    triangles = np.ascontiguousarray(scene.triangles, np.float32)
+    tri_object = np.ascontiguousarray(scene.tri_object, np.int32)
+    fwd = cam.forward
+
+    def finish(r, row0, row1):
+        a, b = row0 * width, row1 * width
+        if r is None:
+            r = {"primID": np.full(b - a, -1, np.int32), "u": np.zeros(b - a, np.float32),
+                 "v": np.zeros(b - a, np.float32)}
+        pixel_rays.gbuffer_pixels(params, width, height, row0, row1, r["primID"], r["u"], r["v"],
+                                  tri_scene.tri_index, triangles, tri_object, fwd,
+                                  pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
+
+    trace_pixels(tri_scene, params, width, height, True, finish, threads)
     return GBuffer(position=pos.reshape(height, width, 3),
                    normal=nrm.reshape(height, width, 3),
                    depth=depth.reshape(height, width),
                    object_id=obj.reshape(height, width),
                    triangle_id=tri.reshape(height, width),
-                   hit=hit.reshape(height, width))
+                   hit=(tri >= 0).reshape(height, width))
 
 
-def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray):
+def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray,
+                threads: Optional[int] = None):
     """Depth (float32, -z in view space, +inf where empty) and object-id maps
-    of one face, by rays through its pixel centres."""
-    org, d, scale = views.face_rays(face)
-    n = face.width * face.height
-    tri, t, _, _ = tri_scene.intersect(org.reshape(n, 3), d.reshape(n, 3))
-    hit = tri >= 0
-    depth = np.full(n, np.inf, np.float32)
-    depth[hit] = (t[hit] * scale.reshape(n)[hit]).astype(np.float32)
-    ids = np.full(n, -1, np.int32)
-    ids[hit] = tri_object[tri[hit]]
-    return depth.reshape(face.height, face.width), ids.reshape(face.height, face.width)
+    of one face, by rays through its pixel centres (``pixel_rays.depth_pixels``)."""
+    w, h = face.width, face.height
+    depth = np.full(h * w, np.inf, np.float32)
+    ids = np.full(h * w, -1, np.int32)
+    params = face_params(face)
+    tri_object = np.ascontiguousarray(tri_object, np.int32)
+
+    def finish(r, row0, row1):
+        if r is not None:
+            a, b = row0 * w, row1 * w
+            pixel_rays.depth_pixels(params, w, h, row0, row1, r["primID"], r["tfar"], tri_scene.tri_index,
+                                    tri_object, depth[a:b], ids[a:b])
+
+    trace_pixels(tri_scene, params, w, h, False, finish, threads)
+    return depth.reshape(h, w), ids.reshape(h, w)
 
 
 def render_light_view(faces, tri_scene: TriangleScene, tri_object: np.ndarray,

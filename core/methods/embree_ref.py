@@ -27,7 +27,6 @@ the pixel, so any thread count gives the same bits.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numba
@@ -35,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from .. import sampling
+from ..kernels import each_in_threads
 from ..sampling import offset_origin, reference_sample, strata
 from .registry import register
 from .base import AVERAGE, GBUFFER, IRRADIANCE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
@@ -119,14 +119,7 @@ def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, thread
         occ = tri_scene.occluded_f32(org, dirs, tfar)
         reduce_visibility(occ, w, ns, v_avg[a:b], v_irr[a:b])
 
-    workers = max(1, int(threads or numba.get_num_threads()))
-    if workers == 1 or len(chunks) == 1:
-        for c in chunks:
-            work(c)
-    else:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            for f in [pool.submit(work, c) for c in chunks]:
-                f.result()
+    each_in_threads(work, chunks, max(1, int(threads or numba.get_num_threads())))
     return v_avg, v_irr, n * ns
 
 

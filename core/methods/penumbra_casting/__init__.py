@@ -72,7 +72,6 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Dict, List, Optional
 
@@ -81,6 +80,7 @@ import numpy as np
 from numba import njit, prange
 
 from ... import sampling
+from ...kernels import each_in_threads
 from ..registry import register
 from .blockers import MAXB, coplanar_blockers, pad_triangles
 from .cast import (N_ST, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LIVE, ST_NODES, ST_PEAK,
@@ -480,13 +480,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
                             bool(params.materialize_hard_volumes))
 
     def run_pool(fn):
-        if workers == 1 or len(chunks) == 1:
-            for c in chunks:
-                fn(c)
-        else:
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                for f in [pool.submit(fn, c) for c in chunks]:
-                    f.result()
+        each_in_threads(fn, chunks, workers)
 
     def build(c: _Chunk):
         t = time.perf_counter()

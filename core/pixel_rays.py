@@ -1,0 +1,149 @@
+"""Primary rays through pixel centres, fused: ray generation straight into
+embreex's float32 arrays, and the hits turned into G-buffer / depth-map
+pixels in one pass (no float64 temporaries, no boolean gathers). Each kernel
+works on a band of rows ``[row0, row1)`` (its arrays hold that band only) and
+releases the GIL, so ``raycast`` runs bands on several threads, each one
+generating, tracing (embreex releases the GIL too) and finishing its own.
+
+The formulas are ``views.camera_rays`` / ``views.face_rays`` and the hit
+post-processing that ``raycast`` did in NumPy, operation for operation, so
+the buffers stay bit-identical (NumPy's 3x3 products go through BLAS, which
+may fuse multiply-adds: those agree with these to the float64 ulp, and the
+float32 ray each feeds Embree is the same).
+
+A view is packed as float64[RAY_PARAMS] (``pack_rays``): world-from-view
+rotation (row-major), eye, view-plane window (xmin, xmax, ymin, ymax: at
+unit distance for perspective, scene units for orthographic), ortho flag,
+near (rays start there along the view axis), far (view-axis depth where rays
+stop; inf: unbounded).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+ROT, EYE, WINDOW, ORTHO, NEAR, FAR = 0, 9, 12, 16, 17, 18
+RAY_PARAMS = 19
+
+
+def pack_rays(rotation, eye, window, ortho: bool, near: float = 0.0, far: float = math.inf) -> np.ndarray:
+    """float64[RAY_PARAMS] for the kernels below (see the module docstring)."""
+    p = np.zeros(RAY_PARAMS, np.float64)
+    p[ROT:ROT + 9] = np.asarray(rotation, np.float64).reshape(9)
+    p[EYE:EYE + 3] = eye
+    p[WINDOW:WINDOW + 4] = window
+    p[ORTHO] = 1.0 if ortho else 0.0
+    p[NEAR] = near
+    p[FAR] = far
+    return p
+
+
+@njit(cache=True)
+def _local_xy(p, col, row, width, height):
+    """View-plane point of the pixel centre (col + 0.5, row + 0.5)."""
+    x = p[WINDOW] + (col + 0.5) / width * (p[WINDOW + 1] - p[WINDOW])
+    y = p[WINDOW + 3] - (row + 0.5) / height * (p[WINDOW + 3] - p[WINDOW + 2])
+    return x, y
+
+
+@njit(cache=True)
+def _ray(p, col, row, width, height):
+    """(origin, unit direction, view-axis depth per unit of ray length) of one
+    pixel's ray, float64, as ``views.camera_rays`` computes them."""
+    x, y = _local_xy(p, col, row, width, height)
+    if p[ORTHO] == 1.0:
+        z = -p[NEAR]
+        ox = x * p[0] + y * p[1] + z * p[2] + p[EYE]
+        oy = x * p[3] + y * p[4] + z * p[5] + p[EYE + 1]
+        oz = x * p[6] + y * p[7] + z * p[8] + p[EYE + 2]
+        return ox, oy, oz, -p[2], -p[5], -p[8], 1.0
+    n = math.sqrt(x * x + y * y + 1.0)
+    lx, ly, lz = x / n, y / n, -1.0 / n
+    dx = lx * p[0] + ly * p[1] + lz * p[2]
+    dy = lx * p[3] + ly * p[4] + lz * p[5]
+    dz = lx * p[6] + ly * p[7] + lz * p[8]
+    axis = 1.0 / n
+    s = p[NEAR] / axis
+    return p[EYE] + dx * s, p[EYE + 1] + dy * s, p[EYE + 2] + dz * s, dx, dy, dz, axis
+
+
+@njit(cache=True, nogil=True)
+def make_rays(p, width, height, row0, row1, org, dirs, tfar):
+    """float32 origins [N,3], unit directions [N,3] and ray lengths [N] (to
+    the far plane) through the pixel centres of rows [row0, row1), row-major."""
+    for row in range(row0, row1):
+        for col in range(width):
+            i = (row - row0) * width + col
+            ox, oy, oz, dx, dy, dz, axis = _ray(p, col, row, width, height)
+            org[i, 0], org[i, 1], org[i, 2] = ox, oy, oz
+            dirs[i, 0], dirs[i, 1], dirs[i, 2] = dx, dy, dz
+            tfar[i] = (p[FAR] - p[NEAR]) / axis
+
+
+@njit(cache=True, nogil=True)
+def gbuffer_pixels(p, width, height, row0, row1, prim, u, v, tri_index, triangles, tri_object, fwd,
+                   position, normal, depth, object_id, triangle_id):
+    """Embree's closest hits (local primID, u, v) -> G-buffer pixels: position
+    from the barycentrics on the float32 triangle, in float64; the geometric
+    normal, unit, flipped to face the ray; depth along the view axis ``fwd``
+    from the eye; object and global triangle ids (-1, +inf, 0 where empty)."""
+    for row in range(row0, row1):
+        for col in range(width):
+            i = (row - row0) * width + col
+            if prim[i] < 0:
+                position[i, 0], position[i, 1], position[i, 2] = 0.0, 0.0, 0.0
+                normal[i, 0], normal[i, 1], normal[i, 2] = 0.0, 0.0, 0.0
+                depth[i] = np.inf
+                object_id[i] = -1
+                triangle_id[i] = -1
+                continue
+            t = tri_index[prim[i]]
+            triangle_id[i] = t
+            object_id[i] = tri_object[t]
+            a0, a1, a2 = np.float64(triangles[t, 0, 0]), np.float64(triangles[t, 0, 1]), np.float64(triangles[t, 0, 2])
+            b0, b1, b2 = np.float64(triangles[t, 1, 0]), np.float64(triangles[t, 1, 1]), np.float64(triangles[t, 1, 2])
+            c0, c1, c2 = np.float64(triangles[t, 2, 0]), np.float64(triangles[t, 2, 1]), np.float64(triangles[t, 2, 2])
+            uu, vv = np.float64(u[i]), np.float64(v[i])
+            w = 1.0 - uu - vv
+            px = w * a0 + uu * b0 + vv * c0
+            py = w * a1 + uu * b1 + vv * c1
+            pz = w * a2 + uu * b2 + vv * c2
+            position[i, 0], position[i, 1], position[i, 2] = px, py, pz
+            e0, e1, e2 = b0 - a0, b1 - a1, b2 - a2
+            f0, f1, f2 = c0 - a0, c1 - a1, c2 - a2
+            n0 = e1 * f2 - e2 * f1
+            n1 = e2 * f0 - e0 * f2
+            n2 = e0 * f1 - e1 * f0
+            ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            if ln > 0:
+                n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
+            else:
+                n0, n1, n2 = 0.0, 0.0, 0.0
+            _, _, _, dx, dy, dz, _ = _ray(p, col, row, width, height)
+            if n0 * dx + n1 * dy + n2 * dz > 0:
+                n0, n1, n2 = -n0, -n1, -n2
+            normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
+            depth[i] = (px - p[EYE]) * fwd[0] + (py - p[EYE + 1]) * fwd[1] + (pz - p[EYE + 2]) * fwd[2]
+
+
+@njit(cache=True, nogil=True)
+def depth_pixels(p, width, height, row0, row1, prim, t, tri_index, tri_object, depth, object_id):
+    """Embree's closest hits -> a light view's pixels: depth along the view
+    axis (ray length times its cosine to the axis; +inf where empty) and
+    object id (-1 where empty)."""
+    for row in range(row0, row1):
+        for col in range(width):
+            i = (row - row0) * width + col
+            if prim[i] < 0:
+                depth[i] = np.inf
+                object_id[i] = -1
+                continue
+            if p[ORTHO] == 1.0:
+                axis = 1.0
+            else:
+                x, y = _local_xy(p, col, row, width, height)
+                axis = 1.0 / math.sqrt(x * x + y * y + 1.0)
+            depth[i] = np.float64(t[i]) * axis
+            object_id[i] = tri_object[tri_index[prim[i]]]
