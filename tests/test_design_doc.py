@@ -28,7 +28,7 @@ def _headings(text: str) -> set:
 
 def _citations():
     for folder, dirs, files in os.walk(ROOT):
-        dirs[:] = [d for d in dirs if d not in SKIP]
+        dirs[:] = [d for d in dirs if d not in SKIP and not d.startswith(".")]   # .venv-5.0, ...: not ours
         for name in files:
             path = os.path.join(folder, name)
             if not name.endswith(".py") or path == os.path.abspath(__file__):
