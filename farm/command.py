@@ -14,7 +14,7 @@ from typing import List
 
 DEFAULT_CHUNK = 10
 # render options that the farm sets per chunk, or that make no sense for a farm
-_NOT_FORWARDED = ("help", "scene", "frame", "frames", "out")
+_NOT_FORWARDED = ("help", "scene", "frame", "frames", "out", "quiet")   # farm has its own --quiet
 
 
 def _whole(name: str, lo: int, hi: int):

@@ -1,6 +1,6 @@
 """Build Penumbra's sample scenes (run: ``.venv/bin/python sample_blends/make_samples.py``).
 
-Writes, next to this script, three .blend files (Cycles, 512x512 at 100 %):
+Writes, next to this script, six .blend files (Cycles, 512x512 at 100 %):
 
 * ``grids.blend``        - Laine & Aila 2005's GRIDS test scene: three stacked
   lattices of thin crossing bars over a ground plane, each lattice rotated
@@ -12,15 +12,26 @@ Writes, next to this script, three .blend files (Cycles, 512x512 at 100 %):
   The dot in the light's name exercises EXR layer-name sanitising.
 * ``torus_plane.blend``  - Brabec & Seidel 2002, figure 7: a torus above a
   ground plane, lit by a spot light of non-zero radius from above.
+* ``foliage.blend``      - issue 17: a shrub of ~3,000 small, randomly oriented,
+  single-sided leaves on thin stems over a ground plane, under a 1.5 x 0.8 m
+  rectangular area light (about the leaf cluster's size). Many small occluders.
+* ``sun_pillars.blend``  - issue 17: two colonnades of thin pillars and arches
+  over a ground plane, under a low sun of 4 degrees angular diameter.
+* ``leaf_cards.blend``   - issue 18: alpha-matte occluders under an area light:
+  36 leaf cards with a binary leaf matte (Closest), a chain-link fence card
+  (binary, tiled), and four cards with a soft leaf matte (Linear). Each matte
+  is an Image Texture whose Alpha drives the Principled BSDF's Alpha; the
+  images are generated with NumPy, saved once and packed into the .blend.
 
-Everything is built from arrays (no operators, no randomness), so the scenes
-are the same on every run. ``main(out_dir)`` builds them elsewhere.
+Everything is built from arrays (no operators; "random" placements come from a
+seeded NumPy Generator), so the scenes are the same on every run. ``main(out_dir)`` builds them elsewhere.
 """
 from __future__ import annotations
 
 import math
 import os
 import sys
+import tempfile
 
 import bpy  # first: with the PyPI bpy module, bmesh and mathutils exist only after it
 import bmesh
@@ -28,7 +39,7 @@ import numpy as np
 from mathutils import Vector
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-SCENES = ("grids", "sphere_plane", "torus_plane")
+SCENES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards")
 
 # GRIDS parameters
 GRID_SPAN = 6.0          # lattice side length
@@ -37,6 +48,35 @@ GRID_BAR_WIDTH = 0.07    # thin bars: square cross-section
 GRID_SEGMENTS = 32       # length subdivisions per bar (triangle budget)
 GRID_HEIGHTS = (1.2, 2.4, 3.6)
 GRID_ROTATIONS_DEG = (0.0, 30.0, 60.0)
+
+# foliage parameters
+FOLIAGE_SEED = 17
+FOLIAGE_LEAVES = 3000            # single-sided leaves, 4 triangles each
+FOLIAGE_LEAF_LENGTH = 0.08
+FOLIAGE_LEAF_WIDTH = 0.045
+FOLIAGE_BRANCHES = 28
+FOLIAGE_STEM_WIDTH = 0.012
+FOLIAGE_CROWN_CENTRE = (0.0, 0.0, 1.25)
+FOLIAGE_CROWN_RADII = (0.75, 0.45, 0.45)   # ellipsoid the branch tips fill
+FOLIAGE_LIGHT_SIZE = (1.5, 0.8)            # rectangle, about the crown's size
+
+# sun and pillars parameters
+SUN_ANGLE_DEG = 4.0              # angular diameter (SunLight.angle)
+PILLAR_WIDTH = 0.12
+PILLAR_HEIGHT = 2.4
+PILLAR_SPACING = 1.2             # arch span between neighbouring pillars
+PILLARS_PER_ROW = 5
+PILLAR_ROWS_X = (0.0, 1.8)
+
+# leaf cards parameters
+CARDS_SEED = 18
+CARDS_BINARY = 36
+CARDS_SOFT = 4
+CARD_SIZE = 0.35
+MATTE_RES = 128                  # leaf matte texels per side
+FENCE_CELL_RES = 64              # one chain-link diamond cell, tiled (Repeat)
+FENCE_SIZE = (3.0, 1.5)
+FENCE_CELLS = (12, 6)            # UV repeats over the fence card
 
 
 # --------------------------------------------------------------------------
@@ -207,6 +247,139 @@ def _torus_arrays(major: float, minor: float, n_major: int, n_minor: int):
     return verts, faces
 
 
+def _random_rotations(rng, n: int) -> np.ndarray:
+    """``n`` rotation matrices uniform over SO(3) (normalised Gaussian quaternions)."""
+    q = rng.standard_normal((n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], 1)
+
+
+def _leaf_arrays(length: float, width: float):
+    """One flat leaf in its local XY plane, base at the origin, tip on +Y:
+    six vertices, fanned from the base into four triangles."""
+    h = 0.5 * width
+    verts = np.array([[0, 0, 0], [-h, 0.3 * length, 0], [-0.8 * h, 0.65 * length, 0],
+                      [0, length, 0], [0.8 * h, 0.65 * length, 0], [h, 0.3 * length, 0]])
+    tris = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]], np.int64)
+    return verts, tris
+
+
+def _tube_arrays(points, side, width: float):
+    """A closed square tube of side ``width`` swept along the polyline
+    ``points[N,3]``; ``side`` is a unit vector perpendicular to every segment
+    (one side of the cross-section): (verts[4N,3], quads[4(N-1)+2,4])."""
+    points = np.asarray(points, float)
+    side = np.asarray(side, float)
+    t = np.gradient(points, axis=0)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    other = np.cross(t, side)
+    h = 0.5 * width
+    ring = np.array([[-h, -h], [h, -h], [h, h], [-h, h]])
+    verts = (points[:, None, :] + ring[None, :, 0, None] * side
+             + ring[None, :, 1, None] * other[:, None, :]).reshape(-1, 3)
+    n = len(points)
+    k = np.arange(n - 1)[:, None]
+    j = np.arange(4)[None, :]
+    jn = (j + 1) % 4
+    quads = np.stack([4 * k + j, 4 * k + jn, 4 * (k + 1) + jn, 4 * (k + 1) + j], -1).reshape(-1, 4)
+    last = 4 * (n - 1)
+    caps = np.array([[3, 2, 1, 0], [last, last + 1, last + 2, last + 3]])
+    return verts, np.concatenate([quads, caps])
+
+
+def _perpendicular(d) -> np.ndarray:
+    d = np.asarray(d, float)
+    a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    p = np.cross(d, a)
+    return p / np.linalg.norm(p)
+
+
+def _merge(parts):
+    """[(verts, faces), ...] -> one (verts, faces) with the indices offset."""
+    verts, faces, base = [], [], 0
+    for v, f in parts:
+        verts.append(v)
+        faces.append(np.asarray(f) + base)
+        base += len(v)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def _card_object(scene, name: str, corners, uv_max=(1.0, 1.0), material=None):
+    """A single quad (corners[4,3], counter-clockwise from its (0, 0) corner)
+    with an active UV map running 0..uv_max over it."""
+    ob = _mesh_object(scene, name, corners, [[0, 1, 2, 3]], material, recalc=False)
+    uv = ob.data.uv_layers.new(name="UVMap")
+    u, v = uv_max
+    uv.data.foreach_set("uv", np.array([[0, 0], [u, 0], [u, v], [0, v]], np.float32).ravel())
+    return ob
+
+
+def _leaf_alpha(res: int, soft_texels: float = 0.0) -> np.ndarray:
+    """A leaf matte, alpha[res, res] in [0, 1] (row 0 = v 0): a pointed ellipse
+    along v. ``soft_texels`` = 0 gives a binary matte; otherwise the edge ramps
+    linearly over that many texels."""
+    c = (np.arange(res) + 0.5) / res
+    u, v = np.meshgrid(c, c)                       # rows run along v
+    x, y = (u - 0.5) * 2.0, (v - 0.5) * 2.0
+    half_width = 0.55 * (1.0 - y * y) ** 1.5        # pointed at both ends
+    dist = (np.abs(x) - half_width) * (0.5 * res)   # ~ texels outside the edge
+    dist = np.where(np.abs(y) < 0.95, dist, np.inf)
+    if soft_texels <= 0.0:
+        return (dist <= 0.0).astype(np.float32)
+    return np.clip(0.5 - dist / soft_texels, 0.0, 1.0).astype(np.float32)
+
+
+def _chain_link_alpha(res: int, wire: float = 0.12) -> np.ndarray:
+    """One chain-link cell, alpha[res, res] binary, tileable: wires along both
+    diagonals, ``wire`` of the cell wide; the diamonds between are holes."""
+    c = (np.arange(res) + 0.5) / res
+    u, v = np.meshgrid(c, c)
+    d1 = np.abs(((u + v) % 1.0) - 0.5)              # distance to a diagonal, in [0, 0.5]
+    d2 = np.abs(((u - v) % 1.0) - 0.5)
+    return ((d1 > 0.5 - 0.5 * wire) | (d2 > 0.5 - 0.5 * wire)).astype(np.float32)
+
+
+def _matte_image(name: str, alpha: np.ndarray, rgb) -> bpy.types.Image:
+    """A generated RGBA image (colour ``rgb``, the given alpha), saved once as a
+    PNG in a temporary folder and packed (a generated image packs only after it
+    has been saved: BLENDER_NOTES "Alpha mattes")."""
+    h, w = alpha.shape
+    img = bpy.data.images.new(name, width=w, height=h, alpha=True)
+    px = np.empty((h, w, 4), np.float32)
+    px[..., :3] = rgb
+    px[..., 3] = alpha
+    img.pixels.foreach_set(px.ravel())
+    img.alpha_mode = "STRAIGHT"
+    with tempfile.TemporaryDirectory() as tmp:
+        img.filepath_raw = os.path.join(tmp, name + ".png")
+        img.file_format = "PNG"
+        img.save()
+        img.pack()
+    img.filepath_raw = "//" + name + ".png"
+    return img
+
+
+def _matte_material(name: str, image, interpolation: str) -> bpy.types.Material:
+    """Principled BSDF whose Base Color and Alpha come from ``image``'s Image
+    Texture node (Color -> Base Color, Alpha -> Alpha), as glTF / FBX wire it."""
+    mat = _material(name, (0.2, 0.5, 0.1))
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = nodes["Principled BSDF"]
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = interpolation
+    tex.extension = "REPEAT"
+    tex.location = (-400, 200)
+    links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    links.new(tex.outputs["Alpha"], bsdf.inputs["Alpha"])
+    return mat
+
+
 # --------------------------------------------------------------------------
 # the scenes
 def build_grids():
@@ -254,8 +427,108 @@ def build_torus_plane():
     return scene
 
 
+def build_foliage():
+    scene = _reset("foliage")
+    rng = np.random.default_rng(FOLIAGE_SEED)
+    white = _material("Diffuse", (0.8, 0.8, 0.8))
+    _plane(scene, "Ground", 10.0, 10.0, white)
+    centre = np.array(FOLIAGE_CROWN_CENTRE)
+    radii = np.array(FOLIAGE_CROWN_RADII)
+    fork = np.array([0.0, 0.0, centre[2] - radii[2]])
+    # branch tips spread through the crown ellipsoid (direction x radius^(1/3))
+    d = rng.standard_normal((FOLIAGE_BRANCHES, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    tips = centre + d * radii * rng.uniform(0.55, 1.0, (FOLIAGE_BRANCHES, 1))
+    stems = [_tube_arrays(np.linspace([0, 0, 0], fork, 4), [1, 0, 0], 2 * FOLIAGE_STEM_WIDTH)]
+    for tip in tips:
+        stems.append(_tube_arrays(np.linspace(fork, tip, 4), _perpendicular(tip - fork),
+                                  FOLIAGE_STEM_WIDTH))
+    sv, sf = _merge(stems)
+    _mesh_object(scene, "Stems", sv, sf, _material("Stem", (0.35, 0.22, 0.1)))
+    # leaves: base on a branch (its outer 60 %), a little off it, any orientation
+    leaf_v, leaf_t = _leaf_arrays(FOLIAGE_LEAF_LENGTH, FOLIAGE_LEAF_WIDTH)
+    branch = rng.integers(0, FOLIAGE_BRANCHES, FOLIAGE_LEAVES)
+    t = rng.uniform(0.4, 1.0, (FOLIAGE_LEAVES, 1))
+    bases = fork + t * (tips[branch] - fork) + rng.normal(0.0, 0.06, (FOLIAGE_LEAVES, 3))
+    rot = _random_rotations(rng, FOLIAGE_LEAVES)
+    verts = np.einsum("nij,vj->nvi", rot, leaf_v) + bases[:, None, :]
+    tris = leaf_t[None] + (len(leaf_v) * np.arange(FOLIAGE_LEAVES))[:, None, None]
+    _mesh_object(scene, "Leaves", verts.reshape(-1, 3), tris.reshape(-1, 3),
+                 _material("Leaf", (0.15, 0.5, 0.1)), recalc=False)
+    _light(scene, "AreaLight", "AREA", (0.8, -0.4, 3.6), tuple(centre), 800.0,
+           shape="RECTANGLE", size=FOLIAGE_LIGHT_SIZE[0], size_y=FOLIAGE_LIGHT_SIZE[1])
+    _camera(scene, (2.0, -3.0, 2.1), (-0.45, 0.3, 0.55), lens=30.0)
+    return scene
+
+
+def build_sun_pillars():
+    scene = _reset("sun_pillars")
+    white = _material("Diffuse", (0.8, 0.8, 0.8))
+    stone = _material("Stone", (0.7, 0.65, 0.55))
+    _plane(scene, "Ground", 30.0, 30.0, white)
+    ys = (np.arange(PILLARS_PER_ROW) - 0.5 * (PILLARS_PER_ROW - 1)) * PILLAR_SPACING
+    r = 0.5 * PILLAR_SPACING
+    phi = np.linspace(0.0, math.pi, 25)
+    parts = []
+    for x in PILLAR_ROWS_X:
+        for y in ys:                                   # upright pillars
+            parts.append(_tube_arrays(np.linspace([x, y, 0], [x, y, PILLAR_HEIGHT], 5),
+                                      [1, 0, 0], PILLAR_WIDTH))
+        for y in ys[:-1]:                              # semicircular arches between them
+            arc = np.stack([np.full_like(phi, x), y + r - r * np.cos(phi),
+                            PILLAR_HEIGHT + r * np.sin(phi)], -1)
+            parts.append(_tube_arrays(arc, [1, 0, 0], PILLAR_WIDTH))
+    verts, faces = _merge(parts)
+    _mesh_object(scene, "Colonnade", verts, faces, stone)
+    # low sun from -X: elevation ~20 degrees, shadows ~6.5 m long
+    _light(scene, "Sun", "SUN", (-10.0, -2.5, 3.7), (0.0, 0.0, 0.0), 3.0,
+           angle=math.radians(SUN_ANGLE_DEG))
+    _camera(scene, (5.0, -9.0, 5.5), (5.0, 0.5, 0.0), lens=28.0)
+    return scene
+
+
+def build_leaf_cards():
+    scene = _reset("leaf_cards")
+    scene.cycles.transparent_max_bounces = 64      # Cycles shows the mattes
+    rng = np.random.default_rng(CARDS_SEED)
+    _plane(scene, "Ground", 12.0, 12.0, _material("Diffuse", (0.8, 0.8, 0.8)))
+    leaf = _matte_material("LeafMatte", _matte_image("leaf_matte", _leaf_alpha(MATTE_RES),
+                                                     (0.15, 0.5, 0.1)), "Closest")
+    soft = _matte_material("LeafSoft", _matte_image("leaf_soft", _leaf_alpha(MATTE_RES, 12.0),
+                                                    (0.3, 0.55, 0.1)), "Linear")
+    fence = _matte_material("ChainLink", _matte_image("chain_link",
+                                                      _chain_link_alpha(FENCE_CELL_RES),
+                                                      (0.5, 0.5, 0.55)), "Closest")
+    # cards: a square in the card's XY plane, tilted at most 50 degrees from level
+    h = 0.5 * CARD_SIZE
+    square = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]])
+    n = CARDS_BINARY + CARDS_SOFT
+    centres = np.stack([rng.uniform(-1.4, 1.4, n), rng.uniform(-1.2, 0.4, n),
+                        rng.uniform(0.9, 1.9, n)], -1)
+    yaw = rng.uniform(0.0, 2 * math.pi, n)
+    tilt = rng.uniform(-math.radians(50.0), math.radians(50.0), n)
+    for k in range(n):
+        cy, sy, ct, st = math.cos(yaw[k]), math.sin(yaw[k]), math.cos(tilt[k]), math.sin(tilt[k])
+        rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+        rx = np.array([[1, 0, 0], [0, ct, -st], [0, st, ct]])
+        corners = square @ (rz @ rx).T + centres[k]
+        if k < CARDS_BINARY:
+            _card_object(scene, f"Leaf{k + 1:02d}", corners, material=leaf)
+        else:
+            _card_object(scene, f"SoftLeaf{k - CARDS_BINARY + 1}", corners, material=soft)
+    fx, fz = FENCE_SIZE
+    fence_corners = np.array([[-0.5 * fx, 1.2, 0.0], [0.5 * fx, 1.2, 0.0],
+                              [0.5 * fx, 1.2, fz], [-0.5 * fx, 1.2, fz]])
+    _card_object(scene, "Fence", fence_corners, uv_max=FENCE_CELLS, material=fence)
+    _light(scene, "AreaLight", "AREA", (0.3, -1.5, 5.0), (0.0, 0.5, 0.0), 1000.0,
+           shape="SQUARE", size=1.0)
+    _camera(scene, (0.4, -4.8, 3.6), (0.0, 0.7, 0.5), lens=30.0)
+    return scene
+
+
 BUILDERS = {"grids": build_grids, "sphere_plane": build_sphere_plane,
-            "torus_plane": build_torus_plane}
+            "torus_plane": build_torus_plane, "foliage": build_foliage,
+            "sun_pillars": build_sun_pillars, "leaf_cards": build_leaf_cards}
 
 
 def main(out_dir: str = HERE, names=SCENES):

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
+import scenes
+
 from penumbra.core import views
 from penumbra.core.scene import Scene
 from penumbra.bridge.capture import (
@@ -19,7 +21,7 @@ from penumbra.bridge.capture import (
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SAMPLES = os.path.join(REPO, "sample_blends")
-SAMPLE_NAMES = ("grids", "sphere_plane", "torus_plane")
+SAMPLE_NAMES = ("grids", "sphere_plane", "torus_plane")   # the scenes whose contents are checked here
 
 # cube of side 2 centred at the origin: 8 vertices, 12 triangles
 CUBE_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
@@ -658,9 +660,9 @@ def test_make_samples_is_deterministic(tmp_path):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     paths = mod.main(str(tmp_path))
-    assert [os.path.basename(p) for p in paths] == [n + ".blend" for n in SAMPLE_NAMES]
+    assert [os.path.basename(p) for p in paths] == [n + ".blend" for n in scenes.SAMPLE_NAMES]
     assert not any(p.endswith(".blend1") for p in os.listdir(tmp_path))
-    for name, path in zip(SAMPLE_NAMES, paths):
+    for name, path in zip(scenes.SAMPLE_NAMES, paths):
         bpy.ops.wm.open_mainfile(filepath=path)
         fresh = capture_scene()
         bpy.ops.wm.open_mainfile(filepath=os.path.join(SAMPLES, name + ".blend"))
