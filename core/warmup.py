@@ -11,9 +11,9 @@ real run then has no compilation in it.
 :func:`kernels_cached` says, before compiling, whether a method's kernels
 are already in the on-disk cache (the CLI prints "compiling ... (first run
 only)" when they are not): a warm-up writes a marker into ``NUMBA_CACHE_DIR``
-(a folder keyed on a hash of every core source, ``core/__init__.py``) naming
-the dispatchers it compiled, and the check asks each one's Numba cache index
-for entries of the current source.
+(a folder keyed on a hash of every core source, ``core/__init__.py``; one
+marker per Python) naming the dispatchers it compiled, and the check asks
+each one's Numba cache index for entries of the current source.
 """
 from __future__ import annotations
 
@@ -106,9 +106,13 @@ def _in_disk_cache(disp) -> bool:
 
 
 def _marker_path(method_id: str) -> str:
+    """One marker per method and Python: Blender 5.0 (CPython 3.11) and 5.1+
+    (3.13) share the cache folder, but Numba keeps an index per Python
+    (``*.py311.nbi``), so what 3.13 compiled says nothing of 3.11's cache."""
     import numba
+    tag = f"{sys.implementation.cache_tag}-numba{numba.__version__}"
     return os.path.join(numba.config.CACHE_DIR or os.environ.get("NUMBA_CACHE_DIR", ""),
-                        MARKER_DIR, f"{method_id}.json")
+                        MARKER_DIR, f"{method_id}.{tag}.json")
 
 
 def kernels_cached(method_id: str) -> bool:
