@@ -18,6 +18,8 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
+from .alpha import AlphaMattes
+
 LIGHT_KINDS = ("area", "sphere", "sun")
 #: ``Light.kind_code``: a kind's index in LIGHT_KINDS, the code Numba kernels branch on
 KIND_AREA, KIND_SPHERE, KIND_SUN = 0, 1, 2
@@ -227,6 +229,7 @@ class Scene:
     resolution: Tuple[int, int] = (512, 512)   # (width, height) after percentage
     frame: int = 1
     name: str = "scene"
+    alpha: Optional[AlphaMattes] = None    # core/alpha.py; None: every surface is opaque
 
     def __post_init__(self):
         tris = np.asarray(self.triangles, np.float32).reshape(-1, 3, 3)
@@ -235,6 +238,8 @@ class Scene:
             raise ValueError("tri_object must have one id per triangle")
         self.triangles = np.ascontiguousarray(tris)
         self.tri_object = np.ascontiguousarray(ids)
+        if self.alpha is not None and len(self.alpha.tri_matte) != len(tris):
+            raise ValueError("alpha mattes must have one entry per triangle")
 
     # -- derived masks -------------------------------------------------
     def _object_flag(self, attr: str) -> np.ndarray:
