@@ -69,17 +69,70 @@ def _ray(p, col, row, width, height):
     return p[EYE] + dx * s, p[EYE + 1] + dy * s, p[EYE + 2] + dz * s, dx, dy, dz, axis
 
 
+@njit(cache=True, inline="always")
+def _put_ray(p, col, row, width, height, i, org, dirs, tfar):
+    """Ray i of a batch: pixel (col, row)'s, as float32."""
+    ox, oy, oz, dx, dy, dz, axis = _ray(p, col, row, width, height)
+    org[i, 0], org[i, 1], org[i, 2] = ox, oy, oz
+    dirs[i, 0], dirs[i, 1], dirs[i, 2] = dx, dy, dz
+    tfar[i] = (p[FAR] - p[NEAR]) / axis
+
+
 @njit(cache=True, nogil=True)
 def make_rays(p, width, height, row0, row1, org, dirs, tfar):
     """float32 origins [N,3], unit directions [N,3] and ray lengths [N] (to
     the far plane) through the pixel centres of rows [row0, row1), row-major."""
     for row in range(row0, row1):
         for col in range(width):
-            i = (row - row0) * width + col
-            ox, oy, oz, dx, dy, dz, axis = _ray(p, col, row, width, height)
-            org[i, 0], org[i, 1], org[i, 2] = ox, oy, oz
-            dirs[i, 0], dirs[i, 1], dirs[i, 2] = dx, dy, dz
-            tfar[i] = (p[FAR] - p[NEAR]) / axis
+            _put_ray(p, col, row, width, height, (row - row0) * width + col, org, dirs, tfar)
+
+
+@njit(cache=True, nogil=True)
+def make_rays_list(p, width, height, cols, rows, org, dirs, tfar):
+    """``make_rays`` for the listed pixels (cols[i], rows[i]) only: a sparse
+    set of sub-pixel samples is the pixel centres of a supersampled view."""
+    for i in range(cols.shape[0]):
+        _put_ray(p, cols[i], rows[i], width, height, i, org, dirs, tfar)
+
+
+@njit(cache=True, inline="always")
+def _gbuffer_sample(p, col, row, width, height, i, prim, u, v, tri_index, triangles, tri_object, fwd,
+                    position, normal, depth, object_id, triangle_id):
+    """``gbuffer_pixels``' body for hit i, pixel (col, row)."""
+    if prim[i] < 0:
+        position[i, 0], position[i, 1], position[i, 2] = 0.0, 0.0, 0.0
+        normal[i, 0], normal[i, 1], normal[i, 2] = 0.0, 0.0, 0.0
+        depth[i] = np.inf
+        object_id[i] = -1
+        triangle_id[i] = -1
+        return
+    t = tri_index[prim[i]]
+    triangle_id[i] = t
+    object_id[i] = tri_object[t]
+    a0, a1, a2 = np.float64(triangles[t, 0, 0]), np.float64(triangles[t, 0, 1]), np.float64(triangles[t, 0, 2])
+    b0, b1, b2 = np.float64(triangles[t, 1, 0]), np.float64(triangles[t, 1, 1]), np.float64(triangles[t, 1, 2])
+    c0, c1, c2 = np.float64(triangles[t, 2, 0]), np.float64(triangles[t, 2, 1]), np.float64(triangles[t, 2, 2])
+    uu, vv = np.float64(u[i]), np.float64(v[i])
+    w = 1.0 - uu - vv
+    px = w * a0 + uu * b0 + vv * c0
+    py = w * a1 + uu * b1 + vv * c1
+    pz = w * a2 + uu * b2 + vv * c2
+    position[i, 0], position[i, 1], position[i, 2] = px, py, pz
+    e0, e1, e2 = b0 - a0, b1 - a1, b2 - a2
+    f0, f1, f2 = c0 - a0, c1 - a1, c2 - a2
+    n0 = e1 * f2 - e2 * f1
+    n1 = e2 * f0 - e0 * f2
+    n2 = e0 * f1 - e1 * f0
+    ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    if ln > 0:
+        n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
+    else:
+        n0, n1, n2 = 0.0, 0.0, 0.0
+    _, _, _, dx, dy, dz, _ = _ray(p, col, row, width, height)
+    if n0 * dx + n1 * dy + n2 * dz > 0:
+        n0, n1, n2 = -n0, -n1, -n2
+    normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
+    depth[i] = (px - p[EYE]) * fwd[0] + (py - p[EYE + 1]) * fwd[1] + (pz - p[EYE + 2]) * fwd[2]
 
 
 @njit(cache=True, nogil=True)
@@ -91,41 +144,18 @@ def gbuffer_pixels(p, width, height, row0, row1, prim, u, v, tri_index, triangle
     from the eye; object and global triangle ids (-1, +inf, 0 where empty)."""
     for row in range(row0, row1):
         for col in range(width):
-            i = (row - row0) * width + col
-            if prim[i] < 0:
-                position[i, 0], position[i, 1], position[i, 2] = 0.0, 0.0, 0.0
-                normal[i, 0], normal[i, 1], normal[i, 2] = 0.0, 0.0, 0.0
-                depth[i] = np.inf
-                object_id[i] = -1
-                triangle_id[i] = -1
-                continue
-            t = tri_index[prim[i]]
-            triangle_id[i] = t
-            object_id[i] = tri_object[t]
-            a0, a1, a2 = np.float64(triangles[t, 0, 0]), np.float64(triangles[t, 0, 1]), np.float64(triangles[t, 0, 2])
-            b0, b1, b2 = np.float64(triangles[t, 1, 0]), np.float64(triangles[t, 1, 1]), np.float64(triangles[t, 1, 2])
-            c0, c1, c2 = np.float64(triangles[t, 2, 0]), np.float64(triangles[t, 2, 1]), np.float64(triangles[t, 2, 2])
-            uu, vv = np.float64(u[i]), np.float64(v[i])
-            w = 1.0 - uu - vv
-            px = w * a0 + uu * b0 + vv * c0
-            py = w * a1 + uu * b1 + vv * c1
-            pz = w * a2 + uu * b2 + vv * c2
-            position[i, 0], position[i, 1], position[i, 2] = px, py, pz
-            e0, e1, e2 = b0 - a0, b1 - a1, b2 - a2
-            f0, f1, f2 = c0 - a0, c1 - a1, c2 - a2
-            n0 = e1 * f2 - e2 * f1
-            n1 = e2 * f0 - e0 * f2
-            n2 = e0 * f1 - e1 * f0
-            ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-            if ln > 0:
-                n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
-            else:
-                n0, n1, n2 = 0.0, 0.0, 0.0
-            _, _, _, dx, dy, dz, _ = _ray(p, col, row, width, height)
-            if n0 * dx + n1 * dy + n2 * dz > 0:
-                n0, n1, n2 = -n0, -n1, -n2
-            normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
-            depth[i] = (px - p[EYE]) * fwd[0] + (py - p[EYE + 1]) * fwd[1] + (pz - p[EYE + 2]) * fwd[2]
+            _gbuffer_sample(p, col, row, width, height, (row - row0) * width + col, prim, u, v, tri_index,
+                            triangles, tri_object, fwd, position, normal, depth, object_id, triangle_id)
+
+
+@njit(cache=True, nogil=True)
+def gbuffer_list(p, width, height, cols, rows, prim, u, v, tri_index, triangles, tri_object, fwd,
+                 position, normal, depth, object_id, triangle_id):
+    """``gbuffer_pixels`` for the listed pixels (``make_rays_list``): entry i
+    is pixel (cols[i], rows[i])."""
+    for i in range(cols.shape[0]):
+        _gbuffer_sample(p, cols[i], rows[i], width, height, i, prim, u, v, tri_index, triangles, tri_object,
+                        fwd, position, normal, depth, object_id, triangle_id)
 
 
 @njit(cache=True, nogil=True)

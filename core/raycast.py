@@ -181,6 +181,56 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
                    hit=(tri >= 0).reshape(height, width))
 
 
+def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, rows: np.ndarray,
+                      tri_scene: Optional[TriangleScene] = None, threads: Optional[int] = None) -> GBuffer:
+    """The camera G-buffer of a ``width`` x ``height`` view at the listed
+    pixels (cols[i], rows[i]) only (``pixel_filter``'s sub-pixel samples are
+    the pixel centres of a supersampled view); every other pixel is empty
+    (hit False). Each listed pixel gets the same bits ``camera_gbuffer``
+    gives it (``pixel_rays.gbuffer_list``)."""
+    cam: Camera = scene.camera
+    if tri_scene is None:
+        tri_scene = TriangleScene.from_scene(scene, scene.tri_visible_camera)
+    cols = np.ascontiguousarray(cols, np.int64)
+    rows = np.ascontiguousarray(rows, np.int64)
+    m = len(cols)
+    params = camera_params(cam, width, height)
+    pos = np.zeros((m, 3), np.float64)
+    nrm = np.zeros((m, 3), np.float32)
+    depth = np.full(m, np.inf, np.float32)
+    obj = np.full(m, -1, np.int32)
+    tri = np.full(m, -1, np.int32)
+    triangles = np.ascontiguousarray(scene.triangles, np.float32)
+    tri_object = np.ascontiguousarray(scene.tri_object, np.int32)
+    fwd = cam.forward
+
+    def chunk(rng):
+        a, b = rng
+        if tri_scene._scene is None:
+            return
+        org = np.empty((b - a, 3), np.float32)
+        dirs = np.empty((b - a, 3), np.float32)
+        tfar = np.empty(b - a, np.float32)
+        pixel_rays.make_rays_list(params, width, height, cols[a:b], rows[a:b], org, dirs, tfar)
+        r = tri_scene._scene.run(org, dirs, output=1, dists=tfar)
+        pixel_rays.gbuffer_list(params, width, height, cols[a:b], rows[a:b], r["primID"], r["u"], r["v"],
+                                tri_scene.tri_index, triangles, tri_object, fwd,
+                                pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
+
+    each_in_threads(chunk, [(a, min(m, a + BAND_RAYS)) for a in range(0, m, BAND_RAYS)],
+                    max(1, int(threads or numba.get_num_threads())))
+    flat = rows * width + cols
+    g_pos = np.zeros((height * width, 3), np.float64)
+    g_nrm = np.zeros((height * width, 3), np.float32)
+    g_depth = np.full(height * width, np.inf, np.float32)
+    g_obj = np.full(height * width, -1, np.int32)
+    g_tri = np.full(height * width, -1, np.int32)
+    g_pos[flat], g_nrm[flat], g_depth[flat], g_obj[flat], g_tri[flat] = pos, nrm, depth, obj, tri
+    return GBuffer(position=g_pos.reshape(height, width, 3), normal=g_nrm.reshape(height, width, 3),
+                   depth=g_depth.reshape(height, width), object_id=g_obj.reshape(height, width),
+                   triangle_id=g_tri.reshape(height, width), hit=(g_tri >= 0).reshape(height, width))
+
+
 def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray,
                 threads: Optional[int] = None):
     """Depth (float32, -z in view space, +inf where empty) and object-id maps
