@@ -92,6 +92,22 @@ class FrameBuffers:
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
+    def supersampled(self, scene: Scene, width: int, height: int, gbuffer: GBuffer,
+                     seconds: float) -> "FrameBuffers":
+        """Buffers for ``pixel_filter``'s sub-pixel stage: ``scene`` at the
+        supersampled ``width`` x ``height`` with its camera G-buffer given
+        (built in ``seconds``), sharing this frame's BVHs, shadow triangles and
+        light views (fitted to the pixel-centre receivers; their build time is
+        billed to the pixel-centre stage) and its map size."""
+        sub = FrameBuffers(scene, width, height, self.map_size)
+        sub._gbuffer = gbuffer
+        sub.build_times["gbuffer"] = float(seconds)
+        sub._builds["gbuffer"] = _Build(float(seconds), NEED_PHASE[GBUFFER], ())
+        sub._shadow, sub._camera_scene = self._shadow, self._camera_scene
+        sub._shadow_triangles = self._shadow_triangles
+        sub._views = dict(self._views)
+        return sub
+
     def _timed(self, key: str, phase: str, fn, built_from: Iterable[str] = (), total: Optional[str] = None):
         """Build ``key`` with ``fn``, timed: ``build_times[total or key]``
         grows by the time, and the build is billed as ``phase``."""

@@ -2,7 +2,9 @@
 
 One layer per light, one single-channel float32 pass per method id: channel
 ``<layer>.<method>.V``, which Blender splits as layer / pass / channel, so its
-Image node shows one socket per method. Files are written atomically: to a
+Image node shows one socket per method. A filtered frame (``pixel_filter``)
+adds the coverage to each layer as pass ``Alpha``, channel ``<layer>.Alpha.A``.
+Files are written atomically: to a
 temporary name in the same folder, then renamed.
 """
 from __future__ import annotations
@@ -14,6 +16,7 @@ from typing import Dict, Mapping
 import numpy as np
 
 CHANNEL = "V"
+ALPHA_PASS = "Alpha"     # the coverage of a filtered frame; its channel is "A"
 TEMP_PREFIX = ".penumbra-"
 
 
@@ -65,7 +68,7 @@ def write_multilayer(path: str, layers: Mapping[str, Mapping[str, np.ndarray]],
                 raise ValueError("all passes of one EXR must share a size")
             if not np.isfinite(a).all():
                 raise ValueError(f"pass {layer}.{pname} holds non-finite values")
-            channels[f"{layer}.{pname}.{CHANNEL}"] = a
+            channels[f"{layer}.{pname}.{'A' if pname == ALPHA_PASS else CHANNEL}"] = a
     if not channels:
         raise ValueError("nothing to write")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}

@@ -41,6 +41,8 @@ class FrameResult:
     buffer_times: Dict[str, float]
     total_s: float
     compile_s: float = 0.0          # kernel compilation (``core/warmup.py``), in no method's time
+    pixel_filter: Optional[dict] = None     # ``core/pixel_filter.py``: recorded when a filter was asked for
+    coverage: Optional[np.ndarray] = None   # float32[H,W] alpha of a filtered frame (None: pixel centres)
 
     def to_json(self) -> dict:
         return {
@@ -51,6 +53,7 @@ class FrameResult:
             "buffers_time_s": {k: round(v, 6) for k, v in self.buffer_times.items()},
             "total_time_s": round(self.total_s, 6),
             "compile_s": round(self.compile_s, 6),
+            **({"pixel_filter": self.pixel_filter} if self.pixel_filter is not None else {}),
             "lights": [{"name": lr.name, "layer": lr.layer, "methods": lr.record} for lr in self.lights],
         }
 
@@ -82,7 +85,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                  map_size: Optional[int] = None,
                  progress: Optional[Callable[[str, float], None]] = None,
                  external: Optional[Mapping[str, Callable]] = None,
-                 error_budget: Optional[float] = None) -> FrameResult:
+                 error_budget: Optional[float] = None,
+                 buffers: Optional[FrameBuffers] = None) -> FrameResult:
     """Compute ``passes`` for every planned light of ``scene``. ``auto`` among
     them becomes, per light, the method the planner chose under
     ``error_budget`` (``core/auto_choice.py``): the pass is written under that
@@ -92,10 +96,13 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     (``samples``, ``seed``); ``method_overrides[producer_id]`` to one method.
     ``external[pass_id](light) -> MethodResult`` produces passes core cannot
     (``cycles``); its ``params`` field is recorded as the method's params.
+    ``buffers``: the frame's buffers when the caller built (or seeded) them
+    (``pixel_filter``'s stages); by default new ones at the scene's resolution.
     """
     t0 = time.perf_counter()
     W, H = scene.resolution
-    buffers = FrameBuffers(scene, W, H, map_size)
+    if buffers is None:
+        buffers = FrameBuffers(scene, W, H, map_size)
     plan, reach = plan_frame(scene, passes, light_names, error_budget, buffers)
     compile_s = _compile(plan, scene, overrides, method_overrides, progress)
     registry = method_registry.producers()

@@ -26,6 +26,8 @@ def write_frame(result: FrameResult, out_dir: str, previews: bool = True) -> Dic
     os.makedirs(out_dir, exist_ok=True)
     paths = output_paths(out_dir, result.scene_name, result.frame)
     layers = {lr.layer: lr.passes for lr in result.lights}
+    if result.coverage is not None:       # a filtered frame: its alpha in every layer
+        layers = {k: {**v, exr.ALPHA_PASS: result.coverage} for k, v in layers.items()}
     record = result.to_json()
     if layers and any(layers.values()):
         exr.write_multilayer(paths["exr"], layers, {"scene": result.scene_name, "frame": result.frame})

@@ -123,6 +123,29 @@ def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, thread
     return v_avg, v_irr, n * ns
 
 
+def unshadowed_irradiance(P, Nrm, pix, light, samples, seed, scale) -> np.ndarray:
+    """float64[n]: the light's direct irradiance at points P (normals Nrm)
+    without occlusion, up to one constant factor per light: the mean of the
+    reference's weights w_i over ``samples`` of its own light samples
+    (``generate_shadow_rays``; nothing is traced). ``pixel_filter`` weights
+    the irradiance ratio's footprint with it (E0)."""
+    lp = sampling.pack_light(light)
+    n, ns = len(P), max(1, int(samples))
+    out = np.zeros(n, np.float64)
+    per = max(1, RAYS_PER_BATCH // ns)
+    P = np.ascontiguousarray(P, np.float64)
+    Nrm = np.ascontiguousarray(Nrm, np.float64)
+    pix = np.ascontiguousarray(pix, np.int64)
+    for a in range(0, n, per):
+        b = min(n, a + per)
+        m = (b - a) * ns
+        org, dirs = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
+        tfar, w = np.empty(m, np.float32), np.empty(m, np.float64)
+        generate_shadow_rays(P[a:b], Nrm[a:b], pix[a:b], lp, ns, int(seed), scale, org, dirs, tfar, w)
+        out[a:b] = w.reshape(b - a, ns).mean(axis=1)
+    return out
+
+
 @register
 class EmbreeReference(Method):
     id = "embree"

@@ -1,0 +1,140 @@
+"""One frame filtered the way the scene renders (issue 14; ``pixel_filter``).
+
+Two stages, both ``frame.render_frame`` with the methods unchanged:
+
+1. pixel centres: every pass at one receiver per pixel centre (the
+   ``--pixel-filter none`` pass, bit for bit);
+2. sub-pixel samples: where a pixel's footprint holds a discontinuity or a
+   shadow edge (``pixel_filter.refine_mask``), the G-buffer is traced at the
+   ``grid`` x ``grid`` sub-pixel samples of every footprint that needs them
+   (the pixel centres of a supersampled view: ``raycast.camera_gbuffer_at``)
+   and every method runs on that supersampled view: point methods on its
+   receivers, image methods on its image (the other sub-samples are empty,
+   so they cost nothing). The light views and BVHs of stage 1 are shared.
+
+The resolve (``pixel_filter.resolve``) filters the sub-pixel passes into the
+refined pixels: an average pass by the filter weights, an irradiance pass by
+the weights times the unshadowed irradiance E0 at each sub-sample
+(``embree_ref.unshadowed_irradiance``), so unshadowed x V = shadowed holds
+for the filtered renders. External passes (``cycles``) arrive already
+filtered by their renderer. The frame gets a coverage (alpha) image.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Dict, Optional, Sequence
+
+import numpy as np
+
+from . import methods as method_registry
+from . import raycast
+from .buffers import FrameBuffers
+from .frame import REFERENCE_FOR, FrameResult, render_frame
+from .methods.base import IRRADIANCE
+from .methods.embree_ref import unshadowed_irradiance
+from .metrics import errors, reach_mask
+from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footprint_samples,
+                           refine_mask, resolve_pass)
+from .scene import GBuffer, Scene
+
+E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
+
+
+def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
+                    pixel_filter: Optional[PixelFilter] = None, **options) -> FrameResult:
+    """``frame.render_frame(scene, passes, light_names, **options)`` with the
+    passes filtered by ``pixel_filter`` (None or ``none``: exactly
+    ``render_frame``)."""
+    flt = pixel_filter or PixelFilter()
+    if flt.is_none:
+        return render_frame(scene, passes, light_names, **options)
+    W, H = scene.resolution
+    buffers = FrameBuffers(scene, W, H, options.get("map_size"))
+    base = render_frame(scene, passes, light_names, buffers=buffers, **options)
+    t0 = time.perf_counter()
+    g = buffers.gbuffer
+    s = int(flt.grid)
+    m0, taps = flt.taps()
+    computed = {lr.name: [pid for pid, rec in lr.record.items()
+                          if not method_registry.is_external(pid) and "skipped" not in rec]
+                for lr in base.lights}
+    computed = {k: v for k, v in computed.items() if v}
+    refine = np.zeros((H, W), bool)
+    if taps.size:
+        values = [lr.passes[pid] for lr in base.lights for pid in computed.get(lr.name, ())]
+        stack = np.ascontiguousarray(np.stack(values) if values else np.zeros((0, H, W), np.float32),
+                                     np.float32)
+        refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
+                    DEPTH_JUMP, NORMAL_COS, refine)
+    active = footprint_samples(refine, s, int(m0), int(taps.shape[0]))
+    rows, cols = np.nonzero(active)
+    sub_scene = dataclasses.replace(scene, resolution=(s * W, s * H))
+    tg = time.perf_counter()
+    sub_g = raycast.camera_gbuffer_at(sub_scene, s * W, s * H, cols, rows, buffers.camera_scene)
+    tg = time.perf_counter() - tg
+    sub = None
+    if computed and len(rows):
+        sub_passes = list(dict.fromkeys(pid for v in computed.values() for pid in v))
+        sub = render_frame(sub_scene, sub_passes, list(computed), options.get("overrides"),
+                           options.get("method_overrides"),
+                           buffers=buffers.supersampled(sub_scene, s * W, s * H, sub_g, tg))
+    stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
+             "subpixel_receivers": int(sub_g.hit.sum())}
+    setup_s = time.perf_counter() - t0
+    for lr in base.lights:
+        _resolve_light(scene, flt, lr, computed.get(lr.name, ()), sub, sub_g, g, refine, stats, setup_s,
+                       buffers.scale)
+    base.coverage = coverage(flt, refine, g.hit, sub_g.hit)
+    base.pixel_filter = flt.to_json()
+    base.total_s += time.perf_counter() - t0
+    return base
+
+
+def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, sub: Optional[FrameResult], sub_g: GBuffer,
+                   g: GBuffer, refine: np.ndarray, stats: Dict[str, int], setup_s: float,
+                   scale: float) -> None:
+    """Filter light ``lr``'s computed passes ``pids`` in place; record the
+    filter, the sub-pixel sample counts and the sub-pixel stage's time."""
+    sub_lr = next((x for x in sub.lights if x.name == lr.name), None) if sub is not None else None
+    light = scene.light(lr.name)
+    e0 = None
+    for pid in pids:
+        rec = lr.record[pid]
+        t = time.perf_counter()
+        if sub_lr is not None and pid in sub_lr.passes:
+            weight = None
+            if rec["visibility"] == IRRADIANCE:
+                if e0 is None:
+                    e0 = _unshadowed(sub_g, light, rec.get("params", {}).get("seed", 0), scale)
+                weight = e0
+            lr.passes[pid] = np.clip(resolve_pass(flt, refine, lr.passes[pid], sub_lr.passes[pid], weight),
+                                     0.0, 1.0).astype(np.float32)
+            sub_time = sub_lr.record[pid]["time_s"]["total"]
+        else:
+            sub_time = 0.0
+        phases = {k: v for k, v in rec["time_s"].items() if k != "total"}
+        phases["subpixel"] = round(sub_time + setup_s / max(1, len(pids)), 6)
+        phases["resolve"] = round(time.perf_counter() - t, 6)
+        phases["total"] = round(sum(phases.values()), 6)
+        rec["time_s"] = phases
+        rec["pixel_filter"] = {**flt.to_json(), **stats}
+    mask = reach_mask(g, light)
+    for pid in lr.record:
+        ref = REFERENCE_FOR[lr.record[pid]["visibility"]]
+        if "error" in lr.record[pid] and ref in lr.passes:
+            lr.record[pid]["error"] = {"reference": ref, **errors(lr.passes[pid], lr.passes[ref], mask)}
+
+
+def _unshadowed(sub_g: GBuffer, light, seed, scale: float) -> np.ndarray:
+    """E0 at every sub-pixel receiver the light reaches (0 elsewhere)."""
+    SH, SW = sub_g.shape
+    reach = reach_mask(sub_g, light).reshape(-1)
+    idx = np.flatnonzero(reach).astype(np.int64)
+    out = np.zeros(SH * SW, np.float64)
+    if len(idx):
+        P = sub_g.position.reshape(-1, 3)[idx]
+        N = sub_g.normal.reshape(-1, 3)[idx].astype(np.float64)
+        out[idx] = unshadowed_irradiance(P, N, idx, light, 1 if light.is_zero_size else E0_SAMPLES,
+                                         int(seed or 0), scale)
+    return out.reshape(SH, SW)

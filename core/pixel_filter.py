@@ -1,0 +1,293 @@
+"""Pixel filters as the renderers define them, the sub-pixel sample grid, and
+the resolve of sub-pixel passes into filtered pixels (issue 14).
+
+Cycles (``intern/cycles/scene/film.cpp``, ``filter_table``) weights a camera
+sample at offset (x, y) from the pixel centre by f(x) f(y) (it importance-
+samples x and y from one 1-D table each), with the user's width w:
+
+    box              f = 1                                |v| <= 1/2  (Blender's
+                     sync forces w = 1 for BOX: the width field is ignored)
+    gaussian         f = exp(-2 (6 v / 3w)^2) = exp(-8 v^2 / w^2)   |v| <= 1.5 w
+                     (sigma = w / 4; the table spans width*3)
+    blackman-harris  f = 0.35875 - 0.48829 cos(a) + 0.14128 cos(2a) - 0.01168 cos(3a),
+                     a = 2 pi (v / 2w + 1/2)                         |v| <= w
+                     (the table spans width*2: w is the half-width)
+
+EEVEE (``eevee_film``: ``film_filter_weight``) weights by the distance r to the
+pixel centre: exp(-r^2 / (2 (0.284 R)^2)) for r <= R = ``render.filter_size``
+(a Gaussian fitted to Blackman-Harris); its radial form is kept here.
+
+A pixel's filtered value is the filter-weighted integral over its footprint,
+which reaches into the neighbouring pixels. Here it is the quadrature over a
+regular grid of ``grid`` x ``grid`` sub-pixel samples per pixel (sample (I, J)
+of the supersampled image sits at ((J + 0.5) / grid, (I + 0.5) / grid) pixels):
+
+    average pass     V = sum w V_k / sum w                 (world samples: V = 1)
+    irradiance pass  V = sum w E0_k V_k / sum w E0_k       (world samples: E0 = 0)
+    coverage (alpha)   = sum w hit_k / sum w
+
+so that unshadowed render x irradiance pass = shadowed render for the
+filtered renders. Samples outside the image are left out (the weights are
+renormalised over the ones inside: the border ring differs from Cycles',
+which traces rays beyond the frame).
+
+Adaptive cost: only pixels whose footprint holds a discontinuity between
+pixel centres (hit, object id, depth, normal) or a change of V larger than
+``threshold`` are resolved from sub-pixel samples (``refine_mask``); the
+others keep their pixel-centre value, which equals the filtered value of a
+locally linear V (the filters are symmetric).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from numba import njit, prange
+
+KINDS = ("box", "gaussian", "blackman-harris", "eevee")
+NONE = "none"
+SCENE = "scene"
+EEVEE_SIGMA = 0.284            # eevee_film: Gaussian sigma per unit of filter radius
+DEFAULT_GRID = 4               # sub-pixel samples per axis where a pixel is refined
+MAX_GRID = 16
+DEFAULT_THRESHOLD = 0.02       # a change of V between pixel centres that marks a shadow edge
+DEPTH_JUMP = 0.05              # relative depth difference that marks a silhouette
+NORMAL_COS = 0.9               # normals closer than this (cosine) mark a crease
+
+
+class PixelFilterError(ValueError):
+    """A bad ``--pixel-filter`` spec (one line for the command line)."""
+
+
+@dataclass(frozen=True)
+class PixelFilter:
+    """One of ``KINDS`` with its width in pixels (Cycles' ``filter_width``,
+    EEVEE's ``filter_size``), or ``none`` (the pixel-centre pass)."""
+
+    kind: str = NONE
+    width: float = 1.5
+    grid: int = DEFAULT_GRID
+    threshold: float = DEFAULT_THRESHOLD
+
+    @property
+    def is_none(self) -> bool:
+        return self.kind == NONE
+
+    @property
+    def radius(self) -> float:
+        """Half-width of the footprint in pixels (where the weight ends)."""
+        return {"box": 0.5 * self.width, "gaussian": 1.5 * self.width,
+                "blackman-harris": self.width, "eevee": self.width}.get(self.kind, 0.0)
+
+    def weight(self, dx, dy) -> np.ndarray:
+        """The (unnormalised) weight of a sample at offset (dx, dy) pixels."""
+        dx = np.asarray(dx, np.float64)
+        dy = np.asarray(dy, np.float64)
+        if self.kind == "eevee":
+            r2 = dx * dx + dy * dy
+            R = self.width
+            return np.where(r2 <= R * R, np.exp(-0.5 * r2 / (EEVEE_SIGMA * R) ** 2), 0.0)
+        return self.profile(dx) * self.profile(dy)
+
+    def profile(self, v) -> np.ndarray:
+        """Cycles' 1-D filter function of this kind, zero outside the footprint."""
+        v = np.asarray(v, np.float64)
+        w, r = self.width, self.radius
+        inside = np.abs(v) <= r * (1 + 1e-12)
+        if self.kind == "box":
+            f = np.ones_like(v)
+        elif self.kind == "gaussian":
+            f = np.exp(-2.0 * (v * 6.0 / (3.0 * w)) ** 2)
+        elif self.kind == "blackman-harris":
+            a = 2.0 * math.pi * (v / (2.0 * w) + 0.5)
+            f = 0.35875 - 0.48829 * np.cos(a) + 0.14128 * np.cos(2 * a) - 0.01168 * np.cos(3 * a)
+        else:
+            raise PixelFilterError(f"no 1-D profile for pixel filter {self.kind!r}")
+        return np.where(inside, f, 0.0)
+
+    def taps(self):
+        """(first sub-sample offset m0, weights float64[k, k]): pixel (r, c)
+        reads sub-sample (grid r + m0 + a, grid c + m0 + b) with weight
+        ``weights[a, b]``. Empty weights: the filter is narrower than the
+        sub-sample spacing and the pixel centre stands for it."""
+        s, R = int(self.grid), self.radius
+        m_lo = int(math.ceil((0.5 - R) * s - 0.5 - 1e-9))
+        m_hi = int(math.floor((0.5 + R) * s - 0.5 + 1e-9))
+        if m_hi < m_lo:
+            return 0, np.zeros((0, 0), np.float64)
+        d = (np.arange(m_lo, m_hi + 1) + 0.5) / s - 0.5
+        k = self.weight(d[None, :], d[:, None])
+        if not (k > 0).any():
+            return 0, np.zeros((0, 0), np.float64)
+        return m_lo, np.ascontiguousarray(k, np.float64)
+
+    @property
+    def reach(self) -> int:
+        """Neighbouring pixels (per axis) whose centres bracket every point of
+        the footprint: an edge anywhere in it lies between two of them."""
+        return max(1, int(math.ceil(self.radius + 0.5 - 1e-9)))
+
+    def to_json(self) -> dict:
+        if self.is_none:
+            return {"type": NONE}
+        return {"type": self.kind, "width_px": float(self.width), "radius_px": float(self.radius),
+                "grid": int(self.grid), "threshold": float(self.threshold)}
+
+    def spec(self) -> str:
+        return NONE if self.is_none else f"{self.kind}:{self.width:g}:{self.grid}"
+
+
+def parse(spec: str, scene_filter: Optional[PixelFilter] = None) -> PixelFilter:
+    """``none | scene | box:W | gaussian:W | blackman-harris:W`` (and
+    ``eevee:W``), each but ``none`` optionally followed by ``:G`` (sub-pixel
+    samples per axis, default ``DEFAULT_GRID``) -> PixelFilter; ``scene`` is
+    ``scene_filter`` (the scene's own, ``from_render_settings``), or an
+    error when it is not known."""
+    s = (spec or "").strip().lower()
+    if s == NONE:
+        return PixelFilter()
+    kind, _, rest = s.partition(":")
+    if kind == SCENE:
+        if scene_filter is None:
+            raise PixelFilterError("--pixel-filter scene: the scene's filter is not known here")
+        return dataclasses.replace(scene_filter, grid=_grid(rest, spec)) if rest else scene_filter
+    bits = rest.split(":") if rest else []
+    if kind not in KINDS or not 1 <= len(bits) <= 2:
+        raise PixelFilterError(f"bad pixel filter {spec!r}: expected none, scene, box:W, gaussian:W "
+                               f"or blackman-harris:W")
+    try:
+        w = float(bits[0])
+    except ValueError:
+        raise PixelFilterError(f"bad pixel filter width in {spec!r}: expected a number of pixels")
+    if not (math.isfinite(w) and 0.0 < w <= 64.0):
+        raise PixelFilterError(f"bad pixel filter width in {spec!r}: expected 0 < W <= 64 pixels")
+    return PixelFilter(kind, w, _grid(bits[1], spec) if len(bits) == 2 else DEFAULT_GRID)
+
+
+def _grid(text: str, spec: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= MAX_GRID:
+        raise PixelFilterError(f"bad sub-pixel grid in {spec!r}: expected 1..{MAX_GRID} samples per axis")
+    return int(text)
+
+
+def from_render_settings(engine: str, cycles_type: Optional[str], cycles_width: float,
+                         filter_size: float) -> PixelFilter:
+    """The filter a render uses: Cycles' type and width (BOX ignores the
+    width: Blender passes 1), EEVEE's ``render.filter_size``; any other
+    engine: Cycles' settings."""
+    if engine and engine.upper().startswith("BLENDER_EEVEE"):
+        return PixelFilter("eevee", float(filter_size)) if filter_size > 0 else PixelFilter()
+    t = (cycles_type or "BLACKMAN_HARRIS").upper()
+    if t == "BOX":
+        return PixelFilter("box", 1.0)
+    kind = {"GAUSSIAN": "gaussian", "BLACKMAN_HARRIS": "blackman-harris"}.get(t, "blackman-harris")
+    return PixelFilter(kind, float(cycles_width))
+
+
+# --------------------------------------------------------------------------
+# which pixels need sub-pixel samples
+
+@njit(cache=True, parallel=True)
+def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, out):
+    """out[r, c] = True where pixel (r, c)'s neighbours within ``reach``
+    differ from it in hit, object id, depth (relative ``depth_jump``),
+    normal (cosine below ``normal_cos``) or any of ``values[k]`` (by more
+    than ``threshold``)."""
+    H, W = hit.shape
+    for r in prange(H):
+        for c in range(W):
+            flag = False
+            for dr in range(-reach, reach + 1):
+                rr = r + dr
+                if flag or rr < 0 or rr >= H:
+                    continue
+                for dc in range(-reach, reach + 1):
+                    cc = c + dc
+                    if flag or cc < 0 or cc >= W or (dr == 0 and dc == 0):
+                        continue
+                    if hit[r, c] != hit[rr, cc]:
+                        flag = True
+                    elif hit[r, c]:
+                        if obj[r, c] != obj[rr, cc]:
+                            flag = True
+                        elif abs(depth[r, c] - depth[rr, cc]) > depth_jump * min(depth[r, c], depth[rr, cc]):
+                            flag = True
+                        elif (normal[r, c, 0] * normal[rr, cc, 0] + normal[r, c, 1] * normal[rr, cc, 1]
+                              + normal[r, c, 2] * normal[rr, cc, 2]) < normal_cos:
+                            flag = True
+                    if not flag:
+                        for k in range(values.shape[0]):
+                            if abs(values[k, r, c] - values[k, rr, cc]) > threshold:
+                                flag = True
+                                break
+            out[r, c] = flag
+
+
+def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int) -> np.ndarray:
+    """bool[grid H, grid W]: the sub-samples some refined pixel's footprint
+    (taps ``m0``, size ``k``) reads; the footprint is separable, so one axis
+    after the other."""
+    H, W = refine.shape
+    cols = np.zeros((H, grid * W), bool)
+    for b in range(k):
+        J = grid * np.arange(W) + m0 + b
+        ok = (J >= 0) & (J < grid * W)
+        cols[:, J[ok]] |= refine[:, ok]
+    out = np.zeros((grid * H, grid * W), bool)
+    for a in range(k):
+        I = grid * np.arange(H) + m0 + a
+        ok = (I >= 0) & (I < grid * H)
+        out[I[ok], :] |= cols[ok, :]
+    return out
+
+
+@njit(cache=True, parallel=True)
+def resolve(refine, centre, sub, weight_sub, taps, grid, m0, out):
+    """Filtered pixels: where ``refine``, sum taps w_k weight_sub_k sub_k /
+    sum taps w_k weight_sub_k over the in-image sub-samples of the footprint
+    (1 where that sum is 0); elsewhere the pixel-centre value ``centre``."""
+    H, W = centre.shape
+    SH, SW = sub.shape
+    k = taps.shape[0]
+    for r in prange(H):
+        for c in range(W):
+            if not refine[r, c]:
+                out[r, c] = centre[r, c]
+                continue
+            num = 0.0
+            den = 0.0
+            for a in range(k):
+                I = grid * r + m0 + a
+                if I < 0 or I >= SH:
+                    continue
+                for b in range(k):
+                    J = grid * c + m0 + b
+                    if J < 0 or J >= SW:
+                        continue
+                    w = taps[a, b] * weight_sub[I, J]
+                    num += w * sub[I, J]
+                    den += w
+            out[r, c] = num / den if den > 0.0 else 1.0
+
+
+def resolve_pass(flt: PixelFilter, refine: np.ndarray, centre: np.ndarray, sub: np.ndarray,
+                 weight_sub: Optional[np.ndarray] = None) -> np.ndarray:
+    """float32[H, W]: ``resolve`` with this filter's taps; ``weight_sub``
+    (None: 1) is E0 for an irradiance pass, the hit mask for coverage."""
+    m0, taps = flt.taps()
+    centre = np.ascontiguousarray(centre, np.float64)
+    if taps.size == 0:
+        return centre.astype(np.float32)
+    sub = np.ascontiguousarray(sub, np.float64)
+    ws = np.ones_like(sub) if weight_sub is None else np.ascontiguousarray(weight_sub, np.float64)
+    out = np.empty(centre.shape, np.float64)
+    resolve(np.ascontiguousarray(refine), centre, sub, ws, taps, int(flt.grid), int(m0), out)
+    return out.astype(np.float32)
+
+
+def coverage(flt: PixelFilter, refine: np.ndarray, hit: np.ndarray, sub_hit: np.ndarray) -> np.ndarray:
+    """Alpha: the filter-weighted fraction of the footprint that sees a surface."""
+    return resolve_pass(flt, refine, hit.astype(np.float64), sub_hit.astype(np.float64))
