@@ -77,6 +77,15 @@ def _positive(name, lo, hi):
     return conv
 
 
+def _pixel_filter(text: str) -> str:
+    from .core.pixel_filter import PixelFilter, PixelFilterError, parse
+    try:
+        parse(text, PixelFilter())          # the grammar; "scene" is resolved per scene
+    except PixelFilterError as exc:
+        raise UsageError(str(exc))
+    return text.strip().lower()
+
+
 def _error_budget(text: str) -> float:
     import math
     try:
@@ -108,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--samples", type=_positive("--samples", 1, 65536), default=None,
                    help="light samples per pixel for sampling methods")
     r.add_argument("--seed", type=_positive("--seed", 0, 2**31 - 1), default=0)
+    r.add_argument("--pixel-filter", type=_pixel_filter, default="none",
+                   help="none (one receiver per pixel centre, the default), scene (the scene's "
+                        "render filter), box:W, gaussian:W or blackman-harris:W (W in pixels)")
     r.add_argument("--map-size", type=_positive("--map-size", 8, MAX_SIDE), default=None,
                    help="light depth-map resolution (larger side)")
     r.add_argument("--threads", type=_positive("--threads", 1, 1024), default=None)
@@ -131,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--scene", default=None, help="the .blend to time (default: sample grids)")
     b.add_argument("--repeats", type=_positive("--repeats", 1, 100), default=3)
     b.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
-    b.add_argument("--part", choices=("all", "skeleton", "methods", "study"), default="all",
+    b.add_argument("--part", choices=("all", "skeleton", "methods", "study", "filter"), default="all",
                    help="pipeline phases, per-method tables, or the accuracy-versus-time study")
     add_farm_parser(sub)
     return p
@@ -287,7 +299,7 @@ def _render_one(args, bpy_scene, path, out, stem, passes, lights, k, frame, bar)
     request = FrameRequest(frame=frame, resolution=args.resolution, use_light_settings=False,
                            methods=passes, lights=lights, seed=args.seed, samples=args.samples,
                            map_size=args.map_size, error_budget=args.error_budget,
-                           skip_deleted=False)
+                           skip_deleted=False, pixel_filter=args.pixel_filter)
     try:
         job = prepare_frame(bpy_scene, request)
     except NoCamera:

@@ -301,6 +301,22 @@ def _make_classes():
         "cycles_samples": bpy.props.IntProperty(
             name="Cycles Samples", default=64, min=1, max=1 << 16,
             description="Samples of the Cycles shadow reference: less noise at proportional cost"),
+        "pixel_filter": bpy.props.EnumProperty(
+            name="Pixel Filter", default="NONE",
+            items=[("NONE", "Pixel Centres", "One receiver at each pixel centre (no anti-aliasing)", 0),
+                   ("SCENE", "Scene", "Filtered like the scene's render: Cycles' pixel filter type and "
+                    "width, or EEVEE's filter size", 1),
+                   ("BOX", "Box", "Box filter of the width below", 2),
+                   ("GAUSSIAN", "Gaussian", "Cycles' Gaussian filter of the width below", 3),
+                   ("BLACKMAN_HARRIS", "Blackman-Harris", "Cycles' Blackman-Harris filter of the width "
+                    "below", 4)],
+            description="How a pass is filtered over each pixel's footprint, so it lines up with an "
+                        "anti-aliased render (sub-pixel receivers only where the footprint holds an "
+                        "edge)"),
+        "pixel_filter_width": bpy.props.FloatProperty(
+            name="Filter Width", default=1.5, min=0.01, max=64.0, precision=2, subtype="PIXEL",
+            description="Width of the Box, Gaussian or Blackman-Harris pixel filter, in pixels "
+                        "(as Cycles' Film > Pixel Filter width)"),
         "render_passes": bpy.props.BoolProperty(
             name="Passes in Every Render", default=False, update=_on_render_passes,
             description="Compute the passes for every rendered frame (F12, animations, background "

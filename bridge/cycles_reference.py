@@ -11,7 +11,9 @@ Both renders use the same seed, so they trace the same light samples and the
 ratio's noise is that of a ratio estimator with ``samples`` light samples per
 pixel, like ``embree_irr``'s. Settings (BLENDER_NOTES.md, "A Cycles shadow
 reference that lines up"): GAUSSIAN pixel filter of width 0.01 px (one ray
-through each pixel centre, as Penumbra's G-buffer), every bounce count 0, next
+through each pixel centre, as Penumbra's pixel-centre G-buffer) or, for a
+filtered pass (``core/pixel_filter.py``), the pass's own filter
+(``cycles_filter``), every bounce count 0, next
 event estimation only, no adaptive sampling, no denoising, no light-sampling
 threshold, no clamping, no time limit; the world is removed for the render
 (it would light the scene too) and so are the other lights (``hide_render``).
@@ -45,6 +47,22 @@ log = logging.getLogger(__name__)
 
 PASS_ID = "cycles"
 FILTER = {"type": "GAUSSIAN", "width_px": 0.01}
+
+
+def cycles_filter(pixel_filter=None) -> dict:
+    """Cycles' ``pixel_filter_type`` / ``filter_width`` for a core PixelFilter
+    (None or ``none``: ``FILTER``, rays through pixel centres). EEVEE's radial
+    Gaussian (sigma 0.284 R) becomes Cycles' Gaussian of the same sigma
+    (sigma = width / 4)."""
+    if pixel_filter is None or pixel_filter.is_none:
+        return dict(FILTER)
+    kind, w = pixel_filter.kind, float(pixel_filter.width)
+    if kind == "box":
+        return {"type": "BOX", "width_px": 1.0}
+    if kind == "eevee":
+        from ..core.pixel_filter import EEVEE_SIGMA
+        return {"type": "GAUSSIAN", "width_px": 4.0 * EEVEE_SIGMA * w}
+    return {"type": {"gaussian": "GAUSSIAN", "blackman-harris": "BLACKMAN_HARRIS"}[kind], "width_px": w}
 WHITE_MATERIAL = "Penumbra White Diffuse (temporary)"
 DIFFUSE_DIRECT = "Diffuse Direct"
 
@@ -190,7 +208,8 @@ def shadow_ratio(shadowed: np.ndarray, unshadowed: np.ndarray) -> np.ndarray:
     return np.clip(v, 0.0, 1.0).astype(np.float32)
 
 
-def _configure(ch: _Changes, scene, view_layer, resolution, samples, seed, out_base, material):
+def _configure(ch: _Changes, scene, view_layer, resolution, samples, seed, out_base, material,
+               filter_: dict = FILTER):
     """Every setting of the reference render, remembered in ``ch``."""
     r = scene.render
     c = scene.cycles
@@ -215,11 +234,11 @@ def _configure(ch: _Changes, scene, view_layer, resolution, samples, seed, out_b
     ch.set(im, "file_format", "OPEN_EXR_MULTILAYER")
     ch.set(im, "color_depth", "32")
     ch.set(im, "exr_codec", "ZIP")
-    # Cycles: one ray per pixel centre, direct light only, plain Monte Carlo
+    # Cycles: the pass's pixel filter, direct light only, plain Monte Carlo
     for attr, value in (("samples", int(samples)), ("seed", int(seed)),
                         ("use_animated_seed", False), ("use_adaptive_sampling", False),
-                        ("use_denoising", False), ("pixel_filter_type", "GAUSSIAN"),
-                        ("filter_width", 0.01), ("max_bounces", 0), ("diffuse_bounces", 0),
+                        ("use_denoising", False), ("pixel_filter_type", filter_["type"]),
+                        ("filter_width", float(filter_["width_px"])), ("max_bounces", 0), ("diffuse_bounces", 0),
                         ("glossy_bounces", 0), ("transmission_bounces", 0),
                         ("volume_bounces", 0), ("transparent_max_bounces", 0),
                         ("direct_light_sampling_type", "NEXT_EVENT_ESTIMATION"),
@@ -256,9 +275,10 @@ def _render_once(scene, view_layer, folder: str) -> Tuple[np.ndarray, float]:
 
 
 def render_light_reference(scene, light_name: str, resolution, samples: int = 64, seed: int = 0,
-                           view_layer=None) -> Tuple[np.ndarray, Dict[str, float]]:
+                           view_layer=None, pixel_filter=None) -> Tuple[np.ndarray, Dict[str, float]]:
     """V (float32[H,W], row 0 at the top) for one light and the two render
-    times; the scene is left exactly as it was, error or not."""
+    times, rendered with ``pixel_filter`` (``cycles_filter``); the scene is
+    left exactly as it was, error or not."""
     global _rendering
     W, H = (int(v) for v in resolution)
     if W < 1 or H < 1:
@@ -275,7 +295,8 @@ def render_light_reference(scene, light_name: str, resolution, samples: int = 64
     _rendering += 1
     try:
         material = _white_material()
-        _configure(ch, scene, view_layer, (W, H), samples, seed, os.path.join(folder, "ref"), material)
+        _configure(ch, scene, view_layer, (W, H), samples, seed, os.path.join(folder, "ref"), material,
+                   cycles_filter(pixel_filter))
         for ob in scene.objects:            # one light at a time
             if ob.type == "LIGHT" and ob != light_ob:
                 ch.set(ob, "hide_render", True)
@@ -301,15 +322,15 @@ def render_light_reference(scene, light_name: str, resolution, samples: int = 64
     return shadow_ratio(shadowed, unshadowed), {"render_shadowed": t_sh, "render_unshadowed": t_un}
 
 
-def reference_params(samples: int, seed: int) -> dict:
+def reference_params(samples: int, seed: int, pixel_filter=None) -> dict:
     return {"samples": int(samples), "seed": int(seed),
-            "filter": dict(FILTER), "bounces": 0,
+            "filter": cycles_filter(pixel_filter), "bounces": 0,
             "light_sampling": "NEXT_EVENT_ESTIMATION", "material_override": "white diffuse",
             "blender": bpy.app.version_string}
 
 
 def make_cycles_producer(bpy_scene, resolution, samples: int = 64, seed: int = 0,
-                         view_layer=None) -> Callable:
+                         view_layer=None, pixel_filter=None) -> Callable:
     """``producer(light) -> MethodResult`` for ``core.frame.render_frame(...,
     external={"cycles": producer})``: ``light`` is a core Light whose ``name``
     is the Blender light object's name. ``resolution`` is (W, H) and must be
@@ -319,8 +340,9 @@ def make_cycles_producer(bpy_scene, resolution, samples: int = 64, seed: int = 0
     seed = int(seed)
 
     def producer(light) -> MethodResult:
-        v, times = render_light_reference(bpy_scene, light.name, (W, H), samples, seed, view_layer)
+        v, times = render_light_reference(bpy_scene, light.name, (W, H), samples, seed, view_layer,
+                                          pixel_filter)
         return MethodResult(passes={PASS_ID: v}, time_s=times,
                             stats={"resolution": [W, H]},
-                            params=reference_params(samples, seed))
+                            params=reference_params(samples, seed, pixel_filter))
     return producer

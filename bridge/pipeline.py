@@ -59,7 +59,9 @@ class FrameRequest:
     ``in_render``: inside a render (no Cycles reference); ``threads``: Numba
     threads (0: all cores, None: unchanged); ``catch_errors``: a failed step
     ends the job with ``job.error`` instead of raising; ``skip_deleted``:
-    lights deleted between steps are skipped with a warning.
+    lights deleted between steps are skipped with a warning;
+    ``pixel_filter``: a ``--pixel-filter`` spec (None: the scene's
+    ``scene.penumbra.pixel_filter``; ``bridge.settings.pixel_filter``).
     """
     frame: Optional[int] = None
     resolution: Optional[Tuple[int, int]] = None
@@ -80,6 +82,7 @@ class FrameRequest:
     threads: Optional[int] = None
     catch_errors: bool = False
     skip_deleted: bool = True
+    pixel_filter: Optional[str] = None
 
 
 # --------------------------------------------------------------------------
@@ -99,15 +102,18 @@ def set_threads(n: int) -> int:
     return n
 
 
-def run_step(captured, step: Step, external=None, progress=None):
-    """``render_frame`` for the step's lights; ``auto``'s decisions go into
-    the result's plan (printed and stored in the JSON like the planner's)."""
-    from ..core.frame import render_frame
+def run_step(captured, step: Step, external=None, progress=None, pixel_filter=None):
+    """``render_frame`` for the step's lights, filtered by ``pixel_filter``
+    (a core PixelFilter; None: pixel centres, ``core.filtered_frame``);
+    ``auto``'s decisions go into the result's plan (printed and stored in
+    the JSON like the planner's)."""
+    from ..core.filtered_frame import render_filtered
     from ..core.planner import record_auto
     passes = [p for p in step.passes if p != "cycles" or (external and "cycles" in external)]
-    result = render_frame(captured, passes, step.names, overrides=step.overrides,
-                          method_overrides=step.method_overrides, map_size=step.map_size,
-                          progress=progress, external=external, error_budget=step.error_budget)
+    result = render_filtered(captured, passes, step.names, overrides=step.overrides,
+                             method_overrides=step.method_overrides, map_size=step.map_size,
+                             progress=progress, external=external, error_budget=step.error_budget,
+                             pixel_filter=pixel_filter)
     for lp in result.plan.lights:
         if lp.name in step.auto:
             record_auto(lp, step.auto[lp.name])
@@ -142,7 +148,9 @@ def merge_results(captured, results):
             times[k] = times.get(k, 0.0) + v
     W, H = captured.resolution
     return FrameResult(captured.name, captured.frame, (W, H), plan, lights, times,
-                       sum(r.total_s for r in results), sum(r.compile_s for r in results))
+                       sum(r.total_s for r in results), sum(r.compile_s for r in results),
+                       results[0].pixel_filter, next((r.coverage for r in results if r.coverage is not None),
+                                                     None))
 
 
 def empty_result(captured):
@@ -157,8 +165,9 @@ class FrameJob:
     merges what ran."""
 
     def __init__(self, scene, captured, steps: List[Step], external=None, notes=(),
-                 catch_errors: bool = True, skip_deleted: bool = True):
+                 catch_errors: bool = True, skip_deleted: bool = True, pixel_filter=None):
         self.scene_name = scene.name
+        self.pixel_filter = pixel_filter
         self.captured = captured
         self.steps = steps
         self.external = external or {}
@@ -190,7 +199,7 @@ class FrameJob:
             st = Step(alive, st.passes, st.overrides, st.method_overrides, st.map_size,
                       {n: c for n, c in st.auto.items() if n in alive}, st.error_budget)
         try:
-            self.results.append(run_step(self.captured, st, self.external, progress))
+            self.results.append(run_step(self.captured, st, self.external, progress, self.pixel_filter))
         except Exception as exc:           # a report, not a traceback
             if not self.catch_errors:
                 raise
@@ -355,10 +364,11 @@ def stop_warm_up() -> None:
 # --------------------------------------------------------------------------
 # planning
 def external_producers(scene, captured, passes: Sequence[str], in_render: bool = False,
-                       samples: Optional[int] = None, seed: Optional[int] = None):
+                       samples: Optional[int] = None, seed: Optional[int] = None, pixel_filter=None):
     """Producers for external passes (``cycles``: ``cycles_reference.py``)
     and notes for those that cannot run: (dict, notes); never inside a
-    render. ``samples`` / ``seed``: the scene's Penumbra settings when None."""
+    render. ``samples`` / ``seed``: the scene's Penumbra settings when None;
+    ``pixel_filter``: the filter the reference renders with (None: pixel centres)."""
     wanted = [p for p in dict.fromkeys(passes) if p == "cycles"]
     if not wanted:
         return {}, []
@@ -367,7 +377,8 @@ def external_producers(scene, captured, passes: Sequence[str], in_render: bool =
     from .cycles_reference import make_cycles_producer
     samples = settings.cycles_samples(scene) if samples is None else samples
     seed = settings.seed(scene) if seed is None else seed
-    return {"cycles": make_cycles_producer(scene, captured.resolution, samples, seed)}, []
+    return {"cycles": make_cycles_producer(scene, captured.resolution, samples, seed,
+                                           pixel_filter=pixel_filter)}, []
 
 
 def _jobs(scene, captured, request: FrameRequest) -> Tuple[List[LightJob], List[str]]:
@@ -394,15 +405,18 @@ def prepare_frame(scene, request: FrameRequest) -> FrameJob:
                              resolution=request.resolution, mode=request.mode)
     if captured.camera is None:
         raise NoCamera()
+    flt = settings.pixel_filter(scene, request.pixel_filter)
     if not request.use_light_settings:
         step = _uniform_step(request)
         external, notes = external_producers(scene, captured, step.passes, request.in_render,
-                                             samples=request.samples or 64, seed=request.seed)
+                                             samples=request.samples or 64, seed=request.seed,
+                                             pixel_filter=flt)
         steps = [step]
     else:
         jobs, notes = _jobs(scene, captured, request)
         all_passes = [p for j in jobs for p in j.passes]
-        external, ext_notes = external_producers(scene, captured, all_passes, request.in_render)
+        external, ext_notes = external_producers(scene, captured, all_passes, request.in_render,
+                                                 pixel_filter=flt)
         notes = notes + ext_notes
         if "cycles" in all_passes and "cycles" not in external:
             for j in jobs:
@@ -410,7 +424,7 @@ def prepare_frame(scene, request: FrameRequest) -> FrameJob:
         steps = make_steps(jobs, request.per_light)
     if request.threads is not None:
         set_threads(request.threads)
-    return FrameJob(scene, captured, steps, external, notes, request.catch_errors, request.skip_deleted)
+    return FrameJob(scene, captured, steps, external, notes, request.catch_errors, request.skip_deleted, flt)
 
 
 def compute_frame(scene, request: FrameRequest, progress: Optional[Progress] = None) -> FrameJob:

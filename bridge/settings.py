@@ -136,3 +136,32 @@ def preferred_threads() -> int:
     """The preferences' thread count (0: all cores)."""
     prefs = addon_preferences()
     return int(getattr(prefs, "threads", 0) or 0)
+
+
+def pixel_filter_spec(scene) -> str:
+    """The scene's ``--pixel-filter`` spec (``scene.penumbra.pixel_filter``;
+    ``none`` when the add-on is not registered)."""
+    ss = scene_settings(scene) if scene is not None else None
+    kind = str(getattr(ss, "pixel_filter", "NONE")) if ss is not None else "NONE"
+    if kind in ("NONE", "SCENE"):
+        return kind.lower()
+    width = round(float(getattr(ss, "pixel_filter_width", 1.5)), 6)   # Blender stores float32
+    return f"{kind.lower().replace('_', '-')}:{width:g}"
+
+
+def render_pixel_filter(scene):
+    """The pixel filter the scene renders with (``core.pixel_filter.from_render_settings``):
+    Cycles' ``pixel_filter_type`` / ``filter_width``, EEVEE's ``render.filter_size``."""
+    from ..core.pixel_filter import from_render_settings
+    c = getattr(scene, "cycles", None)
+    return from_render_settings(scene.render.engine, getattr(c, "pixel_filter_type", None),
+                                float(getattr(c, "filter_width", 1.5)),
+                                float(getattr(scene.render, "filter_size", 1.5)))
+
+
+def pixel_filter(scene, spec=None):
+    """``spec`` (None: the scene's setting) as a core PixelFilter; ``scene``
+    resolves to the render's own filter. Raises ValueError for a bad spec."""
+    from ..core.pixel_filter import parse
+    spec = pixel_filter_spec(scene) if spec is None else spec
+    return parse(spec, render_pixel_filter(scene) if spec.strip().lower() == "scene" else None)

@@ -59,7 +59,8 @@ class PENUMBRA_OT_render_cycles_reference(bpy.types.Operator):
         wm.progress_begin(0.0, 1.0)
         try:
             captured = capture_scene(scene, depsgraph=context.evaluated_depsgraph_get(), resolution=res)
-            producer = make_cycles_producer(scene, res, samples, seed, view_layer)
+            producer = make_cycles_producer(scene, res, samples, seed, view_layer,
+                                            pixel_filter=settings.pixel_filter(scene))
             names = [lt.name for lt in captured.lights if _penumbra_enabled(lt.name)]
             if not names:
                 self.report({"WARNING"}, "Penumbra: no light to render (none, or Penumbra is off "

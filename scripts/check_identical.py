@@ -5,6 +5,7 @@ scenes through the CLI and compare the EXR channels bit for bit.
     python scripts/check_identical.py compare DIR  # this commit against DIR (exit 1 on any difference)
 
 Small (64x64, 16 samples) so it runs in seconds once the kernels are cached.
+Pixel-centre passes (``--pixel-filter none``), whatever ``render``'s default.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ def render_all(out: str) -> dict:
         blend = os.path.join(HERE, "sample_blends", f"{s}.blend")
         subprocess.run(_penumbra() + ["render", blend, "--out", out, "--methods", METHODS,
                                       "--resolution", "64x64", "--samples", "16", "--no-previews",
-                                      "--force", "--frame", "1"], check=True, stdout=subprocess.DEVNULL)
+                                      "--force", "--frame", "1", "--pixel-filter", "none"], check=True, stdout=subprocess.DEVNULL)
         with OpenEXR.File(os.path.join(out, f"{s}.0001.exr"), separate_channels=True) as f:
             for part in f.parts:
                 for name, ch in part.channels.items():

@@ -75,6 +75,16 @@ def test_light_and_scene_properties(registered):
     sc = bpy.context.scene.penumbra
     assert sc.output_folder == "" and sc.seed == 0 and sc.cycles_samples == 64
     assert sc.render_passes is False
+    # the pixel filter: pixel centres by default; the scene's own, or one of Cycles' with a width
+    assert settings.pixel_filter_spec(bpy.context.scene) == "none"
+    sc.pixel_filter, sc.pixel_filter_width = "GAUSSIAN", 0.7
+    assert settings.pixel_filter_spec(bpy.context.scene) == "gaussian:0.7"
+    bpy.context.scene.render.engine = "CYCLES"
+    bpy.context.scene.cycles.pixel_filter_type, bpy.context.scene.cycles.filter_width = "BLACKMAN_HARRIS", 2.0
+    sc.pixel_filter = "SCENE"
+    f = settings.pixel_filter(bpy.context.scene)
+    assert (f.kind, f.width) == ("blackman-harris", 2.0)
+    sc.pixel_filter = "NONE"
     assert set(sc.references) == {"embree", "embree_irr"}
     sc.references = {"embree", "cycles"}
     assert settings.references(bpy.context.scene) == ["embree", "cycles"]
@@ -184,8 +194,8 @@ def test_panels_draw_existing_properties(registered):
     assert {"NumSamples", "Bias0", "Bias0_auto", "method", "light_samples", "map_size"} <= set(shown)
     self = type("P", (), {"layout": Layout()})()
     panels.PENUMBRA_PT_render.draw(self, ctx)
-    for name in ("render_passes", "output_folder", "seed", "references", "cycles_samples",
-                 "penumbra.preview", "penumbra.compute_passes", "penumbra.clear"):
+    for name in ("render_passes", "output_folder", "seed", "references", "cycles_samples", "pixel_filter",
+                 "pixel_filter_width", "penumbra.preview", "penumbra.compute_passes", "penumbra.clear"):
         assert name in shown
     ctx.light = None
     assert not panels.PENUMBRA_PT_light.poll(ctx)

@@ -42,6 +42,28 @@ def test_render_sphere_plane_contract(tmp_path):
     assert any(l["name"] == "Key.Light" for l in rec["lights"])
 
 
+def test_render_filtered_contract(tmp_path):
+    """--pixel-filter: the filter and sub-pixel counts in the JSON, an Alpha pass
+    (the coverage) in every layer; without it, no Alpha and no filter record."""
+    blend = sample_path("torus_plane")
+    args = ["--resolution", "40x32", "--samples", "8", "--methods", "pcf,embree,embree_irr", "--no-previews"]
+    assert main(["render", blend, "--out", str(tmp_path / "f"), "--pixel-filter", "gaussian:1"] + args) == 0
+    assert main(["render", blend, "--out", str(tmp_path / "n")] + args) == 0
+    rec = json.loads((tmp_path / "f" / "torus_plane.0001.json").read_text())
+    assert rec["pixel_filter"]["type"] == "gaussian" and rec["pixel_filter"]["width_px"] == 1.0
+    layers = exr.read_multilayer(str(tmp_path / "f" / "torus_plane.0001.exr"))
+    plain = exr.read_multilayer(str(tmp_path / "n" / "torus_plane.0001.exr"))
+    for light in rec["lights"]:
+        for pid in ("pcf", "embree_irr", "embree"):
+            pf = light["methods"][pid]["pixel_filter"]
+            assert pf["type"] == "gaussian" and pf["subpixel_receivers"] > 0
+            assert 0 < pf["refined_pixels"] < 40 * 32
+        a = layers[light["layer"]]["Alpha"]
+        assert a.shape == (32, 40) and a.min() >= 0 and a.max() <= 1
+        assert set(plain[light["layer"]]) == {"pcf", "embree", "embree_irr"}
+    assert "pixel_filter" not in json.loads((tmp_path / "n" / "torus_plane.0001.json").read_text())
+
+
 def test_render_is_deterministic(tmp_path):
     blend = sample_path("torus_plane")
     args = ["--resolution", "48x48", "--samples", "8", "--seed", "7", "--methods", "pcf,embree", "--no-previews"]
@@ -73,6 +95,8 @@ def _make_blend(path, with_camera=True):
     (["render", "{blend}", "--resolution", "big"], "bad --resolution"),
     (["render", "{blend}", "--resolution", "100000x100000"], "bad --resolution"),
     (["render", "{blend}", "--samples", "-3"], "bad --samples"),
+    (["render", "{blend}", "--pixel-filter", "lanczos:2"], "bad pixel filter"),
+    (["render", "{blend}", "--pixel-filter", "gaussian:0"], "bad pixel filter width"),
     (["render", "{text}"], "not a .blend"),
     (["render", "{trunc}"], "cannot open"),
     (["render", "{nocam}"], "no camera"),
