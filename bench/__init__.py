@@ -4,6 +4,7 @@ the extension; ``blender_manifest.toml`` excludes ``/bench/``).
 - :mod:`.phases`: per-phase wall times of the pipeline (``--part skeleton``),
 - :mod:`.methods`: the per-method tables of issues 3-5 (``--part methods``),
 - :mod:`.study`: accuracy versus time and the planner's table (``--part study``),
+- :mod:`.pixel_filter`: the cost and error of filtered passes (``--part filter``),
 - :mod:`.harness`: what they share (sample scenes, machine, median of warm runs).
 
 Medians of ``--repeats`` warm runs; thread counts stated. Results go to
@@ -33,6 +34,10 @@ def run_bench(args) -> int:
         print(md)
     if args.part in ("all", "methods"):
         run_method_benchmarks(args.out, repeats, args.quick)
+    if args.part in ("all", "filter"):
+        from .pixel_filter import bench_pixel_filter
+        print("filtered passes (issue 14)")
+        print(bench_pixel_filter(args.out, repeats, args.quick))
     if args.part in ("all", "study"):
         # imported here, not above: ``python -m penumbra.bench.study`` runs the
         # module as __main__, and runpy warns when the package imported it first
