@@ -164,4 +164,5 @@ def pixel_filter(scene, spec=None):
     resolves to the render's own filter. Raises ValueError for a bad spec."""
     from ..core.pixel_filter import parse
     spec = pixel_filter_spec(scene) if spec is None else spec
-    return parse(spec, render_pixel_filter(scene) if spec.strip().lower() == "scene" else None)
+    wants_scene = spec.strip().lower().partition(":")[0] == "scene"
+    return parse(spec, render_pixel_filter(scene) if wants_scene else None)
