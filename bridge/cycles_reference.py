@@ -210,11 +210,16 @@ def _matte_swaps(white) -> Tuple[List[tuple], List[object]]:
     none does (the view layer's override is used then)."""
     copies: Dict[int, object] = {}
     swaps = []
+    seen = set()
     for ob in bpy.data.objects:
-        for slot in ob.material_slots:
+        for i, slot in enumerate(ob.material_slots):
             m = slot.material
-            if m is None:
+            # a slot linked to the data is the mesh's: linked duplicates share it (swap it once,
+            # or restoring would put the replacement back)
+            owner = ob.data if slot.link == "DATA" else ob
+            if m is None or (owner.as_pointer(), slot.link, i) in seen:
                 continue
+            seen.add((owner.as_pointer(), slot.link, i))
             key = m.as_pointer()
             if key not in copies:
                 try:

@@ -87,7 +87,17 @@ def _from(socket):
             return None
 
 
-def _upstream(socket, depth=0) -> List[object]:
+def _tree_nodes(tree, depth: int = 0) -> List[object]:
+    """Every node of ``tree``, nested node groups' nodes included."""
+    out = []
+    for n in tree.nodes:
+        out.append(n)
+        if n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None and depth < 8:
+            out.extend(_tree_nodes(n.node_tree, depth + 1))
+    return out
+
+
+def _upstream(socket) -> List[object]:
     """Every node feeding ``socket`` (node groups' own nodes included)."""
     out, stack, seen = [], [socket], set()
     while stack:
@@ -101,8 +111,8 @@ def _upstream(socket, depth=0) -> List[object]:
             seen.add(n.as_pointer())
             out.append(n)
             stack.extend(n.inputs)
-            if n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None and depth < 8:
-                out.extend(n.node_tree.nodes)
+            if n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None:
+                out.extend(_tree_nodes(n.node_tree))
     return out
 
 
@@ -402,7 +412,7 @@ class MatteCapture:
                 uv_cache[name] = _uv_loops(mesh, name)
             uv = uv_cache[name]
             if uv is None:
-                missing = f"the UV map {name!r}" if name else "a UV map"
+                missing = f"UV map {name!r}" if name else "UV map"
                 self._treat_opaque(("uv", what, m), self.names[m].split(" / ")[0],
                                    f"image {self.names[m].split(' / ', 1)[1]!r} on {what!r}, "
                                    f"which has no {missing}")
@@ -453,9 +463,7 @@ def _maybe_transparent(mat) -> bool:
     if nt is None:
         return False
     try:
-        return any(_is_transparent(n) for n in nt.nodes) or any(
-            n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None
-            and any(_is_transparent(g) for g in n.node_tree.nodes) for n in nt.nodes)
+        return any(_is_transparent(n) for n in _tree_nodes(nt))
     except Exception:               # pragma: no cover - a broken tree: read it in full later
         return True
 

@@ -258,16 +258,42 @@ def test_non_finite_pixels_never_give_nan(factory_scene):
     assert np.isfinite(t).all() and t.min() >= 0.0 and t.max() <= 1.0
 
 
-def test_procedural_alpha_is_opaque_and_named(factory_scene, caplog):
-    mat = _principled("Noisy")
+def _unreadable(kind):
+    """A material whose transparency the capture does not read, and the
+    node type its warning names."""
+    mat = _principled(f"Unread_{kind}")
     nt = mat.node_tree
-    noise = nt.nodes.new("ShaderNodeTexNoise")
-    nt.links.new(noise.outputs["Fac"], nt.nodes["Principled BSDF"].inputs["Alpha"])
+    bsdf, out = nt.nodes["Principled BSDF"], nt.nodes["Material Output"]
+    if kind == "noise":
+        nt.links.new(nt.nodes.new("ShaderNodeTexNoise").outputs["Fac"], bsdf.inputs["Alpha"])
+        return mat, "Noise"
+    if kind == "math":
+        tex = nt.nodes.new("ShaderNodeTexImage")
+        tex.image = _image()
+        math_node = nt.nodes.new("ShaderNodeMath")
+        nt.links.new(tex.outputs["Alpha"], math_node.inputs[0])
+        nt.links.new(math_node.outputs[0], bsdf.inputs["Alpha"])
+        return mat, "Math"
+    group = bpy.data.node_groups.new("Leafy", "ShaderNodeTree")
+    group.interface.new_socket("Shader", in_out="OUTPUT", socket_type="NodeSocketShader")
+    inner = group.nodes.new("ShaderNodeBsdfPrincipled")
+    inner.inputs["Alpha"].default_value = 0.2
+    g_out = group.nodes.new("NodeGroupOutput")
+    group.links.new(inner.outputs["BSDF"], g_out.inputs[0])
+    node = nt.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    nt.links.new(node.outputs[0], out.inputs["Surface"])
+    return mat, "Group"
+
+
+@pytest.mark.parametrize("kind", ["noise", "math", "group"])
+def test_unreadable_transparency_is_opaque_and_named(factory_scene, caplog, kind):
+    mat, node_type = _unreadable(kind)
     _card(factory_scene, "A", mat)
     captured = capture_scene()
-    _assert_one_line_opaque(caplog, captured, "Noisy", "Noise")
+    _assert_one_line_opaque(caplog, captured, mat.name, node_type)
     plan = make_plan(captured, ["embree"])
-    assert any("treated as opaque" in n and "Noisy" in n for n in plan.notes)
+    assert any("treated as opaque" in n and mat.name in n for n in plan.notes)
 
 
 # --------------------------------------------------------------------------

@@ -87,7 +87,11 @@ def _card_over_ground(kind):
         scene.collection.objects.link(ob)
         return ob
     quad("Ground", 6.0, 0.0, bpy.data.materials.new("Ground"))
-    quad("Card", 2.0, 1.0, material).visible_camera = False     # the camera sees the ground
+    card = quad("Card", 2.0, 1.0, material)
+    card.visible_camera = False                 # the camera sees the ground
+    twin = bpy.data.objects.new("Twin", card.data)      # a linked duplicate, out of view
+    twin.location = (9.0, 0.0, 0.0)
+    scene.collection.objects.link(twin)
     cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
     cam.data.type, cam.data.ortho_scale = "ORTHO", 4.0
     cam.location = (0, 0, 12)
