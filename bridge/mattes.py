@@ -324,6 +324,9 @@ class MatteCapture:
                 mid = self._add(name, src)
         except Unreadable as exc:
             self._treat_opaque(("material", name), name, str(exc))
+        except Exception as exc:    # pragma: no cover - a node tree RNA refuses to read
+            self._treat_opaque(("material", name), name,
+                               f"its node tree could not be read ({type(exc).__name__}: {exc})")
         self._by_material[key] = mid
         return mid
 

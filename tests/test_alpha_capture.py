@@ -212,6 +212,26 @@ def test_instances_share_one_captured_image(factory_scene):
     assert (m.tri_matte >= 0).all()
 
 
+def test_collection_instances_carry_the_matte(factory_scene):
+    coll = bpy.data.collections.new("Cards")
+    factory_scene.collection.children.link(coll)
+    card = _card(factory_scene, "Card", _principled("Leaf", _image()))
+    factory_scene.collection.objects.unlink(card)
+    coll.objects.link(card)
+    for k in range(3):
+        inst = bpy.data.objects.new(f"Inst{k}", None)
+        inst.instance_type, inst.instance_collection = "COLLECTION", coll
+        inst.location = (3.0 * (k + 1), 0.0, 0.0)
+        factory_scene.collection.objects.link(inst)
+    captured = capture_scene()
+    m = captured.alpha
+    assert len(captured.triangles) == 2 * 4 and m.count == 1 and len(m.texels) == W * H
+    assert (m.tri_matte == 0).all()
+    tris = captured.triangles.astype(np.float64)
+    local_x = tris[..., 0] - np.round(tris.mean(axis=1)[:, None, 0] / 3.0) * 3.0
+    np.testing.assert_allclose(m.tri_uv[..., 0], (local_x + 1.0) / 2.0, atol=1e-5)
+
+
 def test_non_finite_triangles_drop_their_mattes_too(factory_scene):
     leaf = _principled("Leaf", _image())
     _card(factory_scene, "A", leaf)
