@@ -425,7 +425,7 @@ def _capture_from_depsgraph(depsgraph, scene, resolution) -> Scene:
     pieces: List[tuple] = []        # (object name, world tris, (tri_matte, tri_uv) or None)
     infos: Dict[str, dict] = {}
     lights: List[Light] = []
-    mattes = MatteCapture(bpy.data.materials)
+    mattes = MatteCapture(i for i in depsgraph.ids if isinstance(i, bpy.types.Material))
 
     with np.errstate(invalid="ignore", over="ignore"):     # non-finite input is dropped below
         for inst in depsgraph.object_instances:

@@ -296,8 +296,8 @@ class MatteCapture:
         self.names: List[str] = []
         self.opaque: List[str] = []                 # "material: reason", for the plan
         self._warned = set()
-        #: False when no material of ``materials`` has any transparency:
-        #: the capture then reads no material and no UV at all
+        #: False when no material of ``materials`` (the depsgraph's) has any
+        #: transparency: the capture then reads no material and no UV at all
         self.enabled = any(_maybe_transparent(m) for m in materials)
 
     # -- materials ---------------------------------------------------------
