@@ -201,6 +201,19 @@ def _white_matte_material(src: MatteSource):
     affine.inputs[2].default_value = float(src.bias)
     nt.links.new(tex.outputs[src.output], affine.inputs[0])
     nt.links.new(affine.outputs["Value"], mix.inputs[0])
+    if src.output == "Color" and any(not lk.is_muted for lk in src.node.outputs["Alpha"].links):
+        # Cycles divides the Color output by alpha when the node's Alpha output is
+        # linked (checked in 5.0.1): link it here too, through min(value, alpha + 1),
+        # which keeps the value (<= 1) and cannot be constant-folded away
+        plus_one = nt.nodes.new("ShaderNodeMath")
+        plus_one.operation = "ADD"
+        plus_one.inputs[1].default_value = 1.0
+        keep = nt.nodes.new("ShaderNodeMath")
+        keep.operation = "MINIMUM"
+        nt.links.new(tex.outputs["Alpha"], plus_one.inputs[0])
+        nt.links.new(affine.outputs["Value"], keep.inputs[0])
+        nt.links.new(plus_one.outputs["Value"], keep.inputs[1])
+        nt.links.new(keep.outputs["Value"], mix.inputs[0])
     return mat
 
 

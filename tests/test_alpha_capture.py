@@ -128,14 +128,23 @@ def test_texel_at_a_points_uv_is_the_images_value(factory_scene):
         assert m.texels[m.offset[0] + y * W + x] == ALPHA[py, px]
 
 
-def test_color_output_converts_as_cycles(factory_scene):
-    """Color -> float: Rec.709 luminance of the linear colour, premultiplied
-    by alpha (the node's Alpha output is not linked)."""
+@pytest.mark.parametrize("alpha_linked", [False, True])
+def test_color_output_converts_as_cycles(factory_scene, alpha_linked):
+    """Color -> float: Rec.709 luminance of the linear colour. A float buffer
+    is stored premultiplied: Cycles outputs it as is, divided by alpha when
+    the node's Alpha output is linked too (tests/test_alpha_cycles.py checks
+    both against Cycles)."""
     img = _image()
     assert img.is_float and img.colorspace_settings.name == "Linear Rec.709"
-    _card(factory_scene, "Card", _principled("Grey", img, output="Color"))
+    mat = _principled("Grey", img, output="Color")
+    if alpha_linked:
+        nt = mat.node_tree
+        nt.links.new(nt.nodes["Image Texture"].outputs["Alpha"], nt.nodes["Principled BSDF"].inputs["Roughness"])
+    _card(factory_scene, "Card", mat)
     m = capture_scene().alpha
-    np.testing.assert_allclose(_texels(m, 0), float(RGB @ LUMA) * ALPHA, atol=1e-6)
+    luma = float(RGB @ LUMA)
+    want = np.where(ALPHA > 0, np.minimum(luma / np.maximum(ALPHA, 1e-9), 1.0), 0.0) if alpha_linked else luma
+    np.testing.assert_allclose(_texels(m, 0), np.broadcast_to(want, ALPHA.shape), atol=1e-6)
 
 
 def test_constant_alpha_is_a_1x1_matte_without_uvs(factory_scene):

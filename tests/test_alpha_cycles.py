@@ -58,6 +58,30 @@ def _wired(kind):
         nt.links.new(tex.outputs["Color"], bsdf.inputs["Alpha"])
         q = round(0.5 * 255) / 255                     # 8 bits, then sRGB -> linear
         return mat, ((q + 0.055) / 1.055) ** 2.4
+    if kind.startswith("image_color_premultiplied"):
+        # Color = (0.8, 0.8, 0.8), alpha 0.5: Cycles premultiplies the Color output
+        # unless the Alpha output is linked too (here to Roughness, which does
+        # not change the shadow); a byte image in 8 bits, before sRGB -> linear
+        byte = kind.endswith("byte")
+        img = bpy.data.images.new("p", 4, 4, alpha=True, float_buffer=not byte)
+        px = np.full((4, 4, 4), 0.8, np.float32)
+        px[..., 3] = 0.5
+        img.pixels.foreach_set(px.ravel())
+        tex.image = img
+        nt.links.new(tex.outputs["Color"], bsdf.inputs["Alpha"])
+        if not byte:        # a float buffer is stored premultiplied: Cycles outputs it as is
+            return mat, 0.8
+        q = round(0.8 * 255 * round(0.5 * 255) / 255) / 255
+        return mat, ((q + 0.055) / 1.055) ** 2.4
+    if kind == "image_color_unassociated_float":
+        img = bpy.data.images.new("u", 4, 4, alpha=True, float_buffer=True)
+        px = np.full((4, 4, 4), 0.3, np.float32)
+        px[..., 3] = 0.5
+        img.pixels.foreach_set(px.ravel())
+        tex.image = img
+        nt.links.new(tex.outputs["Color"], bsdf.inputs["Alpha"])
+        nt.links.new(tex.outputs["Alpha"], bsdf.inputs["Roughness"])
+        return mat, 0.6             # stored premultiplied 0.3 / alpha 0.5
     assert kind == "mix_shader"
     tex.image = _uniform_image("m", 0.3)
     clear = nt.nodes.new("ShaderNodeBsdfTransparent")
@@ -104,7 +128,9 @@ def _card_over_ground(kind):
     return scene, alpha
 
 
-@pytest.mark.parametrize("kind", ["constant", "image_alpha", "image_color_srgb", "mix_shader"])
+@pytest.mark.parametrize("kind", ["constant", "image_alpha", "image_color_srgb",
+                                  "image_color_premultiplied_float", "image_color_premultiplied_byte",
+                                  "image_color_unassociated_float", "mix_shader"])
 def test_reference_sees_each_wiring_as_the_capture_reads_it(kind):
     scene, alpha = _card_over_ground(kind)
     captured = capture_scene(scene, resolution=RES)
