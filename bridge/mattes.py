@@ -301,7 +301,9 @@ class MatteCapture:
         self.mirror: List[bool] = []
         self.uv_map: List[Optional[str]] = []
         self.needs_uv: List[bool] = []
-        self.names: List[str] = []
+        self.names: List[str] = []                  # "material / image" (or "/ constant a")
+        self.material: List[str] = []
+        self.image: List[str] = []
         self.opaque: List[str] = []                 # "material: reason", for the plan
         self._warned = set()
         #: False when no material of ``materials`` (the depsgraph's) has any
@@ -361,7 +363,7 @@ class MatteCapture:
             off, w, h = self._block(key, texels)
             interp = INTERPOLATION.get(node.interpolation, LINEAR)
             ext = EXTENSION[node.extension]
-            label = f"{image.name}"
+            label = image.name
         mid = len(self.offset)
         self.offset.append(off)
         self.width.append(w)
@@ -372,6 +374,8 @@ class MatteCapture:
         self.uv_map.append(src.uv_map)
         self.needs_uv.append(src.node is not None)
         self.names.append(f"{name} / {label}")
+        self.material.append(name)
+        self.image.append(label)
         return mid
 
     def _block(self, key, make) -> Tuple[int, int, int]:
@@ -424,9 +428,8 @@ class MatteCapture:
             uv = uv_cache[name]
             if uv is None:
                 missing = f"UV map {name!r}" if name else "UV map"
-                self._treat_opaque(("uv", what, m), self.names[m].split(" / ")[0],
-                                   f"image {self.names[m].split(' / ', 1)[1]!r} on {what!r}, "
-                                   f"which has no {missing}")
+                self._treat_opaque(("uv", what, m), self.material[m],
+                                   f"image {self.image[m]!r} on {what!r}, which has no {missing}")
                 tri_matte[sel] = -1
                 continue
             tri_uv[sel] = uv[loops[sel]]
