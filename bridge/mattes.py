@@ -34,6 +34,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from ..core.alpha import CLIP, CLOSEST, EXTEND, LINEAR, REPEAT, AlphaMattes
+from . import compat
 
 log = logging.getLogger(__name__)
 
@@ -268,13 +269,16 @@ def image_values(node, output: str) -> np.ndarray:
     data = bool(getattr(image.colorspace_settings, "is_data", False)) or space == "Non-Color"
     if has_alpha and not data and image.alpha_mode != "CHANNEL_PACKED":
         # Cycles' Color output is premultiplied unless the node's Alpha is linked
-        # (then divided by alpha), in the stored colour space: float buffers and
-        # PREMUL images are stored premultiplied, byte STRAIGHT ones are not and
-        # are premultiplied in 8 bits (checked against Cycles, 5.0.1)
-        stored_premultiplied = image.is_float or image.alpha_mode == "PREMUL"
+        # (then divided by alpha), in the stored colour space: PREMUL images (and
+        # float buffers in 5.0: compat) are stored premultiplied, byte STRAIGHT
+        # ones are not and are premultiplied in 8 bits (checked against Cycles)
+        stored_premultiplied = image.alpha_mode == "PREMUL" or (
+            image.is_float and compat.float_pixels_premultiplied())
         alpha_linked = any(not lk.is_muted for lk in node.outputs["Alpha"].links)
         if not alpha_linked and not stored_premultiplied:
-            rgb = np.round(rgb * alpha[..., None] * 255.0) / 255.0
+            rgb = rgb * alpha[..., None]
+            if not image.is_float:
+                rgb = np.round(rgb * 255.0) / 255.0
         elif alpha_linked and stored_premultiplied:
             rgb = np.divide(rgb, alpha[..., None], out=np.zeros_like(rgb), where=alpha[..., None] > 0)
     if space == "sRGB" and not image.is_float:

@@ -8,6 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
+from penumbra.bridge import compat
 from penumbra.bridge import mattes as mattes_mod
 from penumbra.bridge.capture import capture_scene
 from penumbra.bridge.mattes import LUMA
@@ -130,10 +131,11 @@ def test_texel_at_a_points_uv_is_the_images_value(factory_scene):
 
 @pytest.mark.parametrize("alpha_linked", [False, True])
 def test_color_output_converts_as_cycles(factory_scene, alpha_linked):
-    """Color -> float: Rec.709 luminance of the linear colour. A float buffer
-    is stored premultiplied: Cycles outputs it as is, divided by alpha when
-    the node's Alpha output is linked too (tests/test_alpha_cycles.py checks
-    both against Cycles)."""
+    """Color -> float: Rec.709 luminance of the linear colour. In 5.0 a float
+    buffer is stored premultiplied: Cycles outputs it as is, divided by alpha
+    when the node's Alpha output is linked too; from 5.1 it is straight and
+    premultiplied unless the Alpha output is linked (bridge/compat.py;
+    tests/test_alpha_cycles.py checks both against Cycles)."""
     img = _image()
     assert img.is_float and img.colorspace_settings.name == "Linear Rec.709"
     mat = _principled("Grey", img, output="Color")
@@ -143,7 +145,10 @@ def test_color_output_converts_as_cycles(factory_scene, alpha_linked):
     _card(factory_scene, "Card", mat)
     m = capture_scene().alpha
     luma = float(RGB @ LUMA)
-    want = np.where(ALPHA > 0, np.minimum(luma / np.maximum(ALPHA, 1e-9), 1.0), 0.0) if alpha_linked else luma
+    if compat.float_pixels_premultiplied():
+        want = np.where(ALPHA > 0, np.minimum(luma / np.maximum(ALPHA, 1e-9), 1.0), 0.0) if alpha_linked else luma
+    else:
+        want = luma if alpha_linked else luma * ALPHA
     np.testing.assert_allclose(_texels(m, 0), np.broadcast_to(want, ALPHA.shape), atol=1e-6)
 
 

@@ -17,6 +17,7 @@ import bpy
 import numpy as np
 import pytest
 
+from penumbra.bridge import compat
 from penumbra.bridge import cycles_reference as cr
 from penumbra.bridge.capture import capture_scene
 from penumbra.core.buffers import FrameBuffers
@@ -69,8 +70,8 @@ def _wired(kind):
         img.pixels.foreach_set(px.ravel())
         tex.image = img
         nt.links.new(tex.outputs["Color"], bsdf.inputs["Alpha"])
-        if not byte:        # a float buffer is stored premultiplied: Cycles outputs it as is
-            return mat, 0.8
+        if not byte:        # 5.0: a float buffer is stored premultiplied (compat)
+            return mat, 0.8 if compat.float_pixels_premultiplied() else 0.4
         q = round(0.8 * 255 * round(0.5 * 255) / 255) / 255
         return mat, ((q + 0.055) / 1.055) ** 2.4
     if kind == "image_color_unassociated_float":
@@ -81,7 +82,7 @@ def _wired(kind):
         tex.image = img
         nt.links.new(tex.outputs["Color"], bsdf.inputs["Alpha"])
         nt.links.new(tex.outputs["Alpha"], bsdf.inputs["Roughness"])
-        return mat, 0.6             # stored premultiplied 0.3 / alpha 0.5
+        return mat, 0.6 if compat.float_pixels_premultiplied() else 0.3   # 0.3 / alpha 0.5 in 5.0
     assert kind == "mix_shader"
     tex.image = _uniform_image("m", 0.3)
     clear = nt.nodes.new("ShaderNodeBsdfTransparent")
