@@ -39,6 +39,7 @@ import numpy as np
 import bpy
 
 from ..core.scene import Camera, Light, ObjectInfo, Scene, finite_triangles
+from .mattes import MatteCapture
 
 log = logging.getLogger(__name__)
 
@@ -285,16 +286,21 @@ def _mesh_arrays(mesh) -> Tuple[np.ndarray, np.ndarray]:
     return co.reshape(-1, 3).astype(np.float64), idx.reshape(-1, 3)
 
 
-def _object_mesh_arrays(ob) -> Tuple[np.ndarray, np.ndarray]:
-    """Triangulated evaluated geometry of an evaluated object (local space)."""
+def _object_mesh_arrays(ob, mattes: Optional[MatteCapture] = None, lut=None):
+    """Triangulated evaluated geometry of an evaluated object (local space):
+    (vertices, triangles, alpha) with alpha = ``mattes.triangle_mattes`` of
+    the mesh when ``lut`` (matte id per material slot) is given, else None."""
+    empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int32), None)
     try:
         mesh = ob.to_mesh()
     except RuntimeError:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+        return empty
     try:
         if mesh is None:
-            return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
-        return _mesh_arrays(mesh)
+            return empty
+        co, idx = _mesh_arrays(mesh)
+        alpha = mattes.triangle_mattes(mesh, lut, ob.name_full) if lut is not None else None
+        return co, idx, alpha
     finally:
         ob.to_mesh_clear()
 
@@ -415,18 +421,19 @@ def _capture_from_depsgraph(depsgraph, scene, resolution) -> Scene:
     filter_render = depsgraph.mode != "RENDER"
     visible = _render_visible_objects(depsgraph.view_layer) if filter_render else None
 
-    cache: Dict[tuple, Tuple[np.ndarray, np.ndarray]] = {}
-    pieces: List[Tuple[str, np.ndarray]] = []       # (object name, world tris)
+    cache: Dict[tuple, tuple] = {}
+    pieces: List[tuple] = []        # (object name, world tris, (tri_matte, tri_uv) or None)
     infos: Dict[str, dict] = {}
     lights: List[Light] = []
+    mattes = MatteCapture(i for i in depsgraph.ids if isinstance(i, bpy.types.Material))
 
     with np.errstate(invalid="ignore", over="ignore"):     # non-finite input is dropped below
         for inst in depsgraph.object_instances:
-            _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights)
-    return _assemble(scene, depsgraph, resolution, pieces, infos, lights)
+            _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights, mattes)
+    return _assemble(scene, depsgraph, resolution, pieces, infos, lights, mattes)
 
 
-def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights):
+def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights, mattes):
     """Add one depsgraph object instance to the capture lists."""
     ob = inst.object
     otype = ob.type
@@ -444,13 +451,16 @@ def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights
         return
     if not inst.show_self:
         return                      # an instancer that does not render itself
+    lut = mattes.object_lut(ob)     # None unless one of its materials has a matte
     key = _geometry_cache_key(ob) if inst.is_instance else None
+    if key is not None and lut is not None:
+        key = key + (lut.tobytes(),)
     arrays = cache.get(key) if key is not None else None
     if arrays is None:
-        arrays = _object_mesh_arrays(ob)
+        arrays = _object_mesh_arrays(ob, mattes, lut)
         if key is not None:
             cache[key] = arrays
-    co, idx = arrays
+    co, idx, alpha = arrays
     if len(idx) == 0:
         return                      # no surface (an instancer, an empty curve): no object id
     m = _matrix(inst.matrix_world)
@@ -467,10 +477,10 @@ def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights
     else:
         infos[name] = dict(casts_shadow=casts, visible_camera=cam_vis,
                            pass_index=int(ob.pass_index))
-    pieces.append((name, tris))
+    pieces.append((name, tris, alpha))
 
 
-def _assemble(scene, depsgraph, resolution, pieces, infos, lights) -> Scene:
+def _assemble(scene, depsgraph, resolution, pieces, infos, lights, mattes) -> Scene:
     names = sorted(infos)
     ids = {n: i for i, n in enumerate(names)}
     objects = [ObjectInfo(name=n, id=ids[n], **infos[n]) for n in names]
@@ -483,15 +493,37 @@ def _assemble(scene, depsgraph, resolution, pieces, infos, lights) -> Scene:
     else:
         triangles = np.zeros((0, 3, 3), np.float32)
         tri_object = np.zeros(0, np.int32)
+    alpha = _assemble_mattes(pieces, mattes)
     dropped = 0
     if len(triangles):              # finite_triangles cannot reshape an empty array
-        triangles, tri_object, dropped = finite_triangles(triangles, tri_object)
+        if alpha is None:
+            triangles, tri_object, dropped = finite_triangles(triangles, tri_object)
+        else:                       # the kept triangles' indices filter the mattes too
+            triangles, kept, dropped = finite_triangles(triangles, np.arange(len(triangles)))
+            tri_object = tri_object[kept]
+            alpha = alpha.subset(kept)
     if dropped:
         log.warning("capture: dropped %d triangle(s) with non-finite vertices", dropped)
     lights.sort(key=lambda lt: lt.name)
 
-    return Scene(
+    captured = Scene(
         triangles=triangles, tri_object=tri_object, objects=objects,
         camera=_capture_camera(scene, depsgraph), lights=lights,
         resolution=resolution if resolution is not None else render_resolution(scene),
-        frame=int(scene.frame_current), name=blend_stem(scene))
+        frame=int(scene.frame_current), name=blend_stem(scene), alpha=alpha)
+    # materials whose transparency the capture could not read (for the plan;
+    # core.planner.alpha_notes); empty for most scenes
+    captured.alpha_opaque = list(mattes.opaque)
+    return captured
+
+
+def _assemble_mattes(pieces, mattes: MatteCapture):
+    """AlphaMattes over the concatenated (object-ordered) pieces, or None
+    when no piece has a matte (the scene is then captured as before)."""
+    if all(p[2] is None for p in pieces):
+        return None
+    tri_matte = np.concatenate([p[2][0] if p[2] is not None else np.full(len(p[1]), -1, np.int32)
+                                for p in pieces])
+    tri_uv = np.concatenate([p[2][1] if p[2] is not None else np.zeros((len(p[1]), 3, 2), np.float32)
+                             for p in pieces])
+    return mattes.build(tri_matte, tri_uv)

@@ -14,6 +14,11 @@ branches on the version itself.
   unavailable until the node updates. 5.1+: only the enabled passes' sockets
   exist. Either way: enable the pass on the view layer, ``node.update()``,
   then look the socket up by name.
+- Float images with straight alpha. 5.0: ``Image.pixels`` of a float buffer
+  is what Cycles treats as premultiplied (its Image Texture's Color output
+  is those values as they are). 5.2, 5.3: they are straight, and Cycles
+  premultiplies them like a byte image. Checked by rendering in 5.0.1, 5.2.3
+  and 5.3.0; 5.1 not checked (taken as 5.2).
 """
 from __future__ import annotations
 
@@ -25,6 +30,12 @@ EFFECT_NAME = "Penumbra"                 # Penumbra's compositor effect (5.3+)
 EFFECT_TREE_NAME = "Effect (Penumbra)"   # its node group
 EFFECT_TREE_TAG = "penumbra_effect"      # ID property marking that group
 TREE_NAME = "Compositor"                 # the scene group Penumbra makes when there is none (5.0 - 5.2)
+
+
+def float_pixels_premultiplied() -> bool:
+    """Whether a STRAIGHT float image's ``pixels`` are premultiplied as
+    Cycles reads them (5.0; not from 5.1 on: module docstring)."""
+    return tuple(bpy.app.version) < (5, 1, 0)
 
 
 def has_compositor_effects() -> bool:

@@ -18,6 +18,17 @@ event estimation only, no adaptive sampling, no denoising, no light-sampling
 threshold, no clamping, no time limit; the world is removed for the render
 (it would light the scene too) and so are the other lights (``hide_render``).
 
+Alpha mattes (issue 18): an override replaces every material, so a scene
+whose materials hold a matte (``bridge/mattes.py`` reads them as the capture
+does) is rendered without ``material_override``: every material slot gets the
+white diffuse instead, except those with a matte, which get a white copy that
+keeps the matte (Mix Shader of a Transparent BSDF and the white diffuse, by
+the same image node, interpolation, extension and UV map, or the constant),
+and ``transparent_max_bounces`` is 64 (at 0 alpha cards cast solid shadows;
+BLENDER_NOTES "Alpha mattes"). Checked in bpy 5.0.1. Materials the capture
+treats as opaque are white and opaque here too. Scenes without mattes render
+exactly as before (the override, no transparent bounces).
+
 The renders go to a temporary folder as multilayer EXR (the "Render Result"
 image has no pixels in background mode; checked in bpy 5.0.1) and the Diffuse
 Direct pass is read back with OpenEXR (Blender writes one part per pass).
@@ -42,6 +53,7 @@ import bpy
 
 from ..core.methods.base import MethodResult
 from .capture import object_named, view_layer_of
+from .mattes import MatteSource, Unreadable, read_material
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +75,13 @@ def cycles_filter(pixel_filter=None) -> dict:
         from ..core.pixel_filter import EEVEE_SIGMA
         return {"type": "GAUSSIAN", "width_px": 4.0 * EEVEE_SIGMA * w}
     return {"type": {"gaussian": "GAUSSIAN", "blackman-harris": "BLACKMAN_HARRIS"}[kind], "width_px": w}
+
+
 WHITE_MATERIAL = "Penumbra White Diffuse (temporary)"
 DIFFUSE_DIRECT = "Diffuse Direct"
+WHITE_MATTE_MATERIAL = "Penumbra White Matte (temporary)"
+#: transparent bounces for a scene with mattes: alpha cards crossed per ray
+TRANSPARENT_BOUNCES = 64
 
 _rendering = 0
 
@@ -168,6 +185,84 @@ def _white_material():
     nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
     mat.diffuse_color = (1.0, 1.0, 1.0, 1.0)
     return mat
+
+
+def _white_matte_material(src: MatteSource):
+    """White diffuse with the matte of ``src``: Mix Shader(Factor = alpha,
+    Transparent BSDF, white Diffuse BSDF), alpha = clamp(bias + scale x) with
+    x the image node's output (a colour -> float link converts as in the
+    original) or the constant."""
+    mat = _white_material()
+    mat.name = WHITE_MATTE_MATERIAL
+    nt = mat.node_tree
+    bsdf = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeBsdfDiffuse")
+    out = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    clear = nt.nodes.new("ShaderNodeBsdfTransparent")
+    clear.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    nt.links.new(clear.outputs["BSDF"], mix.inputs[1])
+    nt.links.new(bsdf.outputs["BSDF"], mix.inputs[2])
+    nt.links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    if src.node is None:
+        mix.inputs[0].default_value = float(src.alpha_of(src.constant))
+        return mat
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    tex.image = src.node.image
+    tex.interpolation = src.node.interpolation
+    tex.extension = src.node.extension
+    if src.uv_map:
+        uv = nt.nodes.new("ShaderNodeUVMap")
+        uv.uv_map = src.uv_map
+        nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    affine = nt.nodes.new("ShaderNodeMath")
+    affine.operation = "MULTIPLY_ADD"
+    affine.use_clamp = True
+    affine.inputs[1].default_value = float(src.scale)
+    affine.inputs[2].default_value = float(src.bias)
+    nt.links.new(tex.outputs[src.output], affine.inputs[0])
+    nt.links.new(affine.outputs["Value"], mix.inputs[0])
+    if src.output == "Color" and any(not lk.is_muted for lk in src.node.outputs["Alpha"].links):
+        # Cycles divides the Color output by alpha when the node's Alpha output is
+        # linked (checked in 5.0.1): link it here too, through min(value, alpha + 1),
+        # which keeps the value (<= 1) and cannot be constant-folded away
+        plus_one = nt.nodes.new("ShaderNodeMath")
+        plus_one.operation = "ADD"
+        plus_one.inputs[1].default_value = 1.0
+        keep = nt.nodes.new("ShaderNodeMath")
+        keep.operation = "MINIMUM"
+        nt.links.new(tex.outputs["Alpha"], plus_one.inputs[0])
+        nt.links.new(affine.outputs["Value"], keep.inputs[0])
+        nt.links.new(plus_one.outputs["Value"], keep.inputs[1])
+        nt.links.new(keep.outputs["Value"], mix.inputs[0])
+    return mat
+
+
+def _matte_swaps(white) -> Tuple[List[tuple], List[object]]:
+    """([(material slot, replacement)], [matte copies made]) for every
+    object's material slots when some material holds a matte; ([], []) when
+    none does (the view layer's override is used then)."""
+    copies: Dict[int, object] = {}
+    swaps = []
+    seen = set()
+    for ob in bpy.data.objects:
+        for i, slot in enumerate(ob.material_slots):
+            m = slot.material
+            # a slot linked to the data is the mesh's: linked duplicates share it (swap it once,
+            # or restoring would put the replacement back)
+            owner = ob.data if slot.link == "DATA" else ob
+            if m is None or (owner.as_pointer(), slot.link, i) in seen:
+                continue
+            seen.add((owner.as_pointer(), slot.link, i))
+            key = m.as_pointer()
+            if key not in copies:
+                try:
+                    src = read_material(m)
+                except Unreadable:
+                    src = None
+                copies[key] = _white_matte_material(src) if src is not None else None
+            swaps.append((slot, copies[key] or white))
+    made = [c for c in copies.values() if c is not None]
+    return (swaps, made) if made else ([], [])
 
 
 def read_diffuse_direct(path: str, view_layer: str) -> np.ndarray:
@@ -292,11 +387,17 @@ def render_light_reference(scene, light_name: str, resolution, samples: int = 64
     folder = tempfile.mkdtemp(prefix="penumbra_cycles_")
     ch = _Changes()
     material = None
+    made: List[object] = []
     _rendering += 1
     try:
         material = _white_material()
-        _configure(ch, scene, view_layer, (W, H), samples, seed, os.path.join(folder, "ref"), material,
-                   cycles_filter(pixel_filter))
+        swaps, made = _matte_swaps(material)
+        _configure(ch, scene, view_layer, (W, H), samples, seed, os.path.join(folder, "ref"),
+                   None if swaps else material, cycles_filter(pixel_filter))
+        if swaps:                           # mattes: per-slot white materials, no override
+            ch.set(scene.cycles, "transparent_max_bounces", TRANSPARENT_BOUNCES)
+            for slot, replacement in swaps:
+                ch.set(slot, "material", replacement)
         for ob in scene.objects:            # one light at a time
             if ob.type == "LIGHT" and ob != light_ob:
                 ch.set(ob, "hide_render", True)
@@ -308,9 +409,9 @@ def render_light_reference(scene, light_name: str, resolution, samples: int = 64
     finally:
         _rendering -= 1
         failed = ch.restore()
-        if material is not None:
+        for m in ([material] if material is not None else []) + made:
             try:
-                bpy.data.materials.remove(material)
+                bpy.data.materials.remove(m)
             except Exception as exc:        # pragma: no cover - nothing holds it
                 failed.append(f"material: {exc}")
         shutil.rmtree(folder, ignore_errors=True)

@@ -11,6 +11,7 @@ import numpy as np
 
 from . import auto_choice
 from . import methods as method_registry
+from .alpha import CLIP, CLOSEST, EXTEND, LINEAR, REPEAT
 from .scene import Light, Scene
 
 #: the request "pick per light" (``core/auto_choice.py``): never a pass name;
@@ -113,6 +114,28 @@ def record_auto(lp: LightPlan, choice: "auto_choice.AutoChoice") -> None:
         lp.decisions.insert(0, choice.reason)
 
 
+_INTERPOLATION_NAMES = {CLOSEST: "Closest", LINEAR: "Linear"}
+_EXTENSION_NAMES = {REPEAT: "Repeat", EXTEND: "Extend", CLIP: "Clip"}
+
+
+def alpha_notes(scene: Scene) -> List[str]:
+    """The plan's words on alpha mattes (issue 18): the mattes captured
+    (``scene.alpha``) and the materials treated as opaque because the capture
+    could not read their transparency (``scene.alpha_opaque``, set by
+    ``bridge/capture.py``). Empty for a scene without either."""
+    notes = []
+    m = scene.alpha
+    if m is not None and m.count:
+        notes.append("alpha mattes: " + ", ".join(
+            f"{m.names[i]} ({int(m.width[i])}x{int(m.height[i])}, "
+            f"{_INTERPOLATION_NAMES.get(int(m.interpolation[i]), '?')}, "
+            f"{_EXTENSION_NAMES.get(int(m.extension[i]), '?')})" for i in range(m.count)))
+    opaque = list(getattr(scene, "alpha_opaque", None) or [])
+    if opaque:
+        notes.append("treated as opaque (transparency not read): " + "; ".join(opaque))
+    return notes
+
+
 def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
               error_budget: Optional[float] = None, visibility: str = auto_choice.AVERAGE,
               auto_table=auto_choice.PACKAGED) -> Plan:
@@ -169,6 +192,7 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
         notes.append("the scene has no lights: nothing to compute")
     elif all(lp.action == "skip" for lp in out):
         notes.append("no light casts shadows: every pass is V = 1")
+    notes.extend(alpha_notes(scene))
     return Plan(list(passes), out, notes)
 
 
@@ -182,7 +206,8 @@ def refine_with_receivers(plan: Plan, scene: Scene, reach: Dict[str, np.ndarray]
             lp.reason = ("the light reaches no visible receiver (outside its cone, behind it "
                          "or facing away): V = 1")
             lp.producers, lp.buffers = [], []
-    if plan.lights and all(lp.action == "skip" for lp in plan.lights) and not plan.notes:
+    if plan.lights and all(lp.action == "skip" for lp in plan.lights) and not any(
+            "every pass is V = 1" in n for n in plan.notes):
         plan.notes.append("no light casts a shadow on what the camera sees: every pass is V = 1")
 
 

@@ -22,6 +22,9 @@ Writes, next to this script, six .blend files (Cycles, 512x512 at 100 %):
   (binary, tiled), and four cards with a soft leaf matte (Linear). Each matte
   is an Image Texture whose Alpha drives the Principled BSDF's Alpha; the
   images are generated with NumPy, saved once and packed into the .blend.
+  Two more wirings: a "Veil" card with a constant Principled Alpha of 0.5, and
+  two "MixLeaf" cards whose Mix Shader takes a Transparent BSDF (first) and a
+  Principled BSDF (second) by the leaf matte's Alpha.
 
 Everything is built from arrays (no operators; "random" placements come from a
 seeded NumPy Generator), so the scenes are the same on every run. ``main(out_dir)`` builds them elsewhere.
@@ -77,6 +80,9 @@ MATTE_RES = 128                  # leaf matte texels per side
 FENCE_CELL_RES = 64              # one chain-link diamond cell, tiled (Repeat)
 FENCE_SIZE = (3.0, 1.5)
 FENCE_CELLS = (12, 6)            # UV repeats over the fence card
+VEIL_ALPHA = 0.5                 # constant Principled Alpha of the veil card
+VEIL_CENTRE = (1.15, -0.55, 0.65)
+MIX_CENTRES = ((-1.1, 0.05, 0.7), (-0.55, -0.85, 0.6))
 
 
 # --------------------------------------------------------------------------
@@ -380,6 +386,31 @@ def _matte_material(name: str, image, interpolation: str) -> bpy.types.Material:
     return mat
 
 
+def _mix_matte_material(name: str, image) -> bpy.types.Material:
+    """Mix Shader(Factor = the image's Alpha, Shader 1 = Transparent BSDF,
+    Shader 2 = Principled BSDF): alpha = the Principled's share = Factor."""
+    mat = _material(name, (0.25, 0.45, 0.1))
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf, out = nodes["Principled BSDF"], nodes["Material Output"]
+    clear = nodes.new("ShaderNodeBsdfTransparent")
+    mix = nodes.new("ShaderNodeMixShader")
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = "Closest"
+    tex.extension = "REPEAT"
+    links.new(tex.outputs["Alpha"], mix.inputs[0])
+    links.new(clear.outputs["BSDF"], mix.inputs[1])
+    links.new(bsdf.outputs["BSDF"], mix.inputs[2])
+    links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    return mat
+
+
+def _level_card(scene, name: str, centre, size: float, material):
+    h = 0.5 * size
+    corners = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]]) + np.asarray(centre)
+    return _card_object(scene, name, corners, material=material)
+
+
 # --------------------------------------------------------------------------
 # the scenes
 def build_grids():
@@ -492,8 +523,8 @@ def build_leaf_cards():
     scene.cycles.transparent_max_bounces = 64      # Cycles shows the mattes
     rng = np.random.default_rng(CARDS_SEED)
     _plane(scene, "Ground", 12.0, 12.0, _material("Diffuse", (0.8, 0.8, 0.8)))
-    leaf = _matte_material("LeafMatte", _matte_image("leaf_matte", _leaf_alpha(MATTE_RES),
-                                                     (0.15, 0.5, 0.1)), "Closest")
+    leaf_image = _matte_image("leaf_matte", _leaf_alpha(MATTE_RES), (0.15, 0.5, 0.1))
+    leaf = _matte_material("LeafMatte", leaf_image, "Closest")
     soft = _matte_material("LeafSoft", _matte_image("leaf_soft", _leaf_alpha(MATTE_RES, 12.0),
                                                     (0.3, 0.55, 0.1)), "Linear")
     fence = _matte_material("ChainLink", _matte_image("chain_link",
@@ -520,6 +551,12 @@ def build_leaf_cards():
     fence_corners = np.array([[-0.5 * fx, 1.2, 0.0], [0.5 * fx, 1.2, 0.0],
                               [0.5 * fx, 1.2, fz], [-0.5 * fx, 1.2, fz]])
     _card_object(scene, "Fence", fence_corners, uv_max=FENCE_CELLS, material=fence)
+    veil = _material("Veil", (0.6, 0.6, 0.6))
+    veil.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value = VEIL_ALPHA
+    _level_card(scene, "Veil", VEIL_CENTRE, 0.6, veil)
+    mix = _mix_matte_material("MixLeaf", leaf_image)
+    for k, centre in enumerate(MIX_CENTRES):
+        _level_card(scene, f"MixLeaf{k + 1}", centre, CARD_SIZE * 1.4, mix)
     _light(scene, "AreaLight", "AREA", (0.3, -1.5, 5.0), (0.0, 0.5, 0.0), 1000.0,
            shape="SQUARE", size=1.0)
     _camera(scene, (0.4, -4.8, 3.6), (0.0, 0.7, 0.5), lens=30.0)
