@@ -14,11 +14,17 @@ matte surfaces counts as blocked, as Cycles does past
 ``transparent_max_bounces``.
 
 Pass-through (``pass_through``): camera G-buffer and light depth maps keep
-the first surface whose alpha is at least ALPHA_CUTOFF (a coverage test: a
-binary matte's clear texels let the ray through, its solid ones stop it;
-a filtered edge counts as solid from alpha 0.5 up), the same rule for the
-camera (the receiver Cycles shows where a card is clear) and the light maps
-(map methods see leaf shapes).
+the first surface whose alpha reaches a cutoff (a coverage test: a binary
+matte's clear texels let the ray through, its solid ones stop it, whatever
+the cutoff in (0, 1)). The camera's cutoff is ALPHA_CUTOFF (a filtered
+edge or a constant alpha counts as solid from 0.5 up: the receiver Cycles
+shows where a card is clear). The light maps' cutoff is an ordered dither
+(``DITHER``, a 4 x 4 Bayer matrix over the map's pixels, its levels
+permuted per surface passed): a map pixel holds a surface of alpha a
+with a share a of the pixels, so filtering map methods see a fractional
+shadow (stochastic transparency, Enderton et al. 2010, with an ordered
+rather than random threshold), and binary mattes are tested as by the
+camera.
 
 embreex writes hit distances into the ``dists`` it is given, so every
 query here gets a copy.
@@ -38,8 +44,15 @@ from .sampling import offset_origin
 #: for the alpha-aware reference, BLENDER_NOTES "Alpha mattes (checked)");
 #: one more stops it (blocked, or the surface a primary ray keeps)
 MAX_CROSSINGS = 64
-#: a primary ray stops at a surface whose alpha is at least this
+#: a camera ray stops at a surface whose alpha is at least this
 ALPHA_CUTOFF = 0.5
+#: the light maps' cutoffs: Bayer's 4 x 4 ordered dither, (rank + 0.5) / 16
+DITHER = ((np.array([[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]]) + 0.5) / 16).astype(np.float32)
+
+
+def dither_band(row0: int, row1: int, width: int) -> np.ndarray:
+    """float32[(row1 - row0) * width]: the DITHER cutoffs of a band of map rows."""
+    return DITHER[np.arange(row0, row1)[:, None] % 4, np.arange(width)[None, :] % 4].reshape(-1)
 
 
 #: what a ``TriangleScene`` holding matte triangles keeps for these rays: the
@@ -100,20 +113,34 @@ def _attenuate(prim, u, v, tri_index, mattes, ray, trans, last, going):
         going[i] = trans[j] > 0.0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _cutoff(cut, dither, crossing):
+    """The alpha a ray's ``crossing``-th surface must reach to stop it: its
+    own ``cut``; with ``dither`` (cut a DITHER level) the level's rank r
+    goes to (7 r + 3) mod 16 per surface passed, a permutation of the 16
+    levels that decorrelates stacked layers (two 0.5 layers: 4 of 16 pass)."""
+    if not dither or crossing == 0:
+        return cut
+    r = int(cut * 16.0) % 16
+    for _ in range(crossing):
+        r = (7 * r + 3) % 16
+    return (r + 0.5) / 16.0
+
+
 @njit(cache=True, nogil=True)
-def clear_hits(prim, u, v, tri_index, mattes, clear):
+def clear_hits(prim, u, v, tri_index, mattes, cut, clear):
     """clear[i]: hit i (local primitive, -1 = none) is on a matte whose alpha
-    there is below ALPHA_CUTOFF (a primary ray passes through it)."""
+    there is below ``cut[i]`` (a primary ray passes through it)."""
     for i in range(prim.shape[0]):
         clear[i] = prim[i] >= 0 and alpha_at(mattes, tri_index[prim[i]], np.float64(u[i]),
-                                             np.float64(v[i])) < ALPHA_CUTOFF
+                                             np.float64(v[i])) < cut[i]
 
 
 @njit(cache=True, nogil=True)
-def _record(hp, hu, hv, tri_index, geo, ray, o0, d, prim, u, v, t, going):
+def _record(hp, hu, hv, tri_index, geo, ray, o0, d, prim, u, v, t, cut, crossing, going):
     """Write each re-traced ray's hit (-1: none) into ray ``ray[i]``'s
     (prim, u, v, t) (t: from its first origin ``o0``); it goes on when that
-    hit is clear."""
+    hit is clear (``_cutoff``; ``crossing``: (dither, surfaces passed))."""
     for i in range(hp.shape[0]):
         j = ray[i]
         prim[j] = hp[i]
@@ -124,7 +151,7 @@ def _record(hp, hu, hv, tri_index, geo, ray, o0, d, prim, u, v, t, going):
         u[j], v[j] = uu, vv
         px, py, pz, _, _, _ = _surface(geo.triangles, tri_index[hp[i]], uu, vv)
         t[j] = (px - o0[i, 0]) * d[i, 0] + (py - o0[i, 1]) * d[i, 1] + (pz - o0[i, 2]) * d[i, 2]
-        going[i] = alpha_at(geo.mattes, tri_index[hp[i]], uu, vv) < ALPHA_CUTOFF
+        going[i] = alpha_at(geo.mattes, tri_index[hp[i]], uu, vv) < _cutoff(cut[j], crossing[0], crossing[1])
 
 
 def _run(bvh, o, d, tfar, **kw):
@@ -169,16 +196,20 @@ def transmittance(opaque, matte, org, dirs, tfar) -> np.ndarray:
     return trans
 
 
-def pass_through(bvh, rays, prim, u, v, t) -> np.ndarray:
+def pass_through(bvh, rays, prim, u, v, t, cut=None, dither: bool = False) -> np.ndarray:
     """In place: each ray's first hit (local primitive ``prim``, -1 = none,
     barycentrics ``u``, ``v``, distance ``t``) on ``bvh`` (a ``TriangleScene``
     with ``alpha``) becomes the first surface along it whose alpha is at
-    least ALPHA_CUTOFF (-1: none before its end). ``rays()`` gives the rays
+    least its cutoff (-1: none before its end). ``rays()`` gives the rays
     (float32 origins, unit directions, lengths), asked for only when a hit
     is clear. After MAX_CROSSINGS clear surfaces a ray keeps the last one.
-    Returns the indices of the rays that passed through something."""
+    ``cut``: the cutoff per ray (float32, default ALPHA_CUTOFF); ``dither``:
+    ``cut`` holds DITHER levels, permuted per surface passed (``_cutoff``). Returns the indices of the rays that passed
+    through something."""
+    if cut is None:
+        cut = np.full(len(prim), ALPHA_CUTOFF, np.float32)
     clear = np.empty(len(prim), bool)
-    clear_hits(prim, u, v, bvh.tri_index, bvh.alpha.mattes, clear)
+    clear_hits(prim, u, v, bvh.tri_index, bvh.alpha.mattes, cut, clear)
     ray = np.flatnonzero(clear)
     if not len(ray):
         return ray
@@ -186,13 +217,14 @@ def pass_through(bvh, rays, prim, u, v, t) -> np.ndarray:
     org, dirs, tfar = rays()
     o0, d, t0 = org[ray], dirs[ray], tfar[ray]
     hp, hu, hv = prim[ray], u[ray], v[ray]
-    for _ in range(MAX_CROSSINGS):
+    for crossing in range(1, MAX_CROSSINGS + 1):
         if not len(ray):
             break
         o, tf = _past(bvh, hp, hu, hv, o0, d, t0)
         r = _run(bvh, o, d, np.maximum(tf, 0.0), output=1)
         going = np.empty(len(ray), bool)
-        _record(r["primID"], r["u"], r["v"], bvh.tri_index, bvh.alpha, ray, o0, d, prim, u, v, t, going)
+        _record(r["primID"], r["u"], r["v"], bvh.tri_index, bvh.alpha, ray, o0, d, prim, u, v, t, cut,
+                (bool(dither), crossing), going)
         ray, o0, d, t0 = ray[going], o0[going], d[going], t0[going]
         hp, hu, hv = r["primID"][going], r["u"][going], r["v"][going]
     return changed

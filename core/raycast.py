@@ -296,9 +296,10 @@ def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray
                 threads: Optional[int] = None):
     """Depth (float32, -z in view space, +inf where empty) and object-id maps
     of one face, by rays through its pixel centres (``pixel_rays.depth_pixels``).
-    Alpha mattes are tested as the camera's are (issue 18): a ray passes
-    through texels with alpha below ``alpha_rays.ALPHA_CUTOFF``, so maps
-    hold leaf shapes, not cards."""
+    Alpha mattes are tested (issue 18): a ray passes through texels with
+    alpha below an ordered-dither cutoff (``alpha_rays.DITHER``), so maps
+    hold leaf shapes, not cards, and a surface of alpha a in a share a of
+    the pixels."""
     w, h = face.width, face.height
     depth = np.full(h * w, np.inf, np.float32)
     ids = np.full(h * w, -1, np.int32)
@@ -310,7 +311,8 @@ def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray
             a, b = row0 * w, row1 * w
             if tri_scene.alpha is not None:
                 alpha_rays.pass_through(tri_scene, lambda: _band_rays(params, w, h, row0, row1),
-                                        r["primID"], r["u"], r["v"], r["tfar"])
+                                        r["primID"], r["u"], r["v"], r["tfar"],
+                                        alpha_rays.dither_band(row0, row1, w), dither=True)
             pixel_rays.depth_pixels(params, w, h, row0, row1, r["primID"], r["tfar"], tri_scene.tri_index,
                                     tri_object, depth[a:b], ids[a:b])
 

@@ -252,3 +252,17 @@ def test_irregular_multiplies_the_matte_transmittance():
     scene = matte_layers_scene(area_light(size=1.0, z=HL), layers, res=16)
     v = run("irregular", scene)[0].passes["irregular"]
     assert np.allclose(v, 0.25, atol=1e-6)
+
+
+@pytest.mark.parametrize("alphas, ground_share", [([0.5], 0.5), ([0.25], 0.75), ([0.5, 0.5], 0.25)])
+def test_light_map_dithers_fractional_alpha(alphas, ground_share):
+    """Cards of constant alpha a over the whole light view: an ordered-dither
+    alpha test keeps a share a of the map pixels on each card, so the ground
+    shows through in the share prod (1 - a) (two 0.5 layers: 1/4)."""
+    layers = [(HO + 0.3 * k, [[a]], CLOSEST, REPEAT) for k, a in enumerate(alphas)]
+    scene = matte_layers_scene(sphere_light(radius=0.2, z=HL), layers, res=32)
+    lv = FrameBuffers(scene, 32, 32, map_size=64).light_view(scene.lights[0])
+    assert abs(float((lv.object_id == 0).mean()) - ground_share) < 0.02
+    # pcf filters the dithered map into a fractional shadow
+    v = run("pcf", scene)[0].passes["pcf"]
+    assert abs(float(v.mean()) - ground_share) < 0.05
