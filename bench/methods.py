@@ -126,7 +126,26 @@ def penumbra_casting_table(tb: Tables) -> List[str]:
             lines.append(f"| {res}^2, {ns} spp{', light x4 area' if scale != 1 else ''} | {kind} | {t:.3f} | "
                          f"{_phases(r)} | {r.stats.get('peak_mask_bytes', 0) / 2**20:.1f} | {te:.3f} | "
                          f"{te / t:.2f}x |")
-    return lines
+    return lines + alpha_cards_rows(tb, m)
+
+
+def alpha_cards_rows(tb: Tables, m) -> List[str]:
+    """Issue 18: penumbra_casting with alpha-matte blockers against embree,
+    leaf_cards at 1920x1080 (quick: 480x270), both at 64 spp."""
+    W, H = (480, 270) if tb.quick else (1920, 1080)
+    ns = 64
+    sc = load_sample("leaf_cards", (W, H))
+    fb = FrameBuffers(sc, W, H)
+    fb.gbuffer
+    lt = sc.lights[0]
+    mattes = 0 if sc.alpha is None else int((sc.alpha.tri_matte[sc.tri_casts_shadow] >= 0).sum())
+    emb = tb.reg["embree"]
+    te, _ = median_run(lambda: emb.run(fb, lt, emb.make_params({"samples": ns})), tb.repeats)
+    t, r = median_run(lambda: m.run(fb, lt, m.make_params({"samples": ns})), tb.repeats)
+    return ["", f"leaf_cards (alpha mattes on {mattes} shadow-casting triangles; matte blockers after "
+            "the opaque ones, `alpha_blockers`):", "",
+            "| case | time | phases | embree | embree / casting |", "|---|---|---|---|---|",
+            f"| leaf_cards {W}x{H}, {ns} spp | {t:.3f} | {_phases(r)} | {te:.3f} | {te / t:.2f}x |"]
 
 
 def irregular_table(tb: Tables) -> List[str]:

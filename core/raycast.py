@@ -9,32 +9,42 @@ is fixed at 0, so callers that shoot from a surface offset the origin
 """
 from __future__ import annotations
 
+import threading
 from typing import Optional
 
 import numba
 import numpy as np
 
 from .scene import GBuffer, LightView, Scene, ViewFace, Camera
-from . import pixel_rays, views
+from . import alpha_rays, pixel_rays, views
+from .sampling import scene_scale
 from .kernels import each_in_threads
 
 BATCH = 1 << 20   # rays per embreex call: bounds the float32 temporaries
 BAND_RAYS = 1 << 18   # primary rays per band of rows (``trace_pixels``)
+_SPLIT_LOCK = threading.Lock()   # ``TriangleScene.transmittance`` splits its BVH once
 
 
 class TriangleScene:
     """An Embree BVH over a subset of a Scene's triangles.
 
     ``tri_index`` maps Embree primIDs back to indices into ``Scene.triangles``.
-    An empty subset is valid: every ray misses.
+    An empty subset is valid: every ray misses. ``alpha``
+    (``alpha_rays.AlphaGeometry``) is set only when one of the triangles has
+    an alpha matte: shadow rays then carry a transmittance
+    (``transmittance``) and primary rays pass through clear texels
+    (``alpha_rays.pass_through``); otherwise nothing changes.
     """
 
-    def __init__(self, triangles: np.ndarray, tri_index: Optional[np.ndarray] = None):
+    def __init__(self, triangles: np.ndarray, tri_index: Optional[np.ndarray] = None,
+                 alpha: Optional[alpha_rays.AlphaGeometry] = None):
         triangles = np.ascontiguousarray(triangles, np.float32).reshape(-1, 3, 3)
         if tri_index is None:
             tri_index = np.arange(len(triangles), dtype=np.int32)
         self.tri_index = np.asarray(tri_index, np.int32)
         self.count = len(triangles)
+        self.alpha = alpha
+        self._parts = None
         self._scene = None
         if self.count:
             from embreex import rtcore_scene as rtcs
@@ -45,7 +55,52 @@ class TriangleScene:
     @classmethod
     def from_scene(cls, scene: Scene, mask: np.ndarray) -> "TriangleScene":
         idx = np.nonzero(mask)[0].astype(np.int32)
-        return cls(scene.triangles[idx], idx)
+        alpha = None
+        if scene.alpha is not None and scene.alpha.any_matte(mask):
+            alpha = alpha_rays.AlphaGeometry(scene.alpha.packed(), scene.triangles, scene_scale(*scene.bounds()))
+        return cls(scene.triangles[idx], idx, alpha)
+
+    @staticmethod
+    def matte_casters(scene: Scene):
+        """(bool over the shadow-casting triangles, in ``Scene.triangles``
+        order: has an alpha matte; a TriangleScene of those), or (None, None)
+        when none has one: the split of methods that cast opaque triangles
+        themselves and leave the matte ones to ``transmittance``."""
+        if scene.alpha is None:
+            return None, None
+        casts = scene.tri_casts_shadow
+        has = scene.alpha.tri_matte[casts] >= 0
+        if not has.any():
+            return None, None
+        mask = casts.copy()
+        mask[casts] = has
+        return has, TriangleScene.from_scene(scene, mask)
+
+    def local_ids(self, tri: np.ndarray) -> np.ndarray:
+        """Embree primIDs of the global triangle ids ``tri`` (-1 for -1)."""
+        local = np.full(len(self.alpha.triangles) + 1, -1, np.int32)
+        local[self.tri_index] = np.arange(self.count, dtype=np.int32)
+        return local[tri]
+
+    def transmittance(self, origins, dirs, tfar) -> np.ndarray:
+        """float32[N]: the share of each ray (float32, contiguous) that gets
+        through within (0, tfar): 0 or 1 past opaque triangles, the product
+        of (1 - alpha) past mattes (``alpha_rays.transmittance``; the opaque
+        and the matte triangles get a BVH each, built on first use)."""
+        if self.alpha is None:
+            return np.where(self.occluded_f32(origins, dirs, np.array(tfar, np.float32)) == -1,
+                            np.float32(1), np.float32(0))
+        with _SPLIT_LOCK:
+            if self._parts is None:
+                self._parts = self._split()
+        return alpha_rays.transmittance(self._parts[0], self._parts[1], origins, dirs, tfar)
+
+    def _split(self):
+        """(opaque triangles, matte triangles), each a TriangleScene."""
+        has = self.alpha.mattes.tri_matte[self.tri_index] >= 0
+        tris = self.alpha.triangles[self.tri_index]
+        return (TriangleScene(tris[~has], self.tri_index[~has]),
+                TriangleScene(tris[has], self.tri_index[has], self.alpha))
 
     def occluded(self, origins, dirs, tfar) -> np.ndarray:
         """bool[N]: True where something lies on the ray within (0, tfar)."""
@@ -70,7 +125,9 @@ class TriangleScene:
         return self._scene.run(origins, dirs, dists=tfar, query="OCCLUDED")
 
     def intersect(self, origins, dirs, tfar=None):
-        """Closest hits: (global triangle id or -1, t, u, v) as arrays."""
+        """Closest hits: (global triangle id or -1, t, u, v) as arrays;
+        with ``alpha``, the first surface not clear there
+        (``alpha_rays.pass_through``)."""
         n = len(origins)
         tri = np.full(n, -1, np.int32)
         t = np.full(n, np.inf, np.float64)
@@ -83,9 +140,13 @@ class TriangleScene:
             kw = {}
             if tfar is not None:
                 kw["dists"] = np.array(tfar[s:e], np.float32, copy=True)  # Embree writes hits into it
-            r = self._scene.run(np.ascontiguousarray(origins[s:e], np.float32),
-                                np.ascontiguousarray(dirs[s:e], np.float32),
-                                output=1, **kw)
+            o = np.ascontiguousarray(origins[s:e], np.float32)
+            d = np.ascontiguousarray(dirs[s:e], np.float32)
+            r = self._scene.run(o, d, output=1, **kw)
+            if self.alpha is not None:     # alpha-tested like the light maps (issue 18)
+                tf = (np.array(tfar[s:e], np.float32) if tfar is not None
+                      else np.full(e - s, np.inf, np.float32))
+                alpha_rays.pass_through(self, lambda: (o, d, tf), r["primID"], r["u"], r["v"], r["tfar"])
             prim = r["primID"]
             hit = prim >= 0
             tri[s:e][hit] = self.tri_index[prim[hit]]
@@ -173,6 +234,8 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
                                   pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
 
     trace_pixels(tri_scene, params, width, height, True, finish, threads)
+    if tri_scene.alpha is not None:
+        _see_through_mattes(tri_scene, cam, tri_object, pos, nrm, depth, obj, tri)
     return GBuffer(position=pos.reshape(height, width, 3),
                    normal=nrm.reshape(height, width, 3),
                    depth=depth.reshape(height, width),
@@ -219,6 +282,8 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
 
     each_in_threads(chunk, [(a, min(m, a + BAND_RAYS)) for a in range(0, m, BAND_RAYS)],
                     max(1, int(threads or numba.get_num_threads())))
+    if tri_scene.alpha is not None:          # issue 18: the camera sees through clear texels
+        _see_through_mattes(tri_scene, cam, tri_object, pos, nrm, depth, obj, tri)
     flat = rows * width + cols
     g_pos = np.zeros((height * width, 3), np.float64)
     g_nrm = np.zeros((height * width, 3), np.float32)
@@ -231,10 +296,62 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
                    triangle_id=g_tri.reshape(height, width), hit=(g_tri >= 0).reshape(height, width))
 
 
+def _see_through_mattes(tri_scene: TriangleScene, cam: Camera, tri_object, pos, nrm, depth, obj, tri) -> None:
+    """Post-step of ``camera_gbuffer`` (issue 18): pixels whose surface is a
+    matte clear there (alpha below ``alpha_rays.ALPHA_CUTOFF``) are re-traced
+    from just past it along the same ray (from the eye through the point;
+    orthographic: along the view axis) to the far clip plane, and get the
+    surface they stop at (``alpha_rays.pass_through``)."""
+    geo = tri_scene.alpha
+    pix = np.flatnonzero(tri >= 0)
+    pix = pix[geo.mattes.tri_matte[tri[pix]] >= 0]
+    if not len(pix):
+        return
+    P = pos[pix]
+    u = np.empty(len(pix), np.float64)
+    v = np.empty(len(pix), np.float64)
+    alpha_rays.barycentrics(geo.triangles, tri[pix], P, u, v)
+    prim = tri_scene.local_ids(tri[pix])
+    eye, fwd = cam.position, cam.forward
+
+    def rays():
+        if cam.kind == "ORTHO":
+            d = np.broadcast_to(fwd, P.shape)
+            tfar = cam.clip_end - depth[pix].astype(np.float64)
+        else:
+            d = P - eye
+            dist = np.linalg.norm(d, axis=1)
+            d = d / dist[:, None]
+            tfar = cam.clip_end / np.maximum(d @ fwd, 1e-12) - dist
+        return (P.astype(np.float32), np.ascontiguousarray(d, np.float32),
+                np.maximum(tfar, 0.0).astype(np.float32))
+
+    t = np.zeros(len(pix), np.float32)
+    seen = alpha_rays.pass_through(tri_scene, rays, prim, u, v, t)
+    if len(seen):
+        _, d, _ = rays()
+        alpha_rays.gbuffer_hits(prim[seen], u[seen], v[seen], d[seen], tri_scene.tri_index, geo.triangles,
+                                tri_object, eye, fwd, pix[seen], pos, nrm, depth, obj, tri)
+
+
+def _band_rays(params, width, height, row0, row1):
+    """The rays of rows [row0, row1) of a view (``pixel_rays.make_rays``)."""
+    m = (row1 - row0) * width
+    org = np.empty((m, 3), np.float32)
+    dirs = np.empty((m, 3), np.float32)
+    tfar = np.empty(m, np.float32)
+    pixel_rays.make_rays(params, width, height, row0, row1, org, dirs, tfar)
+    return org, dirs, tfar
+
+
 def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray,
                 threads: Optional[int] = None):
     """Depth (float32, -z in view space, +inf where empty) and object-id maps
-    of one face, by rays through its pixel centres (``pixel_rays.depth_pixels``)."""
+    of one face, by rays through its pixel centres (``pixel_rays.depth_pixels``).
+    Alpha mattes are tested (issue 18): a ray passes through texels with
+    alpha below an ordered-dither cutoff (``alpha_rays.DITHER``), so maps
+    hold leaf shapes, not cards, and a surface of alpha a in a share a of
+    the pixels."""
     w, h = face.width, face.height
     depth = np.full(h * w, np.inf, np.float32)
     ids = np.full(h * w, -1, np.int32)
@@ -244,6 +361,10 @@ def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray
     def finish(r, row0, row1):
         if r is not None:
             a, b = row0 * w, row1 * w
+            if tri_scene.alpha is not None:
+                alpha_rays.pass_through(tri_scene, lambda: _band_rays(params, w, h, row0, row1),
+                                        r["primID"], r["u"], r["v"], r["tfar"],
+                                        alpha_rays.dither_band(row0, row1, w), dither=True)
             pixel_rays.depth_pixels(params, w, h, row0, row1, r["primID"], r["tfar"], tri_scene.tri_index,
                                     tri_object, depth[a:b], ids[a:b])
 

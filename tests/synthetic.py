@@ -203,3 +203,42 @@ def zero_size_cases(res=48):
     out["box_point"] = make_scene(quad(-10, 10, -10, 10, 0.0) + box(-0.6, 0.4, -0.5, 0.5, 0.0, 0.8),
                                   [0, 0] + [1] * 12, [sphere_light(0.0, z=2.5)], res)
     return out
+
+
+# --------------------------------------------------------------------------
+# alpha-matte occluders (issue 18)
+def planar_uv(tris, lo, hi):
+    """float32[T,3,2]: UVs mapping the xy square [lo, hi]^2 onto [0, 1]^2."""
+    xy = np.asarray(tris, np.float64)[..., :2]
+    return ((xy - lo) / (hi - lo)).astype(np.float32)
+
+
+def matte_layers_scene(light, layers, res=48, camera=None, camera_sees=False, ground=10.0):
+    """Ground z=0 and one quad over [-ground, ground]^2 per layer (z, texels
+    float[h, w] with row 0 at v = 0, interpolation, extension), each with its
+    own matte and planar UVs (u along x, v along y over the quad). By default
+    the camera (``top_ortho_camera``, at z=1) sees the ground only."""
+    from penumbra.core.alpha import AlphaMattes
+    tris = quad(-ground, ground, -ground, ground, 0.0)
+    ids, matte = [0, 0], [-1, -1]
+    texels, offset, width, height, interp, ext = [], [], [], [], [], []
+    for k, (z, tex, ip, ex) in enumerate(layers):
+        tex = np.asarray(tex, np.float32).reshape(np.shape(tex)[0], -1)
+        tris += quad(-ground, ground, -ground, ground, z)
+        ids += [k + 1, k + 1]
+        matte += [k, k]
+        offset.append(sum(len(t) for t in texels))
+        texels.append(tex.reshape(-1))
+        height.append(tex.shape[0])
+        width.append(tex.shape[1])
+        interp.append(ip)
+        ext.append(ex)
+    tris = np.asarray(tris, np.float32)
+    uv = planar_uv(tris, -ground, ground)
+    uv[np.asarray(matte) < 0] = 0.0
+    objs = [ObjectInfo("ground", 0)] + [ObjectInfo(f"card{k}", k + 1, visible_camera=camera_sees)
+                                        for k in range(len(layers))]
+    mattes = AlphaMattes(matte, uv, np.concatenate(texels) if texels else np.zeros(0), offset, width,
+                         height, interp, ext, [f"card{k} / matte" for k in range(len(layers))])
+    return Scene(tris, np.asarray(ids, np.int32), objs, camera or top_ortho_camera(2.0),
+                 [light], (res, res), alpha=mattes)

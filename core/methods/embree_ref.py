@@ -4,7 +4,9 @@ equation 2) and ``embree_irr`` (irradiance ratio, equation 1 with / without V).
 Per camera pixel, ``samples`` stratified jittered points on the light's
 domain (DESIGN.md "Light domains"), jittered independently per pixel (counter
 hash of seed, pixel, sample), one shadow ray each against the real triangles.
-One set of rays gives both passes:
+One set of rays gives both passes (v_i in [0, 1]: a ray's transmittance
+through alpha mattes, issue 18, ``alpha_rays.transmittance``; 0 or 1 in a
+scene without them):
 
     V_avg = (1/N) sum_i v_i
     V_irr = sum_i w_i v_i / sum_i w_i,   w_i = cos(theta_r) cos(theta_l) / d^2
@@ -93,6 +95,24 @@ def reduce_visibility(occ, w, ns, v_avg, v_irr):
         v_irr[i] = wl / wt if wt > 0.0 else 0.0
 
 
+@njit(cache=True, nogil=True)
+def reduce_transmittance(trans, w, ns, v_avg, v_irr):
+    """trans: each ray's transmittance through alpha mattes (issue 18:
+    Cycles' product of (1 - alpha)) -> per-pixel V (eq. 2, eq. 1 ratio)."""
+    n = v_avg.shape[0]
+    for i in range(n):
+        lit = 0.0
+        wl = 0.0
+        wt = 0.0
+        for s in range(ns):
+            k = i * ns + s
+            wt += w[k]
+            lit += trans[k]
+            wl += w[k] * trans[k]
+        v_avg[i] = lit / ns
+        v_irr[i] = wl / wt if wt > 0.0 else 0.0
+
+
 def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, threads=None):
     """V_avg and V_irr (float32[n]) for points P with normals Nrm."""
     lp = sampling.pack_light(light)
@@ -116,8 +136,11 @@ def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, thread
         tfar = np.empty(m, np.float32)
         w = np.empty(m, np.float64)
         generate_shadow_rays(P[a:b], Nrm[a:b], pix[a:b], lp, ns, seed, scale, org, dirs, tfar, w)
-        occ = tri_scene.occluded_f32(org, dirs, tfar)
-        reduce_visibility(occ, w, ns, v_avg[a:b], v_irr[a:b])
+        if tri_scene.alpha is None:
+            occ = tri_scene.occluded_f32(org, dirs, tfar)
+            reduce_visibility(occ, w, ns, v_avg[a:b], v_irr[a:b])
+        else:
+            reduce_transmittance(tri_scene.transmittance(org, dirs, tfar), w, ns, v_avg[a:b], v_irr[a:b])
 
     each_in_threads(work, chunks, max(1, int(threads or numba.get_num_threads())))
     return v_avg, v_irr, n * ns

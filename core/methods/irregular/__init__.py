@@ -69,7 +69,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ... import views
+from ... import raycast, views
+from ..embree_ref import trace_visibility
 from ...sampling import offset_points
 from ..registry import register
 from .geom import SHAPE_DISK, SHAPE_SQUARE, SILHOUETTE_CENTRE, SILHOUETTE_LIGHT
@@ -407,6 +408,23 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
     return V, umbra, pen, stats
 
 
+#: shadow rays per receiver through the alpha-matte blockers (``matte_visibility``)
+MATTE_SAMPLES = 64
+
+
+def matte_visibility(mattes, P, Nrm, idx, light, scale) -> np.ndarray:
+    """Alpha-matte blockers (issue 18; not in the paper): the receivers'
+    average transmittance through them, by the reference's shadow rays
+    (``embree_ref.trace_visibility``, MATTE_SAMPLES per receiver) against a
+    BVH of the matte triangles alone. The opaque triangles go through the
+    algorithm as before and the two are multiplied: the paper's own
+    independence of occluders (C = 0, section 5.2), here between the opaque
+    and the matte layers."""
+    ns = 1 if light.is_zero_size else MATTE_SAMPLES
+    va, _, _ = trace_visibility(mattes, P, Nrm, idx, light, ns, 0, scale)
+    return va
+
+
 @register
 class SoftIrregularShadowMapping(Method):
     id = "irregular"
@@ -422,8 +440,14 @@ class SoftIrregularShadowMapping(Method):
         with timer("select"):
             idx, P, Nrm = g.hit_points()
             tris, tobj = buffers.shadow_triangles
+            has, mattes = raycast.TriangleScene.matte_casters(buffers.scene)
+            if has is not None:
+                tris, tobj = tris[~has], tobj[~has]
         V, _, _, stats = soft_irregular(P, Nrm, tris, tobj, light, params, buffers.scale, timer,
                                         bounds=buffers.scene.bounds())
+        if mattes is not None:
+            with timer("mattes"):
+                V = V * matte_visibility(mattes, P, Nrm, idx, light, buffers.scale)
         out = np.ones(H * W, np.float32)
         out[idx] = V
         return MethodResult(passes={"irregular": out.reshape(H, W)}, time_s=timer.result(), stats=stats)

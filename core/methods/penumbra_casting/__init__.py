@@ -82,6 +82,7 @@ from numba import njit, prange
 from ... import sampling
 from ...kernels import each_in_threads
 from ..registry import register
+from .alpha_blockers import split_blockers, transmitted_visibility
 from .blockers import MAXB, coplanar_blockers, pad_triangles
 from .cast import (N_ST, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LIVE, ST_NODES, ST_PEAK,
                    ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers, CastSwitches,
@@ -380,9 +381,11 @@ class _Chunk:
 
 
 def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: PhaseTimer,
-         threads: Optional[int] = None):
+         threads: Optional[int] = None, mattes=None):
     """Run the casting for ``tris`` (float64[T,3,3], the shadow-casting
-    triangles); returns V per receiver (float64) and stats."""
+    triangles); returns V per receiver (float64) and stats. ``mattes``: a
+    BVH of the alpha-matte blockers, processed after ``tris``
+    (``alpha_blockers``)."""
     L = setup.light
     n = len(setup.idx)
     stats: Dict[str, object] = {"receivers": int(n), "samples": int(L.S), "groups": int(L.G),
@@ -538,6 +541,8 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             c.rebuild_s += time.perf_counter() - tr
         c.V = np.empty(len(c.rows))
         chunk_visibility(c.fu, c.slot, c.pool, L.S, c.V)
+        if mattes is not None:
+            c.V = transmitted_visibility(mattes, smp, rec, c.fu, c.slot, c.pool, L.S)
         c.cast_s = time.perf_counter() - t_start - c.rebuild_s
 
     with timer("build"):
@@ -576,7 +581,7 @@ def scene_blockers(scene) -> np.ndarray:
 
 def finite_blockers(tris) -> np.ndarray:
     """The finite ones of shadow-casting triangles ``tris``, as float64[T,3,3]."""
-    ok = np.isfinite(tris.reshape(len(tris), -1)).all(axis=1)
+    ok = np.isfinite(tris.reshape(len(tris), 9)).all(axis=1)
     return np.ascontiguousarray(tris[ok], np.float64)
 
 
@@ -595,8 +600,9 @@ class PenumbraCasting(Method):
         H, W = g.shape
         with timer("setup"):
             setup = prepare(buffers, light, params)
-            tris = finite_blockers(buffers.shadow_triangles[0])
-        V, stats = cast(setup, tris, params, timer)
+            tris, mattes = split_blockers(buffers.scene, buffers.shadow_triangles[0])
+            tris = finite_blockers(tris)
+        V, stats = cast(setup, tris, params, timer, mattes=mattes)
         out = np.ones(H * W, np.float32)
         out[setup.idx] = np.clip(V, 0.0, 1.0).astype(np.float32)
         return MethodResult(passes={"penumbra_casting": out.reshape(H, W)}, time_s=timer.result(),
