@@ -270,9 +270,12 @@ class FrameBuffers:
 
     # -- light views -------------------------------------------------------
     def light_view(self, light: Light, map_size: Optional[int] = None,
-                   eye: Optional[np.ndarray] = None, key: str = "centre") -> LightView:
+                   eye: Optional[np.ndarray] = None, key: str = "centre",
+                   tri_label: Optional[np.ndarray] = None) -> LightView:
         """Depth + object-id maps of ``light`` from ``eye`` (default its centre),
-        fitted to the visible receivers (LIGHT_VIEW), one per (map size, key)."""
+        fitted to the visible receivers (LIGHT_VIEW), one per (map size, key).
+        ``tri_label`` (int32 per triangle) replaces the object ids in the id
+        map; give such a view its own ``key``."""
         ms = int(map_size or self.map_size)
         k = (light.name, ms, key)
         name = f"light_view:{light.name}:{ms}:{key}"
@@ -280,7 +283,8 @@ class FrameBuffers:
             def build():
                 faces = views.light_view_faces(light, self.receivers(), self.scene.bounds(), ms, eye)
                 e = light.position if eye is None else eye
-                return raycast.render_light_view(faces, occ, self.scene.tri_object, e)
+                labels = self.scene.tri_object if tri_label is None else tri_label
+                return raycast.render_light_view(faces, occ, labels, e)
             self.receivers()              # build the G-buffer outside this phase's timer
             occ = self.shadow_scene_for(light)
             self._views[k] = self._timed(name, "light_view", build, total=f"light_view:{light.name}",
@@ -288,13 +292,15 @@ class FrameBuffers:
         self._use(name)
         return self._views[k]
 
-    def sample_view(self, faces, eye: np.ndarray) -> LightView:
+    def sample_view(self, faces, eye: np.ndarray, tri_label: Optional[np.ndarray] = None) -> LightView:
         """Depth + object-id maps through ``faces`` from ``eye``, a point on
         the light (LIGHT_SAMPLE_VIEWS), rendered on the shared shadow BVH.
-        Not kept: each method picks its own samples and faces, and times the
-        rendering as its own phase. Build ``shadow_scene`` first when calling
-        this from several threads."""
-        return raycast.render_light_view(faces, self.shadow_scene, self.scene.tri_object, eye)
+        ``tri_label`` (int32 per triangle) replaces the object ids in the id
+        map (e.g. mesh components). Not kept: each method picks its own
+        samples and faces, and times the rendering as its own phase. Build
+        ``shadow_scene`` first when calling this from several threads."""
+        labels = self.scene.tri_object if tri_label is None else tri_label
+        return raycast.render_light_view(faces, self.shadow_scene, labels, eye)
 
 
 def _closure(start: Iterable[str], edges) -> FrozenSet[str]:

@@ -242,3 +242,30 @@ def matte_layers_scene(light, layers, res=48, camera=None, camera_sees=False, gr
                          height, interp, ext, [f"card{k} / matte" for k in range(len(layers))])
     return Scene(tris, np.asarray(ids, np.int32), objs, camera or top_ortho_camera(2.0),
                  [light], (res, res), alpha=mattes)
+
+
+def leaf_cloud_scene(n_leaves=150, res=48, seed=17, leaf=(0.2, 0.11), light_size=(1.5, 0.8)):
+    """Foliage-like (issue 17, ``sample_blends/foliage.blend`` in small): a
+    ground plane and ``n_leaves`` small single-sided quads (2 triangles each),
+    randomly oriented, filling a box around (0, 0, 1.2); all leaves are ONE
+    object. A rectangular area light of about the cloud's size above, a
+    perspective camera seeing the leaves and their shadow on the ground."""
+    rng = np.random.default_rng(seed)
+    half = np.array([leaf[0] / 2, leaf[1] / 2])
+    corners = np.array([[-half[0], -half[1], 0], [half[0], -half[1], 0],
+                        [half[0], half[1], 0], [-half[0], half[1], 0]])
+    q = rng.standard_normal((n_leaves, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    rot = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                    np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                    np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
+    centres = rng.uniform([-0.6, -0.4, 0.95], [0.6, 0.4, 1.45], (n_leaves, 3))
+    v = np.einsum("nij,vj->nvi", rot, corners) + centres[:, None, :]
+    leaves = np.concatenate([v[:, [0, 1, 2]], v[:, [0, 2, 3]]], axis=0)
+    tris = np.concatenate([np.asarray(quad(-6, 6, -6, 6, 0.0)), leaves])
+    ids = [0, 0] + [1] * len(leaves)
+    light = Light("Area", "area", light_matrix((0.6, -0.3, 3.6), (-0.6, 0.3, -2.4)), blender_type="AREA",
+                  shape="RECTANGLE", size=light_size[0], size_y=light_size[1])
+    cam = persp_camera((1.8, -2.6, 2.0), (-0.3, 0.3, 0.5), lens=30.0)
+    return make_scene(tris, ids, [light], res, camera=cam, names=("ground", "leaves"))

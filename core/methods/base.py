@@ -58,7 +58,7 @@ class Method:
             if not overrides or f.name not in overrides or overrides[f.name] is None:
                 continue
             value, default = overrides[f.name], getattr(p, f.name)
-            if isinstance(default, bool):
+            if isinstance(default, bool) or (default is None and str(f.type) == "Optional[bool]"):
                 if isinstance(value, str):
                     low = value.strip().lower()
                     if low not in ("1", "0", "true", "false", "yes", "no", "on", "off"):

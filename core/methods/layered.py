@@ -57,7 +57,7 @@ Beyond the paper (each switchable; the defaults marked):
     from the silhouette seen by the samples, fully lit); the reference's
     rays into the surface are blocked by it. Measured RMSE on the torus's
     own pixels: 0.146 -> 0.047, the sphere's 0.145 -> 0.063.
-  * ``splat="footprint"`` (default: the paper's ``"neighbours"``): each
+  * ``splat="footprint"`` (default since issue 17; the paper's: ``"neighbours"``): each
     sample pixel covers the LDI pixel centres inside its warped footprint,
     the parallelogram spanned by half the steps to its neighbours -- one
     pixel under an identity or pure-shift warp, several where the warp
@@ -72,6 +72,16 @@ Beyond the paper (each switchable; the defaults marked):
     about one texel wide). RMSE against ``embree`` (128 x 128 pixels, 256
     samples), 4-neighbour / footprint: GRIDS 0.163 / 0.055 at 256-texel
     maps, torus_plane 0.045 / 0.023 and sphere_plane 0.040 / 0.020 at 128.
+  * ``surfaces="mesh"`` (default; ``"object"``: object ids, as before
+    issue 17): the sample maps carry each triangle's connected mesh piece
+    (``surfaces.mesh_pieces``) where they carried its object id, so the
+    gradient, footprint and silhouette tests above treat only texels of one
+    piece as one surface. A shrub's 3,000 leaves are one object: with object
+    ids two leaves side by side in a sample map join into one sloped
+    surface (a huge depth span that merges layers across leaves, footprints
+    stretched across the gap between them), the paper's "thin gaps" filled.
+    Measured on foliage (256 x 256, 256 samples, footprint splat): RMSE
+    0.061 -> 0.037, on the leaves' own pixels 0.33 -> 0.20.
   * A camera point *in front of* every layer of its pixel (nearer to the
     light than anything the samples saw there: a surface the samples
     undersampled) takes the nearest layer's attenuation instead of 0. With
@@ -142,6 +152,7 @@ from .. import sampling, views
 from ..kernels import face_project, pick_face
 from ..sampling import concentric_disk, light_sample, rand01
 from ..scene import Light, ViewFace
+from .surfaces import mesh_pieces
 from .registry import register
 from .base import AVERAGE, GBUFFER, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
@@ -165,7 +176,9 @@ class LayeredParams:
     plane_depth: bool = True       # compare depths at LDI pixel centres (see module doc)
     horizon: bool = True           # samples below the receiver's tangent plane count as blocked
     warp: str = "auto"             # auto: eq. 3 shift for planar lights, else projective
-    splat: str = "neighbours"      # the paper's 4 neighbours, or "footprint" (unbiased, see doc)
+    splat: str = "footprint"       # "footprint" (unbiased, see doc) | "neighbours" (the paper's 4)
+    surfaces: str = "mesh"         # what counts as one surface in the sample maps' id test:
+                                   # "mesh" (connected mesh pieces) | "object" (object ids)
     seed: int = 0
 
 
@@ -803,6 +816,8 @@ def precompute(buffers, light: Light, params: LayeredParams,
         raise ValueError(f"layered: unknown splat {params.splat!r} (neighbours | footprint)")
     if params.warp not in ("auto", "projective"):
         raise ValueError(f"layered: unknown warp {params.warp!r} (auto | projective)")
+    if params.surfaces not in ("mesh", "object"):
+        raise ValueError(f"layered: unknown surfaces {params.surfaces!r} (mesh | object)")
     scene = buffers.scene
     ms = int(params.map_size or buffers.map_size)
     receivers = buffers.receivers()
@@ -826,11 +841,12 @@ def precompute(buffers, light: Light, params: LayeredParams,
     cfaces = np.ascontiguousarray(np.stack([f.packed() for f in centre]))
     footprint = params.splat == "footprint"
     buffers.shadow_scene      # built here, not in the render threads
+    labels = mesh_pieces(scene) if params.surfaces == "mesh" else None
 
     def render(i):
         faces, eye, _, _ = plans[i]
         t = time.perf_counter()
-        lv = buffers.sample_view(faces, eye)
+        lv = buffers.sample_view(faces, eye, labels)
         return lv, time.perf_counter() - t
 
     workers = render_workers if render_workers is not None else max(1, numba.get_num_threads() - 1)
