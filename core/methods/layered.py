@@ -57,7 +57,8 @@ Beyond the paper (each switchable; the defaults marked):
     from the silhouette seen by the samples, fully lit); the reference's
     rays into the surface are blocked by it. Measured RMSE on the torus's
     own pixels: 0.146 -> 0.047, the sphere's 0.145 -> 0.063.
-  * ``splat="footprint"`` (default since issue 17; the paper's: ``"neighbours"``): each
+  * ``splat="footprint"`` (the paper's, and the default: ``"neighbours"``; footprint
+    is better on foliage and GRIDS but worse on grazing light, see LayeredParams.splat): each
     sample pixel covers the LDI pixel centres inside its warped footprint,
     the parallelogram spanned by half the steps to its neighbours -- one
     pixel under an identity or pure-shift warp, several where the warp
@@ -176,7 +177,9 @@ class LayeredParams:
     plane_depth: bool = True       # compare depths at LDI pixel centres (see module doc)
     horizon: bool = True           # samples below the receiver's tangent plane count as blocked
     warp: str = "auto"             # auto: eq. 3 shift for planar lights, else projective
-    splat: str = "footprint"       # "footprint" (unbiased, see doc) | "neighbours" (the paper's 4)
+    splat: str = "neighbours"      # "neighbours" (the paper's 4) | "footprint" (unbiased, see doc;
+                                   # not the default: on grazing light it reaches along edge-on
+                                   # ground, which then shadows itself: stress grazing_area 0.27)
     surfaces: str = "mesh"         # what counts as one surface in the sample maps' id test:
                                    # "mesh" (connected mesh pieces) | "object" (object ids)
     seed: int = 0
