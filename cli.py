@@ -143,8 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--scene", default=None, help="the .blend to time (default: sample grids)")
     b.add_argument("--repeats", type=_positive("--repeats", 1, 100), default=3)
     b.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
-    b.add_argument("--part", choices=("all", "skeleton", "methods", "study", "filter"), default="all",
-                   help="pipeline phases, per-method tables, or the accuracy-versus-time study")
+    b.add_argument("--part", choices=("all", "skeleton", "methods", "scaling", "study", "filter"), default="all",
+                   help="pipeline phases, per-method tables, triangle-count scaling, the accuracy-versus-time study, or filtered passes")
     add_farm_parser(sub)
     return p
 

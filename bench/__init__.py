@@ -3,6 +3,7 @@ the extension; ``blender_manifest.toml`` excludes ``/bench/``).
 
 - :mod:`.phases`: per-phase wall times of the pipeline (``--part skeleton``),
 - :mod:`.methods`: the per-method tables of issues 3-5 (``--part methods``),
+- :mod:`.scaling`: embree and penumbra_casting against triangle count (``--part scaling``),
 - :mod:`.study`: accuracy versus time and the planner's table (``--part study``),
 - :mod:`.pixel_filter`: the cost and error of filtered passes (``--part filter``),
 - :mod:`.harness`: what they share (sample scenes, machine, median of warm runs).
@@ -38,6 +39,11 @@ def run_bench(args) -> int:
         from .pixel_filter import bench_pixel_filter
         print("filtered passes (issue 14)")
         print(bench_pixel_filter(args.out, repeats, args.quick))
+    if args.part in ("all", "scaling"):
+        from .scaling import COLUMNS as SCALING_COLUMNS, bench_scaling
+        md = write_results(bench_scaling(repeats, args.quick), args.out, "scaling", SCALING_COLUMNS)
+        print(f"triangle-count scaling, embree beside penumbra_casting, medians of {repeats} warm runs")
+        print(md)
     if args.part in ("all", "study"):
         # imported here, not above: ``python -m penumbra.bench.study`` runs the
         # module as __main__, and runpy warns when the package imported it first

@@ -175,6 +175,8 @@ def write_results(rows, out_dir, name, columns=COLUMNS):
                 v = f"{v:.2f}x"
             elif k == "rays_per_s" and v != "":
                 v = f"{v / 1e6:.2f} M/s"
+            elif isinstance(v, float):
+                v = f"{v:.4g}"
             cells.append(str(v))
         lines.append("| " + " | ".join(cells) + " |")
     md = "\n".join(lines) + "\n"

@@ -86,6 +86,7 @@ def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUT
         for res in resolutions:
             scene = load_sample(name, res)
             light = scene.lights[0]
+            shape = auto_choice.scene_shape(scene, light)     # what auto's cost model scales from
             fb = FrameBuffers(scene, *res)
             ref_m = producers["embree"]
             ref_p = ref_m.make_params({"samples": 64 if quick else REFERENCE_SAMPLES, "seed": 12345})
@@ -103,7 +104,8 @@ def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUT
                 for label, params in (sweep[:2] if quick else sweep):
                     row = dict(scene=name, size=f"{res[0]}x{res[1]}", method=mid, setting=label,
                                threads=numba.get_num_threads(), repeats=repeats, status="ok",
-                               light_kind=light.kind, light_extent=light.extent)
+                               light_kind=light.kind, light_extent=light.extent,
+                               triangles=shape.triangles, light_relative=shape.light_relative)
                     try:
                         p, unknown = _apply(m, params, fb)
                         if unknown:
@@ -268,8 +270,12 @@ def auto_table(rows, fronts=None) -> dict:
                 continue
             methods[mid] = {"setting": label, "visibility": r["visibility"], "seconds": float(r["seconds"]),
                             "rmse": float(r["rmse"]), "rmse_penumbra": float(r["rmse_penumbra"])}
-        scenes.append({"scene": scene, "size": size, "light_kind": lit["light_kind"],
-                       "light_extent": float(lit["light_extent"]), "methods": methods})
+        entry = {"scene": scene, "size": size, "light_kind": lit["light_kind"],
+                 "light_extent": float(lit["light_extent"]), "methods": methods}
+        if lit.get("triangles") not in (None, ""):            # auto's rule 5 (SceneShape)
+            entry["triangles"] = int(lit["triangles"])
+            entry["light_relative"] = float(lit["light_relative"])
+        scenes.append(entry)
     out = {"format": "penumbra-auto-table/1", "reference": f"embree {REFERENCE_SAMPLES} spp",
            "settings": f"each method at its default parameters, {AUTO_LIGHT_SAMPLES} light samples",
            "threads": max((int(r.get("threads") or 0) for r in rows), default=0), "scenes": scenes}
@@ -305,12 +311,16 @@ def table_from_csv(csv_path: str, out: str) -> str:
         rows = list(csv.DictReader(f))
     lights = {}
     for name in {r["scene"] for r in rows}:
-        lt = load_sample(name, (16, 16)).lights[0]
-        lights[name] = (lt.kind, lt.extent)
+        sc = load_sample(name, (16, 16))
+        lt = sc.lights[0]
+        shape = auto_choice.scene_shape(sc, lt)
+        lights[name] = (lt.kind, lt.extent, shape.triangles, shape.light_relative)
     fronts = {}
     for r in rows:
         if not r.get("light_kind"):
-            r["light_kind"], r["light_extent"] = lights[r["scene"]]
+            r["light_kind"], r["light_extent"] = lights[r["scene"]][:2]
+        if not r.get("triangles"):
+            r["triangles"], r["light_relative"] = lights[r["scene"]][2:]
     for name in sorted(lights):
         ok = [r for r in rows if r["scene"] == name and r["status"] == "ok" and "reference" not in r["method"]
               and r["size"] == _largest_size(rows, name)]

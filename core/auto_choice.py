@@ -29,7 +29,16 @@ The rules, in order (each decision says which one in its reason):
    in for the reference, never the reference it is compared with. The one
    method writing the irradiance ratio (``depth_raytrace_irr``) is not in
    the study, so that definition falls back to ``embree_irr``.
-5. The cheapest candidate with worst RMSE <= budget wins; when none meets
+5. The scene at hand (``SceneShape``: shadow-casting triangles, output
+   pixels, light size relative to its distance from the casters): each
+   candidate's and the reference's measured time is scaled to it by
+   ``COST_MODEL`` (how each method's time grows with pixels, triangles and
+   light size; measured in ``bench/scaling.py`` for ``embree`` and
+   ``penumbra_casting``). A candidate predicted slower than the reference
+   there is dropped; when every one is, ``auto`` runs the reference itself
+   (rule "reference is fastest"). Without a shape (or a table scene without
+   its triangle count) times are not scaled.
+6. The cheapest candidate with worst RMSE <= budget wins; when none meets
    the budget, the most accurate one, and the reason says so.
 
 Table rows are each method at its default parameters with 64 light samples
@@ -76,6 +85,77 @@ class MeasuredScene:
     light_kind: str
     light_extent: float
     methods: Dict[str, dict]     # pass id -> {"seconds", "rmse", "visibility", "setting", ...}
+    triangles: Optional[int] = None          # shadow-casting triangles (SceneShape)
+    light_relative: Optional[float] = None   # light extent / its distance to the casters
+
+    @property
+    def pixels(self) -> int:
+        w, h = (int(x) for x in self.size.lower().split("x"))
+        return w * h
+
+
+@dataclass
+class SceneShape:
+    """What the scene at hand is, for the cost model (rule 5)."""
+    triangles: int               # shadow-casting triangles
+    pixels: int                  # output pixels
+    light_relative: float        # light extent / distance from the light to the casters' centre
+
+    def describe(self) -> str:
+        return (f"{self.triangles:,} triangles, {self.pixels / 1e6:.2f} Mpx, "
+                f"light {self.light_relative:.2f} of its distance")
+
+
+def scene_shape(scene, light) -> SceneShape:
+    """``SceneShape`` of a captured ``core.scene.Scene`` for one of its lights."""
+    import numpy as np
+    casts = scene.triangles[scene.tri_casts_shadow]
+    W, H = scene.resolution
+    rel = float(light.extent)
+    if light.kind != "sun" and len(casts):
+        c = 0.5 * (casts.reshape(-1, 3).min(0) + casts.reshape(-1, 3).max(0))
+        d = float(np.linalg.norm(np.asarray(light.position, float) - c))
+        rel = float(light.extent) / max(d, 1e-30)
+    return SceneShape(int(len(casts)), int(W * H), rel)
+
+
+#: rule 5: per method, how its time grows with the scene: (pixel exponent,
+#: triangle model, light exponent). "log": a BVH's depth (time x log T ratio);
+#: a number b: time x (T ratio)^b; light: time x (relative size ratio)^c.
+#: embree and penumbra_casting: bench/scaling.py (smooth sphere 10K -> 100K
+#: triangles at 1080p: penumbra casting 6.9x the time, T^0.84, embree about
+#: flat; taken as T^1, on the side of picking the reference; the paper's
+#: table 2 gives pixels^0.6-0.8 and 4x light area -> 2-5x time).
+#: The map methods: one rasterization of the triangles and a per-pixel filter
+#: (assumed, not measured at 1M triangles).
+COST_MODEL = {
+    "embree": (1.0, "log", 0.0),
+    "embree_irr": (1.0, "log", 0.0),
+    "penumbra_casting": (0.75, 1.0, 1.0),
+    "depth_raytrace": (1.0, "log", 0.5),
+    "irregular": (1.0, 0.3, 0.5),
+    "pcf": (1.0, 0.1, 0.0),
+    "single_sample": (1.0, 0.1, 0.0),
+    "layered": (1.0, 0.2, 0.0),
+}
+#: methods missing from COST_MODEL: as a ray tracer
+_DEFAULT_COST = (1.0, "log", 0.0)
+
+
+def predicted_seconds(mid: str, row: dict, measured: MeasuredScene, shape: Optional[SceneShape]) -> float:
+    """The measured ``row`` of ``mid`` scaled from ``measured`` to ``shape``."""
+    t = float(row["seconds"])
+    if shape is None or not measured.triangles:
+        return t
+    a, tri, c = COST_MODEL.get(mid, _DEFAULT_COST)
+    t *= (max(1, shape.pixels) / max(1, measured.pixels)) ** a
+    if tri == "log":
+        t *= math.log(max(2, shape.triangles)) / math.log(max(2, measured.triangles))
+    else:
+        t *= (max(1, shape.triangles) / max(1, measured.triangles)) ** tri
+    if measured.light_relative and shape.light_relative > 0:
+        t *= (shape.light_relative / measured.light_relative) ** c
+    return t
 
 
 @dataclass
@@ -92,7 +172,7 @@ class AutoChoice:
     method: str
     reason: str
     short: str
-    rule: str                    # "hard" | "fallback" | "meets budget" | "most accurate"
+    rule: str                    # "hard" | "fallback" | "meets budget" | "most accurate" | "reference is fastest"
     budget: float
     visibility: str = AVERAGE
     rmse: Optional[float] = None         # worst measured RMSE over the matched scenes
@@ -129,8 +209,12 @@ def parse_table(data: Mapping, path: str = "") -> AutoTable:
                     raise TableError(f"{where}: {s['scene']}/{mid}: unknown visibility {vis!r}")
                 methods[str(mid)] = dict(m, seconds=_number(m["seconds"], f"{where}: {mid} seconds"),
                                          rmse=_number(m["rmse"], f"{where}: {mid} rmse"))
+            tri = s.get("triangles")
+            rel = s.get("light_relative")
             scenes.append(MeasuredScene(str(s["scene"]), str(s["size"]), kind,
-                                        _number(s["light_extent"], f"{where}: light_extent"), methods))
+                                        _number(s["light_extent"], f"{where}: light_extent"), methods,
+                                        None if tri is None else int(_number(tri, f"{where}: triangles")),
+                                        None if rel is None else _number(rel, f"{where}: light_relative")))
         except (KeyError, TypeError, AttributeError) as exc:
             raise TableError(f"{where}: scene {k} is malformed ({type(exc).__name__}: {exc})")
     if not scenes:
@@ -174,12 +258,14 @@ def _fmt_s(seconds: float) -> str:
 
 
 def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DEFAULT_BUDGET,
-           table=PACKAGED, known: Optional[Sequence[str]] = None) -> AutoChoice:
+           table=PACKAGED, known: Optional[Sequence[str]] = None,
+           shape: Optional[SceneShape] = None) -> AutoChoice:
     """The pass id ``auto`` runs for a light of ``kind`` ("area" | "sphere" |
     "sun") and ``size`` (``Light.extent``) needing ``visibility``, under an
     RMSE ``budget``. ``table``: an AutoTable, a path, None (no table) or,
     by default, the packaged one. ``known``: the pass ids that can run (the
-    registry's, by default); others in the table are ignored."""
+    registry's, by default); others in the table are ignored. ``shape``:
+    the scene at hand (rule 5), or None to use the measured times as they are."""
     if visibility not in (AVERAGE, IRRADIANCE):
         raise ValueError(f"auto: visibility must be {AVERAGE!r} or {IRRADIANCE!r}, not {visibility!r}")
     budget = float(budget)
@@ -215,14 +301,32 @@ def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DE
         how = f"all measured scenes (none has a {kind} light)"
     names = [f"{s.scene} {s.size}" for s in matched]
     stats = {}
+    ref = REFERENCES[0] if visibility == AVERAGE else REFERENCES[1]
+    ref_rows = [s.methods.get(ref) for s in matched]
+    ref_t = None
+    if all(r is not None for r in ref_rows):
+        ref_t = sum(predicted_seconds(ref, r, s, shape) for r, s in zip(ref_rows, matched)) / len(matched)
+    slower = []
     for mid in known:
         if mid in REFERENCES:
             continue
         rows = [s.methods.get(mid) for s in matched]
         if any(r is None or r.get("visibility") != visibility for r in rows):
             continue
-        stats[mid] = (max(r["rmse"] for r in rows), sum(r["seconds"] for r in rows) / len(rows))
+        t = sum(predicted_seconds(mid, r, s, shape) for r, s in zip(rows, matched)) / len(rows)
+        if shape is not None and ref_t is not None and t > ref_t:
+            slower.append(mid)              # rule 5: slower than the reference here
+            continue
+        stats[mid] = (max(r["rmse"] for r in rows), t)
     where = f"{how}: {', '.join(names)}"
+    here = f"; for this scene ({shape.describe()}) " if shape is not None else ""
+    if slower:
+        here += f"{', '.join(sorted(slower))} predicted slower than {ref}"
+        if not stats:
+            return AutoChoice(ref, f"auto -> {ref}: the reference is fastest here, every measured method is "
+                                   f"predicted slower than its {_fmt_s(ref_t)} on {where}{here}",
+                              f"{ref}: reference fastest ({shape.triangles:,} triangles)", "reference is fastest",
+                              budget, visibility, 0.0, ref_t, names)
     if not stats:
         m = FALLBACK[visibility]
         return AutoChoice(m, f"auto -> {m}: documented fallback, the table measures no method of "
@@ -233,18 +337,20 @@ def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DE
         m = min(meet, key=lambda k: (stats[k][1], stats[k][0]))
         e, t = stats[m]
         return AutoChoice(m, f"auto -> {m}: cheapest measured method meeting the budget, worst RMSE "
-                             f"{e:.3f} <= {budget:g} in {_fmt_s(t)} on {where}",
+                             f"{e:.3f} <= {budget:g} in {_fmt_s(t)} on {where}{here}",
                           f"{m}: RMSE {e:.3f} <= {budget:g} ({scope})",
                           "meets budget", budget, visibility, e, t, names)
     m = min(stats, key=lambda k: (stats[k][0], stats[k][1]))
     e, t = stats[m]
     return AutoChoice(m, f"auto -> {m}: no measured method meets the budget {budget:g}; the most "
-                         f"accurate one, worst RMSE {e:.3f} in {_fmt_s(t)} on {where}",
+                         f"accurate one, worst RMSE {e:.3f} in {_fmt_s(t)} on {where}{here}",
                       f"{m}: most accurate, RMSE {e:.3f} > {budget:g}",
                       "most accurate", budget, visibility, e, t, names)
 
 
 def choose_for_light(light, visibility: str = AVERAGE, budget: float = DEFAULT_BUDGET,
-                     table=PACKAGED, known: Optional[Sequence[str]] = None) -> AutoChoice:
-    """``choose`` for a captured ``core.scene.Light``."""
-    return choose(light.kind, light.extent, visibility, budget, table, known)
+                     table=PACKAGED, known: Optional[Sequence[str]] = None, scene=None) -> AutoChoice:
+    """``choose`` for a captured ``core.scene.Light`` (of ``scene``, whose
+    shape then scales the measured times: rule 5)."""
+    shape = scene_shape(scene, light) if scene is not None else None
+    return choose(light.kind, light.extent, visibility, budget, table, known, shape)

@@ -166,7 +166,7 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
         mine = list(passes)
         if AUTO in passes:
             try:
-                choice = auto_choice.choose_for_light(lt, visibility, budget, auto_table)
+                choice = auto_choice.choose_for_light(lt, visibility, budget, auto_table, scene=scene)
             except ValueError as exc:                # bad budget / definition
                 raise PlanError(str(exc))
             mine = list(dict.fromkeys(choice.method if p == AUTO else p for p in passes))

@@ -178,9 +178,16 @@ def test_plan_resolves_auto_per_light_with_its_reason():
     assert rec["lights"][0]["auto"]["rule"] == "meets budget" and rec["lights"][0]["auto"]["budget"] == 0.1
     text = plan.describe()
     assert "auto -> pcf" in text and "auto -> single_sample" in text and "size zero" in text
-    # a tighter budget moves the area light to the accurate method
-    tight = make_plan(sc, ["auto"], ["Big"], error_budget=0.01, auto_table=t)
+    # a tighter budget moves the area light to the accurate method, unless
+    # it is slower than the reference (rule 5: here penumbra_casting's
+    # 0.05 s against embree's 0.004 s)
+    slow_ref = [dict(s, methods=dict(s["methods"], embree=dict(s["methods"]["embree"], seconds=1.0)))
+                for s in (AREA_A, AREA_B)]
+    tight = make_plan(sc, ["auto"], ["Big"], error_budget=0.01, auto_table=_table(*slow_ref, SPHERE))
     assert tight.lights[0].passes == ["penumbra_casting"]
+    tight = make_plan(sc, ["auto"], ["Big"], error_budget=0.01, auto_table=t)
+    assert tight.lights[0].passes != ["penumbra_casting"]
+    assert "penumbra_casting predicted slower than embree" in tight.lights[0].auto["reason"]
     # auto and an explicit id naming the same method: one pass
     assert make_plan(sc, ["auto", "pcf"], ["Big"], error_budget=0.1, auto_table=t).lights[0].passes == ["pcf"]
     # no table: the fallback, and the plan says so
@@ -197,3 +204,53 @@ def test_auto_is_asked_for_explicitly():
         resolve_passes("auto")
     with pytest.raises(PlanError, match="error budget"):
         make_plan(half_plane_scene(area_light(1.0), res=8), ["auto"], error_budget=0.0)
+
+
+# --------------------------------------------------------------------------
+# rule 5: the scene at hand (issue 17)
+def _shaped(scene, triangles, light_relative=0.2):
+    return dict(scene, triangles=triangles, light_relative=light_relative)
+
+
+def test_a_method_predicted_slower_than_the_reference_on_this_scene_is_not_picked():
+    fast_pc = _scene("a", "area", {"pcf": (0.002, 0.2), "penumbra_casting": (0.003, 0.004),
+                                   "embree": (0.004, 0.001)})
+    t = _table(_shaped(fast_pc, 4000))
+    small = ac.SceneShape(4000, 64 * 64, 0.2)
+    assert ac.choose("area", 1.0, budget=0.05, table=t, shape=small).method == "penumbra_casting"
+    big = ac.SceneShape(1_000_000, 1920 * 1080, 0.2)
+    c = ac.choose("area", 1.0, budget=0.05, table=t, shape=big)
+    # penumbra casting's time grows with the triangles, embree's with their log
+    assert ac.predicted_seconds("penumbra_casting", t.scenes[0].methods["penumbra_casting"], t.scenes[0], big) > \
+        ac.predicted_seconds("embree", t.scenes[0].methods["embree"], t.scenes[0], big)
+    assert c.method != "penumbra_casting"
+    assert "1,000,000 triangles" in c.reason and "predicted slower than embree" in c.reason
+    # nothing else meets the budget and nothing is faster: the reference itself
+    only_pc = _table(_shaped(_scene("a", "area", {"penumbra_casting": (0.003, 0.004), "embree": (0.004, 0.001)}),
+                             4000))
+    c = ac.choose("area", 1.0, budget=0.05, table=only_pc, shape=big)
+    assert (c.method, c.rule) == ("embree", "reference is fastest")
+    assert c.seconds > 0.004 and "1,000,000 triangles" in c.reason
+
+
+def test_a_larger_light_and_more_pixels_scale_the_prediction():
+    sc = ac.parse_table({"format": ac.TABLE_FORMAT, "reference": "t",
+                         "scenes": [_shaped(AREA_A, 4000, 0.1)]}).scenes[0]
+    row = sc.methods["penumbra_casting"]
+    base = ac.predicted_seconds("penumbra_casting", row, sc, ac.SceneShape(4000, 64 * 64, 0.1))
+    assert base == pytest.approx(row["seconds"])
+    assert ac.predicted_seconds("penumbra_casting", row, sc, ac.SceneShape(4000, 64 * 64, 0.4)) > 2 * base
+    assert ac.predicted_seconds("penumbra_casting", row, sc, ac.SceneShape(4000, 128 * 128, 0.1)) > 2 * base
+    # a table scene without its triangle count: times used as measured
+    bare = _table(AREA_A).scenes[0]
+    assert ac.predicted_seconds("penumbra_casting", row, bare, ac.SceneShape(10 ** 6, 10 ** 7, 1.0)) == row["seconds"]
+
+
+def test_the_plan_reason_names_the_scene_shape():
+    scene = half_plane_scene(area_light(1.0), res=32)
+    t = _table(_shaped(AREA_A, 4), _shaped(AREA_B, 4))
+    plan = make_plan(scene, ["auto"], auto_table=t)
+    reason = plan.lights[0].auto["reason"]
+    shape = ac.scene_shape(scene, scene.lights[0])
+    assert shape.triangles == int(scene.tri_casts_shadow.sum()) and shape.pixels == 32 * 32
+    assert f"{shape.triangles:,} triangles" in reason and "Mpx" in reason

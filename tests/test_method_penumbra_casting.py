@@ -323,17 +323,18 @@ def test_hard_cases_finite_and_exact(case):
 # --------------------------------------------------------------------------
 # building blocks
 def _random_blocker(rng, nb):
-    """A random triangle (nb = 3), or a random convex planar quad (nb = 4):
-    corners on an ellipse at sorted angles, in a randomly turned plane;
-    returned as float64[MAXB, 3] with the last corner repeated."""
+    """A random triangle (nb = 3), or a random convex planar polygon (nb = 4,
+    6: a quad, a leaf's hexagon): corners on an ellipse at sorted angles, in
+    a randomly turned plane; returned as float64[MAXB, 3] with the last
+    corner repeated."""
     if nb == 3:
         tri = rng.normal(0, 1, (3, 3))
     else:
-        ang = np.sort(rng.uniform(0, 2 * np.pi, 4))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, nb))
         while np.diff(np.concatenate([ang, [ang[0] + 2 * np.pi]])).max() > 0.9 * np.pi:
-            ang = np.sort(rng.uniform(0, 2 * np.pi, 4))
+            ang = np.sort(rng.uniform(0, 2 * np.pi, nb))
         ab = rng.uniform(0.3, 1.5, 2)
-        flat = np.stack([ab[0] * np.cos(ang), ab[1] * np.sin(ang), np.zeros(4)], axis=1)
+        flat = np.stack([ab[0] * np.cos(ang), ab[1] * np.sin(ang), np.zeros(nb)], axis=1)
         rot, _ = np.linalg.qr(rng.normal(0, 1, (3, 3)))
         tri = flat @ rot.T + rng.normal(0, 0.5, 3)
     out = np.empty((MAXB, 3))
@@ -364,7 +365,7 @@ def _segment_crosses(poly, nb, r, l, margin=1e-9):
     return hit
 
 
-@pytest.mark.parametrize("nb", [3, 4])
+@pytest.mark.parametrize("nb", [3, 4, 6])
 def test_penumbra_volume_contains_every_hard_volume(nb):
     """Random blockers (triangles; convex quads, section 5), light polygons
     (finite and directional) and points: whenever a sample in the polygon
@@ -407,7 +408,7 @@ def test_penumbra_volume_contains_every_hard_volume(nb):
     assert hits > 300
 
 
-@pytest.mark.parametrize("nb", [3, 4])
+@pytest.mark.parametrize("nb", [3, 4, 6])
 def test_hard_volume_is_the_segment_test(nb):
     """V_l holds r iff the segment from r to l crosses T (Moller-Trumbore on
     T, or on the two triangles of a convex quad)."""

@@ -33,14 +33,19 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
   instead (per triangle, per set and group on first need under C); the two
   agree exactly except for rays within rounding of an edge.
 * Blockers (``blockers``, ``coplanar_blockers``): edge-adjacent
-  triangles in one plane that form a convex polygon of up to 4 corners are
+  triangles in one plane that form a convex polygon of up to ``MaxCorners``
+  (6: a leaf's hexagon; 4: the earlier quads) corners are
   cast as that polygon, the simplest case of the paper's section 5 suggestion
   to process several blocker triangles at once: one traversal and one
   penumbra volume instead of one per triangle, and no false penumbra along
   the inner edges. The union is the polygon, so the blocked relations are
   the same up to rays within rounding of a removed inner edge (tested).
-  A quad costs a fifth linear form per sample test. Off: the paper's
+  A polygon costs one linear form per corner per sample test. Off: the paper's
   per-triangle algorithm.
+* Interior blockers (``interior_blockers``, module ``cores``): convex
+  polygons inside the slice of every closed mesh, cast first; they block only
+  relations the mesh blocks, and put most umbra receivers in full umbra before
+  the mesh's small triangles are cast (issue 17: 1M-triangle smooth solids).
 * Triangles that cannot shadow a visible receiver never enter the
   traversal: a bounding-box test against the hull of the light and the
   receivers, then V_L against the receivers' bounding box.
@@ -84,9 +89,10 @@ from ...kernels import each_in_threads
 from ..registry import register
 from .alpha_blockers import split_blockers, transmitted_visibility
 from .blockers import MAXB, coplanar_blockers, pad_triangles
-from .cast import (N_ST, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LIVE, ST_NODES, ST_PEAK,
-                   ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers, CastSwitches,
-                   Hierarchy, LightGroups, Masks, Receivers, UmbraBits, cast_chunk, chunk_visibility)
+from .cores import interior_blockers
+from .cast import (N_ST, ST_GROUP_TESTS, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LEAF_VISITS, ST_LIVE,
+                   ST_NODES, ST_PEAK, ST_PAIRS, ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers,
+                   CastSwitches, Hierarchy, LightGroups, Masks, Receivers, UmbraBits, cast_chunk, chunk_visibility)
 from .geometry import MAXP, _newell, box_vs_volume, penumbra_volume
 from .hierarchy import build_hierarchy, node_umbra_bits
 from .light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, LightSamples, all_sample_points,
@@ -108,6 +114,8 @@ class PenumbraCastingParams:
     masks_on_demand: bool = True      # optimization D
     coarse_sort: bool = True          # coarse blocker sorting by area, largest first
     coplanar_blockers: bool = True    # cast coplanar convex triangle groups as one polygon (section 5)
+    MaxCorners: int = 6               # corners of a merged blocker (<= MAXB; 4: quads, the earlier merge)
+    interior_blockers: bool = True    # convex slices inside closed meshes, cast first (``cores``)
     SortBuckets: int = 32             # area buckets (paper: a histogram; count not given)
     RebuildFraction: float = 0.25     # A, line 29: the paper's "large enough fraction" (not given)
     shared_samples_with_reference: bool = False   # the embree reference's own per-pixel samples
@@ -377,7 +385,20 @@ class _Chunk:
     cast_s: float = 0.0
     rebuilds: int = 0
     hier_nodes_peak: int = 0
+    leaves: int = 0
     V: np.ndarray = None
+
+
+def _light_box(L: LightSetup):
+    """``cores.interior_blockers``' view of the light: (centre, direction,
+    box lo, box hi); the sun's samples are at infinity (no box)."""
+    verts = L.DVL[:L.nvl]
+    if L.lp[0] == sampling.KIND_SUN and L.mode != MODE_SPHERE:
+        d = verts[:, :3].mean(0) if L.nvl else np.zeros(3)
+        return None, d, None, None
+    fin = verts[verts[:, 3] != 0.0, :3]
+    pts = np.vstack([fin, L.centre[None, :]])
+    return L.centre, None, pts.min(0), pts.max(0)
 
 
 def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: PhaseTimer,
@@ -424,9 +445,17 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         cand_tris = tris[inbox]
     with timer("merge"):
         if params.coplanar_blockers:
-            cand, cand_nv, _ = coplanar_blockers(cand_tris)
+            cand, cand_nv, _ = coplanar_blockers(cand_tris, params.MaxCorners)
         else:
             cand, cand_nv = pad_triangles(cand_tris)
+    n_cores = 0
+    if params.interior_blockers and len(cand_tris):
+        with timer("cores"):             # every triangle: the box cull may open a closed mesh
+            cores, cores_nv = interior_blockers(tris, *_light_box(L))
+            n_cores = len(cores)
+            if n_cores:
+                cand = np.concatenate([cores, cand])
+                cand_nv = np.concatenate([cores_nv, cand_nv])
     with timer("cull"):
         # V_L of every candidate, in batches (bounds the MAXP-wide temporary);
         # survivors keep only as many plane slots as they use
@@ -455,6 +484,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         blockers = np.ascontiguousarray(np.concatenate(blocker_parts)) if blocker_parts \
             else np.zeros((0, MAXB, 3))
         blocker_nv = np.ascontiguousarray(np.concatenate(nv_parts)) if nv_parts else np.zeros(0, np.int64)
+    stats["interior_blockers"] = int(n_cores)
     stats["triangles_box_culled"] = int(len(tris) - len(cand_tris))
     stats["blocker_polygons"] = int(len(cand))
     stats["triangles_volume_culled"] = int(len(cand) - len(blockers))   # blockers (polygons)
@@ -498,6 +528,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         c.hier = c.hier._replace(perm=np.arange(m, dtype=np.int64))
         nn = len(c.hier.left)
         c.hier_nodes_peak = nn
+        c.leaves = int((c.hier.left < 0).sum())
         c.fu = np.zeros(m, np.uint8)
         c.gu = np.zeros((m, L.G), np.uint8)
         c.node_gu = np.zeros((nn, L.G), np.uint8)
@@ -570,6 +601,14 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         "triangles_with_group_volumes": int(st[ST_GROUP_VOLUMES]),
         "hard_volumes_built": int(st[ST_HARD_BUILT]),
         "triangles_root_culled": int(st[ST_ROOT_CULLED]),
+        # where the cast time goes (issue 17): blockers per receiver leaf and per
+        # receiver, penumbra volume (V_Gk) tests and per-sample tests
+        "leaf_visits": int(st[ST_LEAF_VISITS]),
+        "receiver_blocker_pairs": int(st[ST_PAIRS]),
+        "group_volume_tests": int(st[ST_GROUP_TESTS]),
+        "blockers_per_leaf": float(st[ST_LEAF_VISITS] / max(1, sum(c.leaves for c in chunks))),
+        "blockers_per_receiver": float(st[ST_PAIRS] / max(1, n)),
+        "sample_tests_per_relation": float(st[ST_HARD_TESTS] / max(1, n * L.S)),
     })
     return V, stats
 

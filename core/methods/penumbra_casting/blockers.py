@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .geometry import MAXB     # corners per blocker polygon (quads: a fifth plane test per sample)
+from .geometry import MAXB     # corners per blocker polygon (one more plane test per sample and corner)
 
 PLANE_ULPS = 4.0    # coplanarity / collinearity tolerance in float32 ULPs
 _ULP32 = 2.0 ** -23
@@ -263,10 +263,12 @@ def _unique_vertices(V: np.ndarray):
     return np.ascontiguousarray(s[first]), inv
 
 
-def coplanar_blockers(tris: np.ndarray):
+def coplanar_blockers(tris: np.ndarray, max_corners: int = MAXB):
     """Merge edge-adjacent coplanar triangles float64[T,3,3] into convex
-    polygons; returns (polys float64[M, MAXB, 3], nverts int64[M],
-    poly_of int64[T]: the polygon holding each triangle)."""
+    polygons of at most ``max_corners`` (3..MAXB) corners; returns (polys
+    float64[M, MAXB, 3], nverts int64[M], poly_of int64[T]: the polygon
+    holding each triangle)."""
+    max_corners = min(MAXB, max(3, int(max_corners)))
     tris = np.ascontiguousarray(tris, np.float64)
     n = len(tris)
     if n == 0:
@@ -274,6 +276,8 @@ def coplanar_blockers(tris: np.ndarray):
     P, inv = _unique_vertices(tris.reshape(-1, 3))
     ids = np.ascontiguousarray(inv.reshape(n, 3), np.int64)
     nbr = _adjacency(ids)
-    vid, nv, poly_of = _grow(P, ids, nbr, MAXB, PLANE_ULPS)
+    vid, nv, poly_of = _grow(P, ids, nbr, max_corners, PLANE_ULPS)
+    if max_corners < MAXB:                           # the last corner repeated
+        vid = np.concatenate([vid, np.repeat(vid[:, -1:], MAXB - max_corners, 1)], 1)
     polys = P[vid]                                   # [M, MAXB, 3]
     return np.ascontiguousarray(polys), nv, poly_of

@@ -56,6 +56,9 @@ ST_GROUP_VOLUMES = 9    # triangles whose group volumes were built
 ST_HARD_BUILT = 10      # hard volumes built
 ST_SLOTS = 11           # mask slots handed out (pool rows ever touched)
 ST_ROOT_CULLED = 12     # triangles culled at the root
+ST_LEAF_VISITS = 13     # (blocker, leaf node) pairs reaching a leaf's points
+ST_PAIRS = 14           # (blocker, receiver) pairs inside V_L (the receiver's blocker count)
+ST_GROUP_TESTS = 15     # point-vs-V_Gk penumbra volume tests
 N_ST = 16
 
 # argument groups of ``cast_chunk``
@@ -133,20 +136,37 @@ def _coefficients(ef, tn, rho, mode, r, M, centre, co):
 
 
 @njit(cache=True, inline="always")
-def _word_tests(T4, j, a, e, base, co, quad):
-    """Bits [a, e) of one 64-bit mask word: sample i blocked by T (three edge
-    forms and the plane for a triangle, four for a quad)."""
+def _word_tests(T4, j, a, e, base, co, nb):
+    """Bits [a, e) of one 64-bit mask word: sample i blocked by T (the edge
+    forms and the plane: three edges for a triangle, four for a quad, MAXB
+    for a larger polygon, whose missing edges are zero rows that pass)."""
     u0x, u0y, u0z, c0 = co[0], co[1], co[2], co[3]
     u1x, u1y, u1z, c1 = co[4], co[5], co[6], co[7]
     u2x, u2y, u2z, c2 = co[8], co[9], co[10], co[11]
     u3x, u3y, u3z, c3 = co[12], co[13], co[14], co[15]
-    tx, ty, tz, tc = co[16], co[17], co[18], co[19]
+    u4x, u4y, u4z, c4 = co[16], co[17], co[18], co[19]
+    u5x, u5y, u5z, c5 = co[20], co[21], co[22], co[23]
+    P0 = 4 * MAXB
+    tx, ty, tz, tc = co[P0], co[P0 + 1], co[P0 + 2], co[P0 + 3]
     # unsigned indices and shifts: no negative-index wraparound or
     # out-of-range-shift selects in the loop body, so LLVM vectorizes it
     ua = np.uint64(a)
     sh = np.uint64(a - base)
     acc = np.uint64(0)
-    if quad:
+    if nb > 4:
+        for k in range(np.uint64(e - a)):
+            i = ua + k
+            px, py, pz, pw = T4[j, 0, i], T4[j, 1, i], T4[j, 2, i], T4[j, 3, i]
+            v0 = u0x * px + u0y * py + u0z * pz - c0 * pw
+            v1 = u1x * px + u1y * py + u1z * pz - c1 * pw
+            v2 = u2x * px + u2y * py + u2z * pz - c2 * pw
+            v3 = u3x * px + u3y * py + u3z * pz - c3 * pw
+            v4 = u4x * px + u4y * py + u4z * pz - c4 * pw
+            v5 = u5x * px + u5y * py + u5z * pz - c5 * pw
+            sp = tx * px + ty * py + tz * pz - tc * pw
+            blk = (v0 >= 0.0) & (v1 >= 0.0) & (v2 >= 0.0) & (v3 >= 0.0) & (v4 >= 0.0) & (v5 >= 0.0) & (sp > 0.0)
+            acc |= np.uint64(blk) << (k + sh)
+    elif nb == 4:
         for k in range(np.uint64(e - a)):
             i = ua + k
             px, py, pz, pw = T4[j, 0, i], T4[j, 1, i], T4[j, 2, i], T4[j, 3, i]
@@ -333,6 +353,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
                 sp += 2
                 continue
             # leaf: lines 56-80
+            st[ST_LEAF_VISITS] += 1
             for q in range(start[node], start[node] + count[node]):
                 r = perm[q]
                 if (optA or optD) and fu[r]:                             # line 57
@@ -341,6 +362,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
                 st[ST_POINT_TESTS] += 1
                 if not point_in_volume(VL, k, nL, PLv[nl], x, y, z, tol):  # line 58
                     continue
+                st[ST_PAIRS] += 1
                 if slot[r] < 0:                                          # line 59 (D)
                     if st[ST_FREE] > 0:
                         st[ST_FREE] -= 1
@@ -369,6 +391,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
                         continue
                     if optA and gu[r, g]:                                # line 66
                         continue
+                    st[ST_GROUP_TESTS] += 1
                     if not point_in_volume(VG, g, nVG[g], act[nl, g], x, y, z, tol):  # line 67
                         continue
                     if planes and hv_stamp[j, g] != stamp:
@@ -410,7 +433,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
                         for w in range(i0 >> 6, ((i1 - 1) >> 6) + 1):
                             a = max(i0, w << 6)
                             e = min(i1, (w + 1) << 6)
-                            pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co, nb > 3)
+                            pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co, nb)
                             st[ST_HARD_TESTS] += e - a
                     if optA:                                             # line 72
                         if _bits_full(pool, sl, g_start[g], g_start[g + 1]):

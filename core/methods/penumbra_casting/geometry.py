@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit
 
 MAXP = 31          # planes kept per penumbra volume (cap first); bit masks fit int64
-MAXB = 4           # corners of a blocker polygon
+MAXB = 6           # corners of a blocker polygon (a leaf's hexagon; ``MaxCorners`` picks up to this)
 ALL = np.int64(-1)  # active plane set token "ALL" (every bit set)
 
 

@@ -1,0 +1,113 @@
+"""Issue 17's levers of penumbra_casting: interior blockers of closed meshes
+(``cores``), leaf hexagons (``MaxCorners``), and the casting with both
+against Embree's rays to the same light samples. No bpy."""
+import numpy as np
+import pytest
+
+from penumbra.bench.scaling import bulge_split, uv_sphere_triangles
+from penumbra.core.methods.penumbra_casting.blockers import coplanar_blockers
+from penumbra.core.methods.penumbra_casting.cores import interior_blockers
+from penumbra.core.scene import Camera, ObjectInfo, Scene
+from penumbra.core.views import look_rotation
+from synthetic import area_light, quad, sun_light
+from test_method_penumbra_casting import assert_exact, own_rays, run_pc
+
+LIGHT = dict(light_point=np.array([3.0, -2.0, 5.0]), light_dir=None,
+             light_lo=np.array([2.5, -2.5, 5.0]), light_hi=np.array([3.5, -1.5, 5.0]))
+
+
+def _sphere(n=4000, centre=(0.0, 0.0, 1.0), radius=1.0):
+    return uv_sphere_triangles(n, radius, centre).astype(np.float64)
+
+
+def test_interior_blockers_lie_inside_the_closed_sphere_and_are_convex():
+    polys, nv = interior_blockers(_sphere(), **LIGHT)
+    assert len(polys) >= 2
+    d = np.linalg.norm(polys - [0.0, 0.0, 1.0], axis=2)
+    # inside the sphere, and inside its polygonal (inscribed) tessellation
+    assert d.max() < 1.0 - 1e-5 and d.min() > 0.9
+    # one plane, perpendicular to the direction from the light to the centre
+    n = np.array([0.0, 0.0, 1.0]) - LIGHT["light_point"]
+    n /= np.linalg.norm(n)
+    h = polys.reshape(-1, 3) @ n
+    assert np.ptp(h) < 1e-9
+    # the union of the fan is about the slice's area (16 corners of a circle)
+    area = 0.0
+    for p, k in zip(polys, nv):
+        for j in range(1, k - 1):
+            area += 0.5 * np.linalg.norm(np.cross(p[j] - p[0], p[j + 1] - p[0]))
+    assert 0.9 * np.pi * 0.98 < area < np.pi
+
+
+def test_no_interior_blockers_for_open_meshes_or_a_light_inside():
+    sph = _sphere()
+    assert len(interior_blockers(sph[1:], **LIGHT)[0]) == 0            # a hole: not closed
+    inside = dict(LIGHT, light_lo=np.array([-0.2, -0.2, 0.8]), light_hi=np.array([0.2, 0.2, 1.2]))
+    assert len(interior_blockers(sph, **inside)[0]) == 0               # the light may be in the solid
+    two = np.concatenate([sph, _sphere(centre=(0.0, 0.0, 3.5))])
+    assert len(interior_blockers(two, **LIGHT)[0]) >= 4                # one fan per closed sphere
+    sun = interior_blockers(sph, None, np.array([0.3, 0.2, -1.0]), None, None)
+    assert len(sun[0]) >= 2                                             # at infinity: always outside
+
+
+def _leaf_fans(rng, n):
+    """``n`` flat convex hexagonal leaves, each a fan of 4 triangles."""
+    h, L = 0.2, 0.5
+    leaf = np.array([[0, 0, 0], [-h, 0.3 * L, 0], [-0.8 * h, 0.65 * L, 0], [0, L, 0], [0.8 * h, 0.65 * L, 0],
+                     [h, 0.3 * L, 0]])
+    fan = leaf[[[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]]]
+    out = []
+    for _ in range(n):
+        rot, _ = np.linalg.qr(rng.normal(0, 1, (3, 3)))
+        out.append(fan @ rot.T + rng.uniform([-2, -2, 0.8], [2, 2, 2.2]))
+    return np.concatenate(out)
+
+
+def test_a_leaf_hexagon_is_one_blocker_and_quads_are_the_earlier_merge():
+    leaves = _leaf_fans(np.random.default_rng(2), 30)
+    polys, nv, poly_of = coplanar_blockers(leaves)
+    assert len(polys) == 30 and (nv == 6).all()
+    polys4, nv4, _ = coplanar_blockers(leaves, 4)
+    assert len(polys4) == 60 and (nv4 == 4).all()
+    assert polys4.shape[1] == polys.shape[1]                  # padded to MAXB: the same kernels
+
+
+def _mixed_scene(light, res=48):
+    """Ground, curved split leaves, hexagon leaves and a closed smooth sphere."""
+    rng = np.random.default_rng(7)
+    leaves = _leaf_fans(rng, 40)
+    curved = bulge_split(_leaf_fans(rng, 10) + [0.0, 0.0, 0.3], 1, 0.15)
+    sph = uv_sphere_triangles(3000, 0.7, (0.8, 0.5, 1.2))
+    tris = np.concatenate([np.array(quad(-6, 6, -6, 6, 0.0)), leaves, curved, sph]).astype(np.float32)
+    m = np.eye(4)
+    eye = np.array([5.0, -6.0, 6.0])
+    m[:3, :3] = look_rotation(-eye)
+    m[:3, 3] = eye
+    return Scene(tris, np.zeros(len(tris), np.int32), [ObjectInfo("all", 0)], Camera(m, lens=35.0), [light],
+                 (res, res))
+
+
+@pytest.mark.parametrize("light", [area_light(1.5, z=5.0), sun_light(0.1)], ids=["area", "sun"])
+def test_hexagons_and_interior_blockers_block_exactly_embrees_rays(light):
+    """Every relation the casting marks is a segment Embree finds blocked,
+    with the new levers on (the defaults), and they change nothing against
+    the paper's per-triangle casting beyond rays grazing an edge."""
+    scene = _mixed_scene(light)
+    fb, setup, V, stats = run_pc(scene)
+    assert stats["interior_blockers"] >= 2
+    assert_exact(V, own_rays(fb, setup), setup.light.S)
+    _, _, V_paper, st_paper = run_pc(scene, MaxCorners=4, interior_blockers=False, coplanar_blockers=False)
+    assert st_paper["interior_blockers"] == 0 and st_paper["blockers"] > stats["blockers"]
+    assert_exact(V, V_paper, setup.light.S)
+
+
+def test_a_concave_slice_gives_no_polygon():
+    from penumbra.core.methods.penumbra_casting.cores import _convex_fan
+    a = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    normal = np.array([0.0, 0.0, 1.0])
+    circle = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1)
+    fan = _convex_fan(circle, normal)
+    assert fan is not None and (fan[1] >= 3).all()
+    star = circle * (1.0 + 0.4 * (np.cos(5 * a) > 0.95))[:, None]       # five thin spikes
+    dent = circle * (1.0 - 0.3 * np.exp(-((a - 1.0) / 0.2) ** 2))[:, None]   # one dent
+    assert _convex_fan(star, normal) is None and _convex_fan(dent, normal) is None
