@@ -220,12 +220,13 @@ def cube_faces(eye, receivers, map_size, allowed=None) -> List[ViewFace]:
 
 
 def light_view_faces(light: Light, receivers: np.ndarray, scene_bounds, map_size: int,
-                     eye: np.ndarray | None = None) -> List[ViewFace]:
+                     eye: np.ndarray | None = None, sun_pad: float | None = None) -> List[ViewFace]:
     """The faces of one light's view, fitted to the visible ``receivers``.
 
     * sun: one orthographic face along the sun direction, window fitted to the
       receivers (padded by the penumbra the sun's angle can throw across the
-      scene's depth), view origin beyond the scene so every caster is in front;
+      scene's depth; ``sun_pad`` scene units instead), view origin beyond the
+      scene so every caster is in front;
     * spot and area lights: one perspective face along the light's axis while
       the receivers fit within 60 degrees of it, otherwise cube faces;
     * point lights: the cube faces that see receivers.
@@ -245,7 +246,7 @@ def light_view_faces(light: Light, receivers: np.ndarray, scene_bounds, map_size
         origin = center - fwd * (diag + 1e-6 * diag)   # every caster lies in front
         vfw = view_from_world(rot, origin)
         p = receivers @ vfw[:3, :3].T + vfw[:3, 3]
-        pad = light.sun_spread * diag
+        pad = light.sun_spread * diag if sun_pad is None else float(sun_pad)
         l, r = _padded(p[:, 0].min() - pad, p[:, 0].max() + pad, FIT_MARGIN)
         b, t = _padded(p[:, 1].min() - pad, p[:, 1].max() + pad, FIT_MARGIN)
         eps = 1e-6 * diag

@@ -1,6 +1,8 @@
 """Scenes built in code (no bpy) for the core tests."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from penumbra.core.scene import Camera, Light, ObjectInfo, Scene
@@ -99,6 +101,27 @@ def make_scene(tris, ids, lights, res=48, camera=None, names=("ground", "occlude
     tris = np.asarray(tris, np.float32).reshape(-1, 3, 3)
     return Scene(tris, np.asarray(ids, np.int32), objs, camera or top_ortho_camera(2.0),
                  list(lights), (res, res))
+
+
+def sun_pillars_scene(res=64, width=0.06, height=1.2, spacing=0.6, count=3, elevation_deg=20.0,
+                      angle_deg=4.0, ground=20.0):
+    """Issue 17's sun case in small: ``count`` thin square pillars (``width``
+    wide, ``height`` tall, ``spacing`` apart along y at x = 0) on a wide ground,
+    a sun of ``angle_deg`` from -X at ``elevation_deg`` (shadows
+    height / tan(elevation) long towards +X), a perspective camera seeing the
+    ground far beyond the shadows (so the receivers span many metres)."""
+    ys = (np.arange(count) - 0.5 * (count - 1)) * spacing
+    h = 0.5 * width
+    tris = quad(-ground, ground, -ground, ground, 0.0)
+    for y in ys:
+        tris += box(-h, h, y - h, y + h, 0.0, height)
+    ids = [0, 0] + [1] * (len(tris) - 2)
+    el = math.radians(elevation_deg)
+    fwd = (math.cos(el), 0.0, -math.sin(el))
+    sun = Light("Sun", "sun", light_matrix((-10.0, 0.0, 10.0 * math.tan(el)), fwd), blender_type="SUN",
+                angle=math.radians(angle_deg))
+    cam = persp_camera((3.0, -2.5, 2.5), (2.5, 0.0, 0.0), lens=24.0)
+    return make_scene(tris, ids, [sun], res, cam, names=("ground", "pillars"))
 
 
 def scaled_scene(scene: Scene, s: float) -> Scene:

@@ -72,7 +72,13 @@ Departures / choices, each documented where it is made:
   * cube faces (wide point / spot / area lights) overlap by 3 texels and the
     outermost texel ring of every face is not traced (``maps``);
   * reset of the prediction when the previous point is farther than
-    ``reset_pixels`` camera-pixel footprints (5.2.1 gives no value).
+    ``reset_pixels`` camera-pixel footprints (5.2.1 gives no value);
+  * a sun's orthographic views are fitted to the geometry the receivers'
+    rays can pass behind, not to every receiver (``fit_window``, ``window``;
+    the paper leaves view placement open, footnote 4): on
+    ``sun_pillars`` a texel drops from 5.7 to 1.1 cm, RMSE 0.027 -> 0.007
+    (penumbra 0.067 -> 0.020); ``fit_window="receivers"`` is the first
+    version, bit for bit.
 
 Known failure (the stress suite's ``huge_area_light``: a 50-unit light 2
 units above a 20-unit occluder; +0.20 too bright, the irradiance pass +0.40
@@ -126,6 +132,7 @@ class DepthRaytraceParams:
     # reference images (5.1)
     map_scale: float = 2.0        # map side / output side: the paper's 1024^2 maps for 512^2 images
     map_size: Optional[int] = None  # overrides map_scale
+    fit_window: str = "blockers"  # sun: windows fitted to what can block ("receivers": the first version; ``window``)
     ref_points: int = 4           # boundary points for disk / ellipse / sun (rectangle: its 4 corners)
     shadow_bias: Optional[float] = None  # scene units; None = bias_texels + slope_bias terms
     bias_texels: float = 0.5      # constant part, in texel footprints at the texel's depth
@@ -567,7 +574,7 @@ class DepthRaytrace(Method):
         W, H = buffers.width, buffers.height
         return build_reference_maps(buffers, light, resolve_map_size(params, W, H), params.ref_points,
                                     params.shadow_bias, params.bias_texels, params.slope_bias,
-                                    params.gap_bias, params.gap_texels)
+                                    params.gap_bias, params.gap_texels, fit_window=params.fit_window)
 
 
 # ---------------------------------------------------------------------------

@@ -23,7 +23,8 @@
   window is fitted to the visible receivers *and* to the shadow-casting
   vertices inside the bounding box of receivers and light: an occluder the
   camera does not see (off screen, hidden) still has to be in the map for the
-  rays that cross it.
+  rays that cross it. A sun's orthographic windows are fitted to what the
+  receivers' rays can pass behind instead (``window``, ``fit_window``).
 
 * Per map: the floor depths with the shadow bias added (``Zp``), the min / max
   depth quadtrees and the connectedness quadtree (section 5.1.1, "Hierarchical
@@ -57,6 +58,7 @@ from numba import njit
 
 from ... import views
 from ...scene import Light, ViewFace
+from .window import blocker_points
 
 # packed face layout: ViewFace.packed() (24) then these
 FP_FOOT = 24      # texel footprint: per unit depth (perspective) or absolute (ortho)
@@ -287,17 +289,52 @@ def _levels(w: int, h: int):
     return K, dims
 
 
+def _sun_blockers(buffers, light: Light, pts: np.ndarray, casters: np.ndarray, bounds, map_size: int, bias):
+    """(fit points, pad) of a sun's windows for ``fit_window="blockers"``
+    (``window``): the blocker texels of one view along the sun's centre
+    direction fitted to ``pts`` (the receivers), padded by 2 of its texels;
+    (pts, None) - the receivers' window - when nothing can be blocked."""
+    faces = views.light_view_faces(light, pts, bounds, map_size)
+    if not faces:
+        return pts, None
+    face = faces[0]
+    depth = buffers.sample_view(faces, light.position).depth[0]
+    l, r, b, t = face.bounds
+    foot = 0.5 * ((r - l) / face.width + (t - b) / face.height)
+    floors = np.empty(depth.shape, np.float32)
+    _biased(depth, False, foot, *bias, floors)
+    g = buffers.gbuffer
+    blk = blocker_points(face, depth, floors, g.position[g.hit], light.sun_half_angle, casters)
+    if not len(blk):
+        return pts, None
+    return blk, 2.0 * foot
+
+
 def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
                          bias_abs: Optional[float], bias_texels: float, slope_bias: float,
                          gap_abs: Optional[float], gap_texels: float,
-                         threads: Optional[int] = None) -> ReferenceMaps:
+                         threads: Optional[int] = None, fit_window: str = "blockers") -> ReferenceMaps:
+    """``fit_window`` (suns only): "blockers" fits the orthographic windows to
+    the geometry the receivers' rays can pass behind (``window``),
+    "receivers" to every visible receiver (the method's first version)."""
+    if fit_window not in ("blockers", "receivers"):
+        raise ValueError(f"depth_raytrace: unknown fit_window {fit_window!r}")
     scene = buffers.scene
     buffers.shadow_scene      # built here, not in the render threads
     eyes = reference_eyes(light, ref_points)
     casters = buffers.shadow_triangles[0].reshape(-1, 3).astype(np.float64)
     pts = fit_points(buffers, light, casters)
     bounds = scene.bounds()
-    face_lists = [[_overlapping(f) for f in views.light_view_faces(lt, pts, bounds, map_size, eye)]
+    ga = float(gap_abs) if gap_abs is not None else 0.0
+    gt = 0.0 if gap_abs is not None else float(gap_texels)
+    ba = float(bias_abs) if bias_abs is not None else 0.0
+    bt = 0.0 if bias_abs is not None else float(bias_texels)
+    sb = 0.0 if bias_abs is not None else float(slope_bias)
+    pad = None
+    if light.kind == "sun" and fit_window == "blockers" and len(pts):
+        pts, pad = _sun_blockers(buffers, light, pts, buffers.shadow_triangles[0], bounds, map_size,
+                                 (ba, bt, sb, ga, gt))
+    face_lists = [[_overlapping(f) for f in views.light_view_faces(lt, pts, bounds, map_size, eye, pad)]
                   for eye, lt in eyes]
 
     def render(k):
@@ -345,11 +382,6 @@ def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
         persp = not face.ortho
         depth = lvs[e].depth[fi]
         foot = fp[n, FP_FOOT]
-        ga = float(gap_abs) if gap_abs is not None else 0.0
-        gt = 0.0 if gap_abs is not None else float(gap_texels)
-        ba = float(bias_abs) if bias_abs is not None else 0.0
-        bt = 0.0 if bias_abs is not None else float(bias_texels)
-        sb = 0.0 if bias_abs is not None else float(slope_bias)
         zp = np.empty(depth.shape, np.float32)
         _biased(depth, persp, foot, ba, bt, sb, ga, gt, zp)
         K = int(fp[n, FP_K])
