@@ -145,16 +145,11 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
     single_sample, with nothing changed and with the light moved before each
     run (its view is rebuilt); beside raw embreex for the camera's rays and
     with the phases of the median run in the row's name."""
-    import bpy
-    from .. import register, unregister
     from ..bridge import buffer_cache
     from ..bridge.images import combine, show_preview
     from ..bridge.pipeline import FrameRequest, prepare_frame
     res = (480, 270) if quick else (1920, 1080)
     rows = []
-    ours = not hasattr(bpy.types.Light, "penumbra")
-    if ours:
-        register()                        # the light settings and the depsgraph handler
     threads = numba.get_num_threads()
     captured = load_sample(name, res)
     raw = raw_embree_seconds(raycast.TriangleScene.from_scene(captured, captured.tri_visible_camera),
@@ -162,8 +157,6 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
     scene = open_sample(name)             # after load_sample, which opens the file too
     light = next(o for o in scene.objects if o.type == "LIGHT")
     for method in ("pcf", "single_sample"):
-        for lt in bpy.data.lights:
-            lt.penumbra.method = method
         buffer_cache.invalidate()
         for moved in (False, True):
             runs = []
@@ -174,7 +167,8 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
                     light.location.x += 0.05 * sign[0]
                     sign[0] = -sign[0]
                 t0 = time.perf_counter()
-                job = prepare_frame(scene, FrameRequest(resolution=res, fast=True, references=(), threads=threads))
+                job = prepare_frame(scene, FrameRequest(resolution=res, fast=True, methods=[method], references=(),
+                                                        threads=threads))
                 t1 = time.perf_counter()
                 job.run()
                 result = job.result()
@@ -195,8 +189,7 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
                                     f"{', '.join(parts)} s",
                              rays=res[0] * res[1], threads=threads, embree_1t_s=raw, seconds=total,
                              ratio=total / raw, target=f"<= {PREVIEW_TARGET_S} s"))
-    if ours:
-        unregister()
+    buffer_cache.unwatch()                # prepare_frame installed the depsgraph handler
     return rows
 
 
