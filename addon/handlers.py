@@ -19,6 +19,9 @@ renders, ``bridge.cycles_reference.is_rendering()``). Errors never stop the rend
 prints one ``Penumbra: ...`` line and is kept in :data:`state`.
 Per-light settings apply as in Compute Passes; the Cycles reference is
 skipped inside a render (it needs a render of its own).
+
+``register`` also installs ``bridge.buffer_cache``'s depsgraph handler,
+which tells the Preview when its kept camera G-buffer is stale.
 """
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ from typing import Optional
 import bpy
 from bpy.app.handlers import persistent
 
-from ..bridge import compat, settings
+from ..bridge import buffer_cache, compat, settings
 from ..bridge.capture import is_capturing
 from ..bridge.cycles_reference import is_rendering
 from ..bridge.pipeline import (FrameRequest, NoCamera, check_out_dir, compute_frame, first_line,
@@ -184,9 +187,11 @@ def register():
     _remove_ours()
     for attr, fn in HANDLERS:
         getattr(bpy.app.handlers, attr).append(fn)
+    buffer_cache.watch()          # the Preview's kept buffers follow the depsgraph
     _reset(False)
 
 
 def unregister():
     _remove_ours()
+    buffer_cache.unwatch()
     _reset(False)

@@ -17,7 +17,7 @@ import json
 
 from .harness import machine
 from .methods import run_method_benchmarks
-from .phases import BUFFER_COLUMNS, bench_buffers, bench_skeleton, bench_startup, write_results
+from .phases import BUFFER_COLUMNS, bench_buffers, bench_preview, bench_skeleton, bench_startup, write_results
 
 
 def run_bench(args) -> int:
@@ -30,8 +30,9 @@ def run_bench(args) -> int:
         md = write_results(rows, args.out, "skeleton")
         print(f"pipeline phases, medians of {repeats} warm runs")
         print(md)
-        md = write_results(bench_buffers(repeats, args.quick), args.out, "buffers", BUFFER_COLUMNS)
-        print(f"buffers beside raw embreex (one thread, same rays), medians of {repeats} warm runs")
+        rows = bench_buffers(repeats, args.quick) + bench_preview(repeats, args.quick)
+        md = write_results(rows, args.out, "buffers", BUFFER_COLUMNS)
+        print(f"buffers and the Preview beside raw embreex (one thread, same rays), medians of {repeats} warm runs")
         print(md)
     if args.part in ("all", "methods"):
         run_method_benchmarks(args.out, repeats, args.quick)

@@ -27,6 +27,14 @@ def load_sample(name: str, resolution):
     return capture(name, tuple(resolution))
 
 
+def open_sample(name: str):
+    """``sample_blends/<name>.blend`` opened in bpy (its scene), as the tests open it."""
+    if TESTS not in sys.path:
+        sys.path.insert(0, TESTS)
+    from scenes import open_sample as open_blend    # tests/scenes.py: not a package
+    return open_blend(name)
+
+
 def machine() -> dict:
     """CPU, core count, library versions and Numba threads, with the date."""
     cpu = platform.processor() or ""

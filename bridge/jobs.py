@@ -19,6 +19,10 @@ from .capture import light_kind_size, light_object
 
 #: methods fast enough for the preview (others fall back to pcf there)
 FAST_METHODS = ("pcf", "single_sample")
+#: the preview's light views: this fraction of the output's larger side
+#: (a quarter of the texels; a light's own Map Size wins). Preview quality:
+#: pcf's MinSize region covers twice the surface, so its edges are softer.
+PREVIEW_MAP_SCALE = 0.5
 
 
 @dataclass
@@ -75,13 +79,16 @@ def resolve_method(light_settings, light=None, scene=None) -> str:
 def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
                samples: Optional[int] = None, fast: bool = False,
                references: Optional[Sequence[str]] = None,
-               only: Optional[Sequence[str]] = None) -> Tuple[List[LightJob], List[str]]:
+               only: Optional[Sequence[str]] = None,
+               map_scale: float = 1.0) -> Tuple[List[LightJob], List[str]]:
     """One LightJob per captured light whose Penumbra setting is enabled.
 
     ``methods``: pass ids for every light instead of each light's method +
     references; ``samples``: light samples for every light; ``fast``: the
     light's method only if it is in FAST_METHODS, else pcf; ``references``:
-    instead of the scene's; ``only``: names of Blender light objects.
+    instead of the scene's; ``only``: names of Blender light objects;
+    ``map_scale``: a light without its own map size gets light views of
+    this fraction of the output's larger side (1: the output's).
     Returns (jobs, notes)."""
     from ..core import methods as registry
     seed = settings.seed(scene)
@@ -122,6 +129,8 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
                 if knobs:
                     mo[m.id] = knobs
         ms = int(s.map_size) if s is not None and s.map_size else None
+        if ms is None and map_scale != 1.0:
+            ms = max(1, int(round(max(captured.resolution) * map_scale)))
         jobs.append(LightJob(lt.name, passes, ov, mo, ms, choice))
     return jobs, notes
 

@@ -28,9 +28,10 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import bpy
 
-from . import settings
+from ..core.cancel import CancelToken, Cancelled, watching
+from . import buffer_cache, settings
 from .capture import blend_stem, capture_scene, light_object, render_resolution
-from .jobs import LightJob, Step, light_jobs, make_steps, resolve_method
+from .jobs import PREVIEW_MAP_SCALE, LightJob, Step, light_jobs, make_steps, resolve_method
 
 Progress = Callable[[str, float], None]
 
@@ -50,7 +51,10 @@ class FrameRequest:
     scene's), ``depsgraph`` (a render's own) or ``mode``.
     Work, from each light's Penumbra settings: ``methods`` (pass ids for
     every light instead of its method + the references), ``samples``,
-    ``fast`` (preview: fast methods only), ``references``, ``only`` (light
+    ``fast`` (preview: fast methods only, light views at ``map_scale`` of
+    the output's larger side, default ``jobs.PREVIEW_MAP_SCALE``, and the
+    buffers of the last Preview while the camera and the geometry did not
+    change: ``buffer_cache.py``), ``references``, ``only`` (light
     object names), ``per_light`` (one step per light). With
     ``use_light_settings=False`` (the command line) every light gets
     ``methods``, ``seed``, ``samples`` and ``map_size`` alike, ``lights``
@@ -71,6 +75,7 @@ class FrameRequest:
     methods: Optional[Sequence[str]] = None
     samples: Optional[int] = None
     fast: bool = False
+    map_scale: Optional[float] = None
     references: Optional[Sequence[str]] = None
     only: Optional[Sequence[str]] = None
     per_light: bool = False
@@ -102,18 +107,20 @@ def set_threads(n: int) -> int:
     return n
 
 
-def run_step(captured, step: Step, external=None, progress=None, pixel_filter=None):
+def run_step(captured, step: Step, external=None, progress=None, pixel_filter=None, reuse=None):
     """``render_frame`` for the step's lights, filtered by ``pixel_filter``
     (a core PixelFilter; None: pixel centres, ``core.filtered_frame``);
     ``auto``'s decisions go into the result's plan (printed and stored in
-    the JSON like the planner's)."""
+    the JSON like the planner's). ``reuse``: buffers of an earlier step or
+    Preview for the same camera and geometry (``FrameBuffers.adopt``); the
+    result keeps its own buffers."""
     from ..core.filtered_frame import render_filtered
     from ..core.planner import record_auto
     passes = [p for p in step.passes if p != "cycles" or (external and "cycles" in external)]
     result = render_filtered(captured, passes, step.names, overrides=step.overrides,
                              method_overrides=step.method_overrides, map_size=step.map_size,
                              progress=progress, external=external, error_budget=step.error_budget,
-                             pixel_filter=pixel_filter)
+                             pixel_filter=pixel_filter, reuse=reuse, keep_buffers=True)
     for lp in result.plan.lights:
         if lp.name in step.auto:
             record_auto(lp, step.auto[lp.name])
@@ -162,10 +169,13 @@ def empty_result(captured):
 
 class FrameJob:
     """The steps of one frame; ``step()`` runs the next one, ``result()``
-    merges what ran."""
+    merges what ran. The steps share one set of buffers (each takes over the
+    last one's: ``buffers``); a Preview's start from the last Preview's
+    (``bridge/buffer_cache.py``, ``ticket``) and are kept for the next."""
 
     def __init__(self, scene, captured, steps: List[Step], external=None, notes=(),
-                 catch_errors: bool = True, skip_deleted: bool = True, pixel_filter=None):
+                 catch_errors: bool = True, skip_deleted: bool = True, pixel_filter=None,
+                 buffers=None, ticket=None):
         self.scene_name = scene.name
         self.pixel_filter = pixel_filter
         self.captured = captured
@@ -178,6 +188,9 @@ class FrameJob:
         self.notes: List[str] = list(notes)
         self.warnings: List[str] = []
         self.error: Optional[str] = None
+        self.buffers = buffers              # core FrameBuffers the next step takes over
+        self.ticket = ticket                # buffer_cache.Ticket of a Preview (None: not kept)
+        self.reused = buffers is not None   # whether it started from a Preview's buffers
 
     @property
     def done(self) -> bool:
@@ -199,7 +212,13 @@ class FrameJob:
             st = Step(alive, st.passes, st.overrides, st.method_overrides, st.map_size,
                       {n: c for n, c in st.auto.items() if n in alive}, st.error_budget)
         try:
-            self.results.append(run_step(self.captured, st, self.external, progress, self.pixel_filter))
+            res = run_step(self.captured, st, self.external, progress, self.pixel_filter, self.buffers)
+            self.buffers, res.buffers = res.buffers, None
+            self.results.append(res)
+            if self.done and self.error is None:
+                buffer_cache.store(self.ticket, self.buffers)
+        except Cancelled:
+            raise
         except Exception as exc:           # a report, not a traceback
             if not self.catch_errors:
                 raise
@@ -242,30 +261,29 @@ class FrameJob:
 COMPUTE_LOCK = threading.RLock()
 
 
-class Cancelled(Exception):
-    """Raised from the progress callback once a run is cancelled."""
-
-
 class BackgroundFrameJob:
     """A FrameJob's steps in a daemon worker thread.
 
     ``start()`` returns at once; ``message`` / ``fraction`` follow the
     worker's progress (read them from a timer); ``cancel()`` stops it at
-    the next light or method (the progress callback raises
-    :class:`Cancelled`); once ``done``, ``collect()`` (main thread) drops
-    lights deleted meanwhile and returns the FrameJob for the write-back.
+    the next light or method (the progress callback raises core's
+    :class:`Cancelled`) or, inside a long method, at its next chunk of
+    rows or rays (the worker's ``core.cancel`` token, checked by
+    ``kernels.each_in_threads`` and ``pcf``); once ``done``, ``collect()``
+    (main thread) drops lights deleted meanwhile and returns the FrameJob
+    for the write-back. ``token``: the cancel token (tests pass their own).
     The worker never touches bpy: steps with external producers (the Cycles
     reference renders through bpy) cannot run here (``runs_in_background``).
     """
 
-    def __init__(self, job: FrameJob):
+    def __init__(self, job: FrameJob, token: Optional[CancelToken] = None):
         self.job = job
         self.skip_deleted = job.skip_deleted
         job.skip_deleted = False              # light_object() reads bpy: checked in collect()
         self.message = "starting"
         self.fraction = 0.0
         self.cancelled = False
-        self._cancel = threading.Event()
+        self._cancel = token or CancelToken()
         self._thread: Optional[threading.Thread] = None
 
     @staticmethod
@@ -278,18 +296,18 @@ class BackgroundFrameJob:
         return self
 
     def _progress(self, message: str, fraction: float) -> None:
-        if self._cancel.is_set():
-            raise Cancelled()
+        self._cancel.check()
         self.message, self.fraction = str(message), float(fraction)
 
     def _work(self) -> None:
         try:
-            self.job.run(self._progress)
+            with watching(self._cancel):
+                self.job.run(self._progress)
         except Cancelled:
             self.cancelled = True
         except Exception as exc:          # catch_errors=False: a report, not a traceback
             self.job.error = f"{type(exc).__name__}: {exc}"
-        if self._cancel.is_set():
+        if self._cancel.cancelled:
             self.cancelled = True
 
     @property
@@ -297,7 +315,7 @@ class BackgroundFrameJob:
         return self._thread is not None and not self._thread.is_alive()
 
     def cancel(self) -> None:
-        self._cancel.set()
+        self._cancel.cancel()
 
     def wait(self, timeout: Optional[float] = None) -> bool:
         """Block until the worker ends (tests, unregister); True when it has."""
@@ -382,8 +400,10 @@ def external_producers(scene, captured, passes: Sequence[str], in_render: bool =
 
 
 def _jobs(scene, captured, request: FrameRequest) -> Tuple[List[LightJob], List[str]]:
+    scale = request.map_scale if request.map_scale is not None else (PREVIEW_MAP_SCALE if request.fast else 1.0)
     return light_jobs(scene, captured, methods=request.methods, samples=request.samples,
-                      fast=request.fast, references=request.references, only=request.only)
+                      fast=request.fast, references=request.references, only=request.only,
+                      map_scale=scale)
 
 
 def _uniform_step(request: FrameRequest) -> Step:
@@ -424,7 +444,13 @@ def prepare_frame(scene, request: FrameRequest) -> FrameJob:
         steps = make_steps(jobs, request.per_light)
     if request.threads is not None:
         set_threads(request.threads)
-    return FrameJob(scene, captured, steps, external, notes, request.catch_errors, request.skip_deleted, flt)
+    ticket = buffers = None
+    if request.fast:                      # a Preview: start from the last one's buffers
+        buffer_cache.watch()
+        ticket = buffer_cache.ticket(scene, captured)
+        buffers = buffer_cache.lookup(ticket)
+    return FrameJob(scene, captured, steps, external, notes, request.catch_errors, request.skip_deleted,
+                    flt, buffers, ticket)
 
 
 def compute_frame(scene, request: FrameRequest, progress: Optional[Progress] = None) -> FrameJob:

@@ -82,6 +82,7 @@ class FrameBuffers:
         self._used: Optional[Set[str]] = None     # the running view's record (``BufferView``)
         self._gbuffer: Optional[GBuffer] = None
         self._receivers: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
+        self._reach: Dict[str, np.ndarray] = {}   # light -> metrics.reach_mask on the G-buffer
         self._shadow: Optional[raycast.TriangleScene] = None
         self._camera_scene: Optional[raycast.TriangleScene] = None
         self._shadow_triangles: Optional[Tuple[np.ndarray, np.ndarray]] = None
@@ -107,6 +108,36 @@ class FrameBuffers:
         sub._shadow_triangles = self._shadow_triangles
         sub._views = dict(self._views)
         return sub
+
+    def adopt(self, prev: "FrameBuffers") -> None:
+        """Take over what ``prev`` built for the same camera and geometry:
+        the BVHs, the camera G-buffer and its receivers, and each light's
+        views and culled BVH while that light is unchanged (``light_key``;
+        a moved light gets new ones). The caller vouches that the geometry
+        (triangles, their flags and mattes) did not change since ``prev``
+        was built (the add-on's Preview knows it from the depsgraph,
+        ``bridge/buffer_cache.py``); the resolution, the camera and the
+        triangle count are checked here (ValueError). Adopted buffers are
+        billed 0 s: nothing was built for them in this frame."""
+        if (prev.width, prev.height) != (self.width, self.height):
+            raise ValueError("buffers of another resolution cannot be reused")
+        if len(prev.scene.triangles) != len(self.scene.triangles) or not np.array_equal(
+                raycast.camera_params(prev.scene.camera, self.width, self.height),
+                raycast.camera_params(self.scene.camera, self.width, self.height)):
+            raise ValueError("buffers of another camera or geometry cannot be reused")
+        same = {lt.name for lt in self.scene.lights
+                if any(p.name == lt.name and light_key(p) == light_key(lt) for p in prev.scene.lights)}
+        self._gbuffer, self._receivers = prev._gbuffer, prev._receivers
+        self._shadow, self._camera_scene = prev._shadow, prev._camera_scene
+        self._shadow_triangles = prev._shadow_triangles
+        self._views = {k: v for k, v in prev._views.items() if k[0] in same}
+        self._culled = {n: b for n, b in prev._culled.items() if n in same}
+        self._bvh_key = {n: k for n, k in prev._bvh_key.items() if n in same}
+        self.culling = {n: c for n, c in prev.culling.items() if n in same}
+        self._reach = {n: m for n, m in prev._reach.items() if n in same}
+        kept = {"bvh_shadow", "bvh_camera", "gbuffer", "shadow_triangles"}
+        kept |= {f"bvh_culled:{n}" for n in same} | {f"light_view:{n}:{ms}:{k}" for n, ms, k in self._views}
+        self._builds = {k: _Build(0.0, b.phase, b.built_from) for k, b in prev._builds.items() if k in kept}
 
     def _timed(self, key: str, phase: str, fn, built_from: Iterable[str] = (), total: Optional[str] = None):
         """Build ``key`` with ``fn``, timed: ``build_times[total or key]``
@@ -216,6 +247,16 @@ class FrameBuffers:
         self._use("gbuffer")
         return self._receivers
 
+    def reach(self, light: Light) -> np.ndarray:
+        """bool[H,W]: the visible pixels ``light`` can illuminate, ignoring
+        occlusion (``metrics.reach_mask`` on the G-buffer), once per light."""
+        if light.name not in self._reach:
+            from .metrics import reach_mask
+            m = reach_mask(self.gbuffer, light)
+            m.setflags(write=False)       # shared by the plan and every method's pass
+            self._reach[light.name] = m
+        return self._reach[light.name]
+
     def receivers(self) -> np.ndarray:
         """World positions of the visible receivers (subsampled for fitting)."""
         return self._receiver_points()[0]
@@ -301,6 +342,14 @@ class FrameBuffers:
         ``shadow_scene`` first when calling this from several threads."""
         labels = self.scene.tri_object if tri_label is None else tri_label
         return raycast.render_light_view(faces, self.shadow_scene, labels, eye)
+
+
+def light_key(light: Light) -> tuple:
+    """What a light's views and culled BVH are built from: its kind, shape,
+    sizes, cones and placement (not its colour or energy)."""
+    return (light.kind, light.blender_type, light.shape, float(light.size), float(light.size_y),
+            float(light.radius), float(light.spot_size), float(light.angle), bool(light.casts_shadow),
+            np.asarray(light.world_from_light, np.float64).tobytes())
 
 
 def _closure(start: Iterable[str], edges) -> FrozenSet[str]:

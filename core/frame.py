@@ -43,6 +43,7 @@ class FrameResult:
     compile_s: float = 0.0          # kernel compilation (``core/warmup.py``), in no method's time
     pixel_filter: Optional[dict] = None     # ``core/pixel_filter.py``: recorded when a filter was asked for
     coverage: Optional[np.ndarray] = None   # float32[H,W] alpha of a filtered frame (None: pixel centres)
+    buffers: Optional[FrameBuffers] = field(default=None, repr=False, compare=False)  # for ``reuse``
 
     def to_json(self) -> dict:
         return {
@@ -86,7 +87,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                  progress: Optional[Callable[[str, float], None]] = None,
                  external: Optional[Mapping[str, Callable]] = None,
                  error_budget: Optional[float] = None,
-                 buffers: Optional[FrameBuffers] = None) -> FrameResult:
+                 buffers: Optional[FrameBuffers] = None,
+                 reuse: Optional[FrameBuffers] = None, keep_buffers: bool = False) -> FrameResult:
     """Compute ``passes`` for every planned light of ``scene``. ``auto`` among
     them becomes, per light, the method the planner chose under
     ``error_budget`` (``core/auto_choice.py``): the pass is written under that
@@ -98,11 +100,18 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     (``cycles``); its ``params`` field is recorded as the method's params.
     ``buffers``: the frame's buffers when the caller built (or seeded) them
     (``pixel_filter``'s stages); by default new ones at the scene's resolution.
+    ``reuse``: an earlier frame's buffers (``result.buffers``) for the same
+    camera and geometry, whose G-buffer, BVHs and unchanged lights' views
+    are taken over (``FrameBuffers.adopt``; the caller vouches for the
+    geometry); ``keep_buffers``: the result holds this frame's buffers
+    (``result.buffers``, else None) for a later ``reuse``.
     """
     t0 = time.perf_counter()
     W, H = scene.resolution
     if buffers is None:
         buffers = FrameBuffers(scene, W, H, map_size)
+    if reuse is not None:
+        buffers.adopt(reuse)
     plan, reach = plan_frame(scene, passes, light_names, error_budget, buffers)
     compile_s = _compile(plan, scene, overrides, method_overrides, progress)
     registry = method_registry.producers()
@@ -169,4 +178,4 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     if progress:
         progress("done", 1.0)
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
-                       time.perf_counter() - t0, compile_s)
+                       time.perf_counter() - t0, compile_s, buffers if keep_buffers else None)

@@ -1,7 +1,8 @@
 """Small Numba helpers shared by the image-space methods: projecting a world
 point into a packed ``ViewFace``, picking the face that holds it, the
 bounding box of a map's finite depths, the prange chunk size, and running
-chunks of work on worker threads (kernels with ``nogil=True``, embreex)."""
+chunks of work on worker threads (kernels with ``nogil=True``, embreex),
+cancellable between chunks (``core/cancel.py``)."""
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
@@ -10,6 +11,8 @@ from contextlib import contextmanager
 import numba
 import numpy as np
 from numba import njit
+
+from . import cancel
 
 
 @contextmanager
@@ -31,15 +34,30 @@ def each_in_threads(fn, items, workers: int) -> None:
     """``fn(item)`` for every item, on ``workers`` threads (in turn in this
     thread when there is one worker or one item); the first error is raised.
     ``fn`` must release the GIL for the threads to pay (Numba ``nogil=True``
-    kernels, embreex's ``run()``) and write disjoint outputs."""
+    kernels, embreex's ``run()``) and write disjoint outputs. Before each
+    item the calling thread's cancel token is checked (``cancel.check``):
+    once it is cancelled no further item starts and ``cancel.Cancelled`` is
+    raised (the items already running finish first)."""
     items = list(items)
+    token = cancel.current()
+
+    def one(it):
+        if token is not None:
+            token.check()
+        fn(it)
+
     if workers <= 1 or len(items) <= 1:
         for it in items:
-            fn(it)
+            one(it)
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for f in [pool.submit(fn, it) for it in items]:
-            f.result()
+        futures = [pool.submit(one, it) for it in items]
+        try:
+            for f in futures:
+                f.result()
+        finally:
+            for f in futures:
+                f.cancel()
 
 
 @njit(cache=True, inline="always")

@@ -216,12 +216,11 @@ def plan_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequen
     """The plan ``render`` follows: :func:`make_plan`, then
     :func:`refine_with_receivers` with the reach masks (``metrics.reach_mask``)
     of the camera G-buffer of ``buffers`` (a ``core.buffers.FrameBuffers``,
-    built only when some light is not skipped already). Returns (plan, reach)."""
-    from .metrics import reach_mask
+    built only when some light is not skipped already; ``FrameBuffers.reach``).
+    Returns (plan, reach)."""
     plan = make_plan(scene, passes, light_names, error_budget=error_budget)
     reach: Dict[str, np.ndarray] = {}
     if buffers is not None and any(lp.action != "skip" for lp in plan.lights):
-        g = buffers.gbuffer
-        reach = {lp.name: reach_mask(g, scene.light(lp.name)) for lp in plan.lights if lp.action != "skip"}
+        reach = {lp.name: buffers.reach(scene.light(lp.name)) for lp in plan.lights if lp.action != "skip"}
         refine_with_receivers(plan, scene, reach)
     return plan, reach

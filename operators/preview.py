@@ -5,6 +5,10 @@ Each enabled light uses its own method when that is fast (``FAST_METHODS``),
 else pcf, with no references. Several lights combine as their
 energy-weighted mean visibility (1 = every light fully visible). In the UI
 it computes in a worker thread (``modal_job.py``); headless, at once.
+Preview quality (``FrameRequest.fast``): light views at
+``jobs.PREVIEW_MAP_SCALE`` of the output's larger side, and the last
+Preview's camera G-buffer while the camera and the geometry do not change
+(``bridge/buffer_cache.py``).
 """
 from __future__ import annotations
 

@@ -128,3 +128,49 @@ def test_render_frame_bills_phases_by_use():
         t = rec[mid]["time_s"]
         assert t["bvh"] > 0.0, mid
         assert t["total"] == pytest.approx(sum(v for k, v in t.items() if k != "total"), abs=1e-5)
+
+
+def _moved(scene, dx):
+    """The same geometry and camera, the light moved by ``dx`` across the
+    occluder's edge (along y)."""
+    from dataclasses import replace
+    lt = scene.lights[0]
+    m = lt.world_from_light.copy()
+    m[1, 3] += dx
+    return replace(scene, lights=[replace(lt, world_from_light=m)])
+
+
+def test_reused_buffers_give_the_passes_of_fresh_ones():
+    """issue 15: a frame may take over an earlier frame's G-buffer and BVHs
+    (same camera and geometry) and the views of unchanged lights; a moved
+    light gets a new view. Passes are those of a fresh frame; what was taken
+    over is billed 0 s."""
+    scene = _scene()
+    first = render_frame(scene, ["pcf"], keep_buffers=True)
+    assert first.buffers is not None and render_frame(scene, ["pcf"]).buffers is None
+    again = render_frame(scene, ["pcf"], reuse=first.buffers, keep_buffers=True)
+    np.testing.assert_array_equal(again.lights[0].passes["pcf"], first.lights[0].passes["pcf"])
+    t = again.lights[0].record["pcf"]["time_s"]
+    assert t["gbuffer"] == t["light_view"] == t["bvh"] == 0.0 and t["filter"] > 0.0
+    assert again.buffers._views and again.buffers._gbuffer is first.buffers._gbuffer
+    moved = _moved(scene, 0.3)
+    reused = render_frame(moved, ["pcf"], reuse=again.buffers)
+    fresh = render_frame(moved, ["pcf"])
+    np.testing.assert_array_equal(reused.lights[0].passes["pcf"], fresh.lights[0].passes["pcf"])
+    assert not np.array_equal(fresh.lights[0].passes["pcf"], first.lights[0].passes["pcf"])
+    t = reused.lights[0].record["pcf"]["time_s"]
+    assert t["gbuffer"] == 0.0 and t["light_view"] > 0.0
+
+
+def test_buffers_of_another_camera_or_resolution_are_refused():
+    from dataclasses import replace
+    scene = _scene()
+    first = render_frame(scene, ["pcf"], keep_buffers=True)
+    cam = scene.camera
+    m = cam.world_from_camera.copy()
+    m[0, 3] += 0.1
+    other = replace(scene, camera=replace(cam, world_from_camera=m))
+    with pytest.raises(ValueError, match="camera"):
+        render_frame(other, ["pcf"], reuse=first.buffers)
+    with pytest.raises(ValueError, match="resolution"):
+        FrameBuffers(scene, RES + 1, RES).adopt(first.buffers)

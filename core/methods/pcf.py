@@ -40,7 +40,7 @@ from typing import Optional
 import numpy as np
 from numba import njit, prange
 
-from .. import views
+from .. import cancel, views
 from ..kernels import face_project, finite_bbox, parallel_chunks, pick_face
 from ..sampling import stream_next, stream_start
 from .registry import register
@@ -243,6 +243,7 @@ def plane_depth(pl, uc, vc, z):
 
 TILE = 8
 PIXEL_CHUNK = 4096   # pixels per scheduling chunk in pcf_kernel
+CANCEL_CHUNK = 1 << 18   # pixels per pcf_kernel call: the job's cancel token is checked between calls
 
 # argument groups of ``pcf_kernel``
 CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays")
@@ -315,14 +316,14 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
 
 
 @njit(cache=True, parallel=True)
-def pcf_kernel(cam, smap, flt, out):
-    """Every camera pixel i (row-major, ``cam.width`` wide) where ``cam.hit[i]``:
-    out[i] = V; other pixels are left as they are. Pixels are handed to the
-    threads in chunks of a few rows (dynamic), not in one contiguous half
-    each: sky and ground rows differ widely in cost (the caller sets the
-    chunk size with ``kernels.parallel_chunks``).
+def pcf_kernel(cam, smap, flt, out, start, stop):
+    """Every camera pixel i in [start, stop) (row-major, ``cam.width`` wide)
+    where ``cam.hit[i]``: out[i] = V; other pixels are left as they are.
+    Pixels are handed to the threads in chunks of a few rows (dynamic), not
+    in one contiguous half each: sky and ground rows differ widely in cost
+    (the caller sets the chunk size with ``kernels.parallel_chunks``).
     cam: CameraPixels; smap: ShadowMap; flt: Filter."""
-    for i in prange(cam.P.shape[0]):
+    for i in prange(start, stop):
         _pcf_pixel(i, cam, smap, flt, out)
 
 
@@ -422,6 +423,8 @@ class PercentageCloserFiltering(Method):
                     smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi)
                     flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                                  b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles))
-                    pcf_kernel(cam, smap, flt, out)
+                    for a in range(0, H * W, CANCEL_CHUNK):   # each pixel's V is its own
+                        cancel.check()
+                        pcf_kernel(cam, smap, flt, out, a, min(H * W, a + CANCEL_CHUNK))
         return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})

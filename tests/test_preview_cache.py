@@ -1,0 +1,116 @@
+"""issue 15: the Preview re-uses the camera G-buffer while the camera and the
+geometry do not change (the depsgraph says so: ``bridge/buffer_cache.py``),
+so moving a light re-computes only its light view and the filter; Esc
+cancels inside a long method and writes nothing back."""
+import bpy
+import numpy as np
+import pytest
+
+import penumbra
+from penumbra.bridge import buffer_cache, pipeline
+from penumbra.bridge.pipeline import FrameRequest, prepare_frame
+from scenes import sample_path
+from test_core_cancel import CancelAfter
+
+RES = (96, 64)
+
+
+@pytest.fixture
+def scene():
+    penumbra.register()                  # installs the depsgraph handler too
+    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
+    sc = bpy.context.scene
+    for lt in bpy.data.lights:
+        lt.penumbra.method = "pcf"
+    buffer_cache.invalidate()
+    yield sc
+    penumbra.unregister()
+    assert not buffer_cache.watching()
+
+
+def _preview(scene, **kw):
+    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=(), **kw))
+    job.run()
+    res = job.result()
+    lr = res.lights[0]
+    return job, lr.passes["pcf"], lr.record["pcf"]["time_s"]
+
+
+def _light():
+    return next(o for o in bpy.data.objects if o.type == "LIGHT")
+
+
+def test_a_second_preview_reuses_every_buffer(scene):
+    job, v, t = _preview(scene)
+    assert not job.reused and t["gbuffer"] > 0.0 and buffer_cache.watching()
+    job2, v2, t2 = _preview(scene)
+    assert job2.reused
+    assert t2["gbuffer"] == t2["light_view"] == 0.0
+    np.testing.assert_array_equal(v, v2)
+
+
+def test_moving_a_light_rebuilds_only_its_view(scene):
+    _preview(scene)
+    _light().location.x += 0.5
+    bpy.context.view_layer.update()              # the depsgraph update a UI edit sends
+    job, v, t = _preview(scene)
+    assert job.reused and t["gbuffer"] == 0.0 and t["light_view"] > 0.0
+    buffer_cache.invalidate()
+    job_fresh, v_fresh, _ = _preview(scene)
+    assert not job_fresh.reused
+    np.testing.assert_array_equal(v, v_fresh)
+
+
+def test_editing_geometry_or_moving_the_camera_rebuilds_the_gbuffer(scene):
+    _preview(scene)
+    mesh = next(o for o in bpy.data.objects if o.type == "MESH")
+    mesh.location.z += 0.1
+    bpy.context.view_layer.update()
+    job, _, t = _preview(scene)
+    assert not job.reused and t["gbuffer"] > 0.0
+    scene.camera.location.x += 0.1               # no view_layer.update: the capture's own
+    job, _, t = _preview(scene)                  # evaluation and the key both see it
+    assert not job.reused and t["gbuffer"] > 0.0
+
+
+def test_the_preview_map_is_half_the_output(scene):
+    job, _, _ = _preview(scene)
+    lr = job.result().lights[0]
+    assert max(lr.record["pcf"]["stats"]["map"][1:]) == round(max(RES) * pipeline.PREVIEW_MAP_SCALE)
+    job, _, _ = _preview(scene, map_scale=1.0)
+    assert max(job.result().lights[0].record["pcf"]["stats"]["map"][1:]) == max(RES)
+
+
+def test_cancel_inside_a_method_writes_nothing_back(scene, monkeypatch):
+    """The worker stops at the chunk after the cancel, inside the G-buffer's
+    bands (one row each here, so 64 of them): at most one band per thread
+    runs, nothing is kept or shown."""
+    from penumbra.core import pixel_rays, raycast
+    monkeypatch.setattr(raycast, "BAND_RAYS", RES[0])
+    bands = []
+    make_rays = pixel_rays.make_rays
+
+    def counting(*args):
+        bands.append(args[3])                     # row0: one call per band traced
+        return make_rays(*args)
+
+    monkeypatch.setattr(pixel_rays, "make_rays", counting)
+
+    def run(token):
+        job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=(), per_light=True))
+        bg = pipeline.BackgroundFrameJob(job, token).start()
+        assert bg.wait(300)
+        return bg
+    whole = run(CancelAfter(10 ** 9))          # counts its checks, never cancels
+    assert not whole.cancelled and whole.job.results
+    buffer_cache.invalidate()
+    for img in [i for i in bpy.data.images if i.name.startswith("Penumbra ")]:
+        bpy.data.images.remove(img)
+    assert len(bands) > RES[1]                    # the G-buffer's 64 bands and the light view's
+    bands.clear()
+    bg = run(CancelAfter(1))                      # cancelled at its second check
+    assert bg.cancelled and bg.job.error is None
+    assert 1 <= len(bands) <= 2 < RES[1]          # a band on each of the two threads at most
+    assert not bg.job.results and bg.job.buffers is None
+    assert buffer_cache.lookup(buffer_cache.ticket(scene, bg.job.captured)) is None
+    assert not [i.name for i in bpy.data.images if i.name.startswith("Penumbra ")]
