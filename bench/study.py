@@ -61,7 +61,8 @@ SWEEPS: Dict[str, List] = {
                        ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False})],
     "penumbra_casting": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
                          ("samples=256", {"samples": 256})],
-    "irregular": [("silhouettes from centre", {}), ("silhouettes from light", {"silhouette_from": "light"})],
+    "irregular": [("silhouettes from centre", {}), ("overlap C=0 (paper)", {"overlap": "zero"}),
+                  ("silhouettes from light", {"silhouette_from": "light"})],
 }
 
 

@@ -23,7 +23,15 @@ Figure 2, step by step:
       receiver onto the light's plane, clipped to the light and measured by
       equation 3 (disk, ellipse, sphere, sun) or the rectangle kernel
       (square / rectangle area lights), signed by the edge equation (2.3).
-  Composition: equation 4, V = 1 - clamp(umbra + penumbra, 0, 1).
+  Composition: equation 5, V = 1 - clamp(umbra + penumbra - C, 0, 1), with
+      the overlap C between occluders (``overlap``): "sampled" (default)
+      estimates it from the depth complexity at an m x m grid of light
+      samples (Laine et al. 2005's counts, the bitmask section 5.2 mentions):
+      each penumbra term also adds its sign at the samples inside the region
+      it measures, so umbra + counts = the occluders covering each sample and
+      C = mean_j max(count_j - 1, 0); where occluders do not overlap C = 0
+      and V stays the analytic one (no sampling noise), the umbra stays
+      exact. "zero" is the paper's C = 0 (equation 4), bit for bit.
 
 Per light type (DESIGN.md light domains):
   * sphere (point / spot, radius r): the disk of radius r through the centre
@@ -52,14 +60,17 @@ Departures from the paper, each stated:
     when the centre is inside), so front and back faces of one solid are not
     summed twice (section 5.2's C = 0 would otherwise double every penumbra
     of a closed object); open surfaces count every triangle;
-  * remaining approximations are the paper's own: silhouettes from the light
-    centre only (5.1) and independent occluders, C = 0 (5.2): overlapping
-    occluders are over-counted, so V is never brighter than the truth by
-    more than the hidden-silhouette error.
+  * the overlap C of equation 5 is estimated on light samples (above)
+    rather than set to 0 (5.2), which over-darkens wherever occluders
+    overlap (foliage at 256^2: RMSE 0.101 -> 0.022, in the penumbra 0.270
+    -> 0.055); its error is the samples' estimate of the overlapping area
+    only;
+  * the remaining approximation is the paper's own: silhouettes from the
+    light centre only (5.1).
 
 Cost per phase: ``silhouettes`` (adjacency + records), ``grid`` (faces,
 counting sort, receiver frames), ``umbra``, ``penumbra`` (quads, binning,
-kernel).
+kernel, sample counts), ``overlap`` (C from the counts).
 """
 from __future__ import annotations
 
@@ -73,11 +84,12 @@ from ... import raycast, views
 from ..embree_ref import trace_visibility
 from ...sampling import offset_points
 from ..registry import register
-from .geom import SHAPE_DISK, SHAPE_SQUARE, SILHOUETTE_CENTRE, SILHOUETTE_LIGHT
-from .grid import (QUAD_WHOLE_FACE, BinList, Bins, FaceBounds, KernelLight, Occluders, Quads, ReceiverGrid,
-                   Receivers, Records, assign_faces, bin_entries_from_ranges, bin_quads, counting_sort_cells,
-                   edge_quads, penumbra_bins, penumbra_brute_force, rect_k, triangle_ranges, umbra_bins,
-                   umbra_brute_force)
+from .geom import (SHAPE_DISK, SHAPE_SQUARE, SILHOUETTE_CENTRE, SILHOUETTE_LIGHT, light_samples,
+                   overlap_from_counts)
+from .grid import (QUAD_WHOLE_FACE, BinList, Bins, FaceBounds, KernelLight, LightSamples, Occluders, Quads,
+                   ReceiverGrid, Receivers, Records, assign_faces, bin_entries_from_ranges, bin_quads,
+                   counting_sort_cells, edge_quads, penumbra_bins, penumbra_brute_force, rect_k, triangle_ranges,
+                   umbra_bins, umbra_brute_force)
 from .mesh import classify, mesh_adjacency
 from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 
@@ -101,6 +113,12 @@ class IrregularParams:
     depth_slices: int = 16          # depth cells per column of the 3D perspective grid (figure 3)
     bin_size: int = 16              # grid columns per side of a bin (Larrabee sort-middle bins)
     brute_force: bool = False       # every edge against every receiver (ground truth for the quads)
+    overlap: str = "sampled"        # 5.2, equation 5's overlap C between occluders: "sampled" (C from the depth
+                                    # complexity at overlap_samples^2 light points, so overlapping occluders unite)
+                                    # | "zero" (the paper: C = 0, overlapping occluders over-darken)
+    overlap_samples: int = 12       # light samples per side of the grid of equal cells that estimates C (memory:
+                                    # one byte per sample per receiver; foliage 256^2 RMSE 0.040 / 0.022 / 0.016
+                                    # at 8 / 12 / 16, penumbra time +110% / +130% / +160%)
 
 
 # --------------------------------------------------------------------------
@@ -337,6 +355,8 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
                    z, np.zeros(0, np.bool_))
         if params.silhouette_from not in ("centre", "light"):
             raise ValueError(f"silhouette_from must be 'centre' or 'light', not {params.silhouette_from!r}")
+        if params.overlap not in ("sampled", "zero"):
+            raise ValueError(f"overlap must be 'sampled' or 'zero', not {params.overlap!r}")
         mode = SILHOUETTE_CENTRE if params.silhouette_from == "centre" else SILHOUETTE_LIGHT
         reach = lm.rL / math.sqrt(1.0 + lm.rL ** 2) if lm.is_sun else lm.rL
         counted, facing, orient, rec_t, rec_k = classify(
@@ -369,6 +389,10 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
     F = len(g.faces)
     lit = KernelLight(cx, cy, cz, lm.is_sun, lm.shape, lm.rL, lm.rL if lm.is_sun else 0.0)
     occ = Occluders(tv, nv, facing, orient, side_light)
+    side = max(0, int(params.overlap_samples)) if params.overlap == "sampled" else 0
+    rows, first = light_samples(lm.shape, side)
+    m = int(first[-1])
+    ls = LightSamples(rows, first, np.zeros((ns, m), np.int8))
     bins = Bins(g.perm, g.bin_face, g.bin_bx, g.bin_by, g.B, g.binmax)
     grid = ReceiverGrid(g.packed, g.col_base, g.gd, g.zlo, g.zhi, g.logz, g.cell_start, g.colmax)
     with timer("umbra"):
@@ -385,7 +409,7 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
     with timer("penumbra"):
         if len(rec_t) and ns:
             if params.brute_force:
-                penumbra_brute_force(Receivers(Ps, g.xyz, RF), Records(rec_t, rec_k), occ, lit, mode, pen_s)
+                penumbra_brute_force(Receivers(Ps, g.xyz, RF), Records(rec_t, rec_k), occ, lit, mode, pen_s, ls)
                 stats["penumbra_evals"] = int(ns * len(rec_t))
             elif F:
                 ep, flag, rng = edge_quads(tv, rec_t, rec_k, g.packed, g.zhi, g.k, g.rho, g.near,
@@ -396,13 +420,20 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
                 penumbra_bins(bins, BinList(bstart, bitems), Quads(ep, flag, rng), grid,
                               FaceBounds(g.zhi, g.k, g.rho, g.par), Receivers(Ps, g.xyz, RF),
                               Records(rec_t, rec_k), occ, lit, mode, bool(params.bin_refine),
-                              bool(params.wedge_test), pen_s, evals)
+                              bool(params.wedge_test), pen_s, ls, evals)
                 stats["quads_whole_face"] = int((flag == QUAD_WHOLE_FACE).sum())
                 stats["quad_bin_entries"] = int(len(bitems))
                 stats["penumbra_evals"] = int(evals.sum())
     umbra[g.order] = cnt_s
     pen[g.order] = pen_s
-    occ = np.clip(umbra + pen, 0.0, 1.0)
+    if m:
+        with timer("overlap"):
+            over = np.zeros(n)
+            over[g.order] = overlap_from_counts(cnt_s, ls.counts)
+            occ = np.clip(umbra + pen - over, 0.0, 1.0)
+            stats["overlap_samples"] = m
+    else:
+        occ = np.clip(umbra + pen, 0.0, 1.0)
     V = (1.0 - occ).astype(np.float32)
     V[g.face < 0] = 1.0
     return V, umbra, pen, stats

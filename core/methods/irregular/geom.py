@@ -16,6 +16,10 @@
   equation and p"). Both use the same canonical edge orientation, so a
   receiver exactly on a shadow boundary is counted consistently by both.
 
+* ``light_samples`` / ``count_beyond`` / ``overlap_from_counts``: equation 5's
+  overlap C from the depth complexity at light samples (the region each
+  term K_e measures, tested at the samples, counted with its sign).
+
 Summing ``U + sum_e s_e K_e`` over the edges of one triangle gives the exact
 fraction of the light covered by that triangle seen from the receiver (Green's
 theorem over the projected triangle); equation 4 sums that over occluders.
@@ -25,7 +29,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 SHAPE_DISK = 0      # unit disk (disk, ellipse, sphere and sun lights)
 SHAPE_SQUARE = 1    # [-1, 1]^2 (square and rectangle area lights)
@@ -199,12 +203,12 @@ def clip_homogeneous(shape, x0, y0, w0, x1, y1, w1, wmax):
 
 
 @njit(cache=True)
-def edge_occlusion(shape, x0, y0, w0, x1, y1, w1, wmax):
-    """Unsigned occlusion term of one projected edge (homogeneous endpoints):
-    clip to the light, then equation 3 (disk) or the rectangle kernel."""
+def clipped_edge(shape, x0, y0, w0, x1, y1, w1, wmax):
+    """One projected edge (homogeneous endpoints) clipped to the light:
+    (ok, ax, ay, bx, by), the endpoints in unit-shape coordinates."""
     ta, tb = clip_homogeneous(shape, x0, y0, w0, x1, y1, w1, wmax)
     if not (tb > ta):
-        return 0.0
+        return False, 0.0, 0.0, 0.0, 0.0
     xa = x0 + ta * (x1 - x0)
     ya = y0 + ta * (y1 - y0)
     wa = w0 + ta * (w1 - w0)
@@ -212,23 +216,123 @@ def edge_occlusion(shape, x0, y0, w0, x1, y1, w1, wmax):
     yb = y0 + tb * (y1 - y0)
     wb = w0 + tb * (w1 - w0)
     if not (wa > 0.0) or not (wb > 0.0):
-        return 0.0
+        return False, 0.0, 0.0, 0.0, 0.0
     ax, ay = xa / wa, ya / wa
     bx, by = xb / wb, yb / wb
+    if shape != SHAPE_SQUARE:
+        # clipping is exact up to rounding: keep the points in the disk
+        ra = ax * ax + ay * ay
+        if ra > 1.0:
+            ra = math.sqrt(ra)
+            ax /= ra
+            ay /= ra
+        rb = bx * bx + by * by
+        if rb > 1.0:
+            rb = math.sqrt(rb)
+            bx /= rb
+            by /= rb
+    return True, ax, ay, bx, by
+
+
+@njit(cache=True, inline="always")
+def segment_area(shape, ax, ay, bx, by):
+    """Equation 3 (disk) or the rectangle kernel of a clipped segment."""
     if shape == SHAPE_SQUARE:
         return rect_segment_area(ax, ay, bx, by)
-    # clipping is exact up to rounding: keep the points in the disk
-    ra = ax * ax + ay * ay
-    if ra > 1.0:
-        ra = math.sqrt(ra)
-        ax /= ra
-        ay /= ra
-    rb = bx * bx + by * by
-    if rb > 1.0:
-        rb = math.sqrt(rb)
-        bx /= rb
-        by /= rb
     return minor_segment_area(ax, ay, bx, by)
+
+
+@njit(cache=True)
+def edge_occlusion(shape, x0, y0, w0, x1, y1, w1, wmax):
+    """Unsigned occlusion term of one projected edge (homogeneous endpoints):
+    clip to the light, then equation 3 (disk) or the rectangle kernel."""
+    ok, ax, ay, bx, by = clipped_edge(shape, x0, y0, w0, x1, y1, w1, wmax)
+    if not ok:
+        return 0.0
+    return segment_area(shape, ax, ay, bx, by)
+
+
+# --------------------------------------------------------------------------
+# occluder overlap (equation 5's C) from the depth complexity at light samples
+def light_samples(shape: int, m: int):
+    """The light samples of the overlap estimate, in rows: the centres of an
+    m x m grid of equal cells over [-1, 1]^2 that lie in the unit light
+    shape (all of them for the square; symmetric about both axes). Returns
+    rows float64[R, 3] (y, x of the row's first sample, spacing) and first
+    int64[R + 1] (index of each row's first sample; first[-1] = count)."""
+    if m <= 0:
+        return np.zeros((0, 3)), np.zeros(1, np.int64)
+    dx = 2.0 / m
+    u = -1.0 + dx * (np.arange(m) + 0.5)
+    rows, first = [], [0]
+    for y in u:
+        x = u if shape == SHAPE_SQUARE else u[u * u + y * y <= 1.0]
+        if len(x):
+            rows.append((y, x[0], dx))
+            first.append(first[-1] + len(x))
+    return np.array(rows, np.float64).reshape(-1, 3), np.array(first, np.int64)
+
+
+@njit(cache=True, inline="always")
+def _half_line(a, b, lo, hi):
+    """Intersect the interval [lo, hi] with {x : a x + b >= 0}."""
+    if a > 0.0:
+        return max(lo, -b / a), hi
+    if a < 0.0:
+        return lo, min(hi, -b / a)
+    if b < 0.0:
+        return 1.0, 0.0
+    return lo, hi
+
+
+@njit(cache=True)
+def count_beyond(ax, ay, bx, by, sign, ls, s):
+    """Add ``sign`` to the depth complexity ``ls.counts[s, j]`` of every light
+    sample j in the region whose area the edge's term measures: inside the
+    wedge from the light centre O between OA and OB and beyond AB (so that
+    umbra count + these counts = the number of occluders covering sample j,
+    Laine et al. 2005's depth complexity). Per sample row the region is an
+    interval of x (three half-planes). int8 counts wrap: exact while fewer
+    than 128 layers separate a sample from the centre."""
+    cab = ax * by - ay * bx
+    if cab == 0.0:
+        return
+    if cab < 0.0:
+        ax, ay, bx, by = bx, by, ax, ay
+    ex = bx - ax
+    ey = by - ay
+    rows, first, counts = ls.rows, ls.first, ls.counts
+    for r in range(rows.shape[0]):
+        y, x0, dx = rows[r, 0], rows[r, 1], rows[r, 2]
+        k = first[r + 1] - first[r]
+        lo, hi = _half_line(-ay, ax * y, x0 - dx, x0 + k * dx)      # left of OA
+        lo, hi = _half_line(by, -bx * y, lo, hi)                     # right of OB
+        lo, hi = _half_line(ey, -ex * (y - ay) - ey * ax, lo, hi)    # beyond AB
+        if not (hi >= lo):
+            continue
+        i0 = max(int(math.ceil((lo - x0) / dx)), 0)
+        i1 = min(int(math.floor((hi - x0) / dx)), k - 1)
+        for i in range(first[r] + i0, first[r] + i1 + 1):
+            counts[s, i] += sign
+
+
+@njit(cache=True, parallel=True)
+def overlap_from_counts(umbra, counts):
+    """Equation 5's C per receiver: the mean over the light samples of the
+    occluders counted beyond the first, max(U + count_j - 1, 0)."""
+    n = counts.shape[0]
+    m = counts.shape[1]
+    C = np.zeros(n)
+    if m == 0:
+        return C
+    for s in prange(n):
+        acc = 0
+        for j in range(m):
+            d = umbra[s] + counts[s, j] - 1
+            if d > 0:
+                acc += d
+        C[s] = acc / m
+    return C
 
 
 @njit(cache=True)
@@ -297,7 +401,7 @@ def blocks_centre(px, py, pz, dx, dy, dz, tv, nv, side_light, t, is_sun):
 
 
 @njit(cache=True, inline="always")
-def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s):
+def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s, ls):
     """Signed term of edge k of triangle t at receiver p (section 2.3):
     + minor-segment area when p is outside the edge, - when inside.
     ``lit``: grid.KernelLight; ``RF[s]``: receiver s's frame (below).
@@ -320,7 +424,9 @@ def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s
     ((q-c).e1 - lam p2x, (q-c).e2 - lam p2y, 1 - lam), lam = (q-c).n / h_p,
     and only 0 <= lam <= 1 (between the light and the receiver) occludes.
     Sun: gnomonic projection of the direction q - p (e1, e2 scaled by
-    1/tan(half angle), n = direction to the sun)."""
+    1/tan(half angle), n = direction to the sun).
+    ``ls``: grid.LightSamples (no rows: the paper's C = 0); the term's sign
+    is added to ``ls.counts[s]`` at the samples inside the region it measures."""
     shape, cx, cy, cz, is_sun = lit.shape, lit.cx, lit.cy, lit.cz, lit.is_sun
     e1x, e1y, e1z, e2x, e2y, e2z = RF[s, 0], RF[s, 1], RF[s, 2], RF[s, 3], RF[s, 4], RF[s, 5]
     nx, ny, nz, hp, p2x, p2y = RF[s, 6], RF[s, 7], RF[s, 8], RF[s, 9], RF[s, 10], RF[s, 11]
@@ -344,7 +450,7 @@ def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s
         x1 = rx * e1x + ry * e1y + rz * e1z
         y1 = rx * e2x + ry * e2y + rz * e2z
         w1 = rx * nx + ry * ny + rz * nz
-        K = edge_occlusion(shape, x0, y0, w0, x1, y1, w1, np.inf)
+        wmax = np.inf
     else:
         rx, ry, rz = ax - cx, ay - cy, az - cz
         lam = (rx * nx + ry * ny + rz * nz) / hp
@@ -356,8 +462,14 @@ def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s
         x1 = rx * e1x + ry * e1y + rz * e1z - lam * p2x
         y1 = rx * e2x + ry * e2y + rz * e2z - lam * p2y
         w1 = 1.0 - lam
-        K = edge_occlusion(shape, x0, y0, w0, x1, y1, w1, 1.0)
+        wmax = 1.0
+    ok, ax2, ay2, bx2, by2 = clipped_edge(shape, x0, y0, w0, x1, y1, w1, wmax)
+    if not ok:
+        return 0.0
+    K = segment_area(shape, ax2, ay2, bx2, by2)
     if K == 0.0:
         return 0.0
     inside = edge_side(px, py, pz, dx, dy, dz, ax, ay, az, bx, by, bz) == ref
+    if ls.rows.shape[0]:
+        count_beyond(ax2, ay2, bx2, by2, -1 if inside else 1, ls, s)
     return -K if inside else K

@@ -71,6 +71,11 @@ Records = namedtuple("Records", "t k")
 Quads = namedtuple("Quads", "ep flag rng")
 """Per (record, face): projected endpoints, QUAD_* flag and column/row range
 (``edge_quads``)."""
+LightSamples = namedtuple("LightSamples", "rows first counts")
+"""Equation 5's overlap C: light samples in rows (unit-shape coordinates,
+``geom.light_samples``: per row y, first x, spacing; first sample index) and
+every receiver's depth complexity there beyond its umbra count (int8[n, m],
+cell order; no rows: the paper's C = 0)."""
 KernelLight = namedtuple("KernelLight", "cx cy cz is_sun shape rL tan_a")
 """The light's centre (sun: unit direction towards it), kind, shape
 (SHAPE_*), bounding radius r_L and, for the sun, tan of the half angle."""
@@ -605,7 +610,7 @@ def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, f
 
 
 @njit(cache=True, parallel=True)
-def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, evals):
+def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals):
     """Soft shadow kernel (sections 2.3, 2.5): per bin, every quad listed in
     it is rasterized over the bin's columns; the wedge test (second
     optimization) or the quad test selects the receivers, and each gets the
@@ -614,7 +619,8 @@ def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, re
     bins: Bins; blist: BinList of records; quads: Quads; grid: ReceiverGrid;
     fb: FaceBounds; rec: Receivers; records: Records; occ: Occluders; lit:
     KernelLight; mode: geom.SILHOUETTE_*; refine / wedge: the two overdraw
-    reductions; ``pen`` per receiver, ``evals`` per bin."""
+    reductions; ``pen`` per receiver, ls: LightSamples (updated), ``evals``
+    per bin."""
     perm, bin_face, bin_bx, bin_by, bin_size = bins.perm, bins.face, bins.bx, bins.by, bins.size
     binmax = bins.maxz
     bin_start, bin_items = blist.start, blist.items
@@ -725,15 +731,16 @@ def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, re
                             dx, dy, dz = cx - px, cy - py, cz - pz
                         nev += 1
                         pen[s] += penumbra_term(px, py, pz, dx, dy, dz, tv, nv, facing[t], orient[t], mode, t, k,
-                                                lit, RF, s)
+                                                lit, RF, s, ls)
         evals[b] = nev
 
 
 @njit(cache=True, parallel=True)
-def penumbra_brute_force(rec, records, occ, lit, mode, pen):
+def penumbra_brute_force(rec, records, occ, lit, mode, pen, ls):
     """Every record against every receiver (no quads): the ground truth the
     quads and both overdraw reductions must reproduce (tests, ablation).
-    rec: Receivers; records: Records; occ: Occluders; lit: KernelLight."""
+    rec: Receivers; records: Records; occ: Occluders; lit: KernelLight;
+    ls: LightSamples."""
     Ps, RF = rec.Ps, rec.RF
     rec_t, rec_k = records.t, records.k
     tv, nv, facing, orient = occ.tv, occ.nv, occ.facing, occ.orient
@@ -749,7 +756,7 @@ def penumbra_brute_force(rec, records, occ, lit, mode, pen):
         acc = 0.0
         for r in range(rec_t.shape[0]):
             acc += penumbra_term(px, py, pz, dx, dy, dz, tv, nv, facing[rec_t[r]], orient[rec_t[r]], mode,
-                                 rec_t[r], rec_k[r], lit, RF, s)
+                                 rec_t[r], rec_k[r], lit, RF, s, ls)
         pen[s] = acc
 
 
