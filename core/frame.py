@@ -178,4 +178,4 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     if progress:
         progress("done", 1.0)
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
-                       time.perf_counter() - t0, compile_s, buffers if keep_buffers else None)
+                       time.perf_counter() - t0, compile_s, buffers=buffers if keep_buffers else None)
