@@ -110,6 +110,15 @@ def test_panel_says_what_auto_picks_and_why(registered):
         assert want.method.split("_irr")[0] in knobs_of           # the picked method's knobs
 
 
+def _torus_shape(resolution):
+    """auto's SceneShape of torus_plane's spot light as the CLI captures it
+    (``resolution`` None: the scene's own)."""
+    from penumbra.bridge.capture import capture_scene
+    from scenes import open_sample
+    sc = capture_scene(open_sample("torus_plane"), resolution=resolution)
+    return ac.scene_shape(sc, sc.lights[0])
+
+
 def test_cli_plan_prints_autos_pick_under_the_budget(capsys, tmp_path):
     """``penumbra plan --methods auto`` resolves per light; a bad budget
     exits 2 with one line and writes nothing."""
@@ -119,7 +128,7 @@ def test_cli_plan_prints_autos_pick_under_the_budget(capsys, tmp_path):
     for budget in ("0.02", "0.3"):
         assert main(["plan", blend, "--methods", "auto,embree", "--error-budget", budget]) == 0
         out = capsys.readouterr().out
-        want = ac.choose("sphere", 0.8, budget=float(budget))
+        want = ac.choose("sphere", 0.8, budget=float(budget), shape=_torus_shape(None))
         assert want.reason in out and f"methods: {want.method}, embree" in out
         picks.append(want.method)
     assert picks[0] != picks[1]                     # the budget changes the pick
@@ -141,7 +150,7 @@ def test_cli_render_auto_writes_the_picked_method_under_its_id(tmp_path):
     import OpenEXR
     from penumbra.cli import main
     blend = sample_path("torus_plane")
-    want = ac.choose("sphere", 0.8, budget=0.3)
+    want = ac.choose("sphere", 0.8, budget=0.3, shape=_torus_shape((48, 48)))
     assert main(["render", blend, "--methods", "auto,embree", "--out", str(tmp_path), "--resolution", "48x48",
                  "--samples", "16", "--error-budget", "0.3", "--no-previews"]) == 0
     rec = json.load(open(next(tmp_path.glob("*.json"))))
