@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import secrets
+from contextlib import contextmanager
 from typing import Dict, Mapping
 
 import numpy as np
@@ -20,35 +21,43 @@ ALPHA_PASS = "Alpha"     # the coverage of a filtered frame; its channel is "A"
 TEMP_PREFIX = ".penumbra-"
 
 
-def _atomic_target(path: str):
-    """Create an empty temporary file beside ``path`` and return its name.
+@contextmanager
+def atomic_file(path: str):
+    """Yield a temporary file name beside ``path`` (the file exists, empty);
+    when the block ends, rename it onto ``path``; on any exception
+    (KeyboardInterrupt from a farm's SIGTERM included) remove it.
 
-    It is created with mode 0666 less the process umask (0644 under 022), as
-    ``open()`` would create ``path`` itself, so the renamed file is readable
-    by whoever the umask allows (``tempfile.mkstemp`` would force 0600).
+    The name is drawn before the file is created and the clean-up covers
+    the creation itself, so an interrupt at any point leaves either the
+    whole new file or none, never a temporary one. The file is created with
+    mode 0666 less the process umask (0644 under 022), as ``open()`` would
+    create ``path`` itself (``tempfile.mkstemp`` would force 0600).
     """
     d = os.path.dirname(os.path.abspath(path)) or "."
     suffix = os.path.splitext(path)[1]
-    while True:
-        tmp = os.path.join(d, f"{TEMP_PREFIX}{secrets.token_hex(6)}{suffix}")
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
-            continue
+    tmp = None
+    try:
+        while True:
+            tmp = os.path.join(d, f"{TEMP_PREFIX}{secrets.token_hex(6)}{suffix}")
+            try:
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            except FileExistsError:      # another file of that name: not ours
+                tmp = None
+                continue
+            break
         os.close(fd)
-        return tmp
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        if tmp is not None and os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
-    tmp = _atomic_target(path)
-    try:
+    with atomic_file(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def write_multilayer(path: str, layers: Mapping[str, Mapping[str, np.ndarray]],
@@ -74,15 +83,9 @@ def write_multilayer(path: str, layers: Mapping[str, Mapping[str, np.ndarray]],
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for k, v in (attributes or {}).items():
         header[f"penumbra/{k}"] = str(v)
-    tmp = _atomic_target(path)
-    try:
+    with atomic_file(path) as tmp:
         with OpenEXR.File(header, channels) as f:
             f.write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def read_multilayer(path: str) -> Dict[str, Dict[str, np.ndarray]]:

@@ -137,3 +137,39 @@ def test_written_files_honour_the_umask(tmp_path, umask, mode):
     assert files == ["scene.0001.Area.pcf.png", "scene.0001.exr", "scene.0001.json"]
     assert {f: os.stat(tmp_path / f).st_mode & 0o777 for f in files} == {f: mode for f in files}
     assert exr.read_multilayer(paths["exr"])["Area"]["pcf"].shape == (8, 8)
+
+
+@pytest.mark.parametrize("where", ["create", "close", "write", "replace"])
+def test_an_interrupt_anywhere_leaves_no_temporary_file(tmp_path, monkeypatch, where):
+    """A farm's SIGTERM becomes KeyboardInterrupt at any bytecode: raised
+    inside the temporary file's creation (after the file exists), its close,
+    the write or the rename, it leaves no file but the old one (CI once found
+    an empty ``.penumbra-*.json`` left by an interrupt between the creation
+    and the clean-up)."""
+    target = tmp_path / "frame.json"
+    target.write_bytes(b"old")
+    real = {"create": os.open, "close": os.close, "replace": os.replace}
+
+    def interrupted(name):
+        def fn(*a, **k):
+            real[name](*a, **k)                  # the side effect happens, then the signal
+            raise KeyboardInterrupt
+        return fn
+
+    if where == "create":
+        monkeypatch.setattr(exr.os, "open", interrupted("create"))
+    elif where == "close":
+        monkeypatch.setattr(exr.os, "close", interrupted("close"))
+    elif where == "replace":
+        monkeypatch.setattr(exr.os, "replace", interrupted("replace"))
+    with pytest.raises(KeyboardInterrupt):
+        if where == "write":
+            with exr.atomic_file(str(target)) as tmp:
+                open(tmp, "wb").write(b"half")
+                raise KeyboardInterrupt
+        else:
+            exr.atomic_write_bytes(str(target), b"new")
+    monkeypatch.undo()
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == ["frame.json"]
+    assert target.read_bytes() == (b"new" if where == "replace" else b"old")
