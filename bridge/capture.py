@@ -510,10 +510,8 @@ def _assemble(scene, depsgraph, resolution, pieces, infos, lights, mattes) -> Sc
         triangles=triangles, tri_object=tri_object, objects=objects,
         camera=_capture_camera(scene, depsgraph), lights=lights,
         resolution=resolution if resolution is not None else render_resolution(scene),
-        frame=int(scene.frame_current), name=blend_stem(scene), alpha=alpha)
-    # materials whose transparency the capture could not read (for the plan;
-    # core.planner.alpha_notes); empty for most scenes
-    captured.alpha_opaque = list(mattes.opaque)
+        frame=int(scene.frame_current), name=blend_stem(scene), alpha=alpha,
+        alpha_opaque=list(mattes.opaque))
     return captured
 
 

@@ -121,7 +121,7 @@ _EXTENSION_NAMES = {REPEAT: "Repeat", EXTEND: "Extend", CLIP: "Clip"}
 def alpha_notes(scene: Scene) -> List[str]:
     """The plan's words on alpha mattes (issue 18): the mattes captured
     (``scene.alpha``) and the materials treated as opaque because the capture
-    could not read their transparency (``scene.alpha_opaque``, set by
+    could not read their transparency (``scene.alpha_opaque``, filled by
     ``bridge/capture.py``). Empty for a scene without either."""
     notes = []
     m = scene.alpha
@@ -130,7 +130,7 @@ def alpha_notes(scene: Scene) -> List[str]:
             f"{m.names[i]} ({int(m.width[i])}x{int(m.height[i])}, "
             f"{_INTERPOLATION_NAMES.get(int(m.interpolation[i]), '?')}, "
             f"{_EXTENSION_NAMES.get(int(m.extension[i]), '?')})" for i in range(m.count)))
-    opaque = list(getattr(scene, "alpha_opaque", None) or [])
+    opaque = list(scene.alpha_opaque)
     if opaque:
         notes.append("treated as opaque (transparency not read): " + "; ".join(opaque))
     return notes

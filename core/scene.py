@@ -230,6 +230,9 @@ class Scene:
     frame: int = 1
     name: str = "scene"
     alpha: Optional[AlphaMattes] = None    # core/alpha.py; None: every surface is opaque
+    #: materials whose transparency the capture could not read, treated as
+    #: opaque ("material: why"; the plan's notes, ``planner.alpha_notes``)
+    alpha_opaque: List[str] = field(default_factory=list)
 
     def __post_init__(self):
         tris = np.asarray(self.triangles, np.float32).reshape(-1, 3, 3)

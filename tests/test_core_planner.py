@@ -67,3 +67,18 @@ def test_plan_json_carries_reasons():
     (lp,) = rec["lights"]
     assert lp["action"] == "compute" and lp["reason"] and lp["decisions"]
     assert lp["buffers"] == ["gbuffer", "light_view"]
+
+
+def test_materials_treated_as_opaque_survive_a_scene_copy_and_reach_the_plan():
+    """``Scene.alpha_opaque`` is a field: ``dataclasses.replace`` (the
+    filtered frame's supersampled scene, the CLI's resolution override) keeps
+    it, and the plan names each material in one note; a scene without any has
+    no such note."""
+    import dataclasses
+    from penumbra.core.planner import make_plan
+    sc = half_plane_scene(area_light(1.0), res=16)
+    assert sc.alpha_opaque == [] and not any("opaque" in n for n in make_plan(sc, ["pcf"]).notes)
+    sc.alpha_opaque = ["Bark: Math node on Alpha", "Moss: image 'moss.png' missing"]
+    copy = dataclasses.replace(sc, resolution=(8, 8))
+    notes = [n for n in make_plan(copy, ["pcf"]).notes if "opaque" in n]
+    assert len(notes) == 1 and "Bark: Math node" in notes[0] and "moss.png" in notes[0]
