@@ -16,8 +16,7 @@ from typing import Optional
 import bpy
 
 from ..bridge import settings
-from ..bridge.pipeline import (FrameJob, FrameRequest, check_out_dir, first_line,
-                               no_light_reason, prepare_frame, scaled_resolution, write_back)
+from ..bridge.pipeline import FrameJob, FrameRequest, check_out_dir, scaled_resolution, write_back
 from .modal_job import ModalFrameJob
 
 
@@ -88,15 +87,7 @@ class PENUMBRA_OT_compute_passes(ModalFrameJob, bpy.types.Operator):
         request = FrameRequest(resolution=scaled_resolution(scene, self.resolution_scale),
                                methods=methods, samples=self.samples or None, per_light=per_light,
                                threads=settings.preferred_threads(), catch_errors=True)
-        try:
-            job = prepare_frame(scene, request)
-        except (ValueError, RuntimeError) as exc:
-            self.report({"ERROR"}, f"Penumbra: {first_line(exc)}")
-            return None
-        if not job.steps:
-            self.report({"ERROR"}, f"Penumbra: {no_light_reason(job)}")
-            return None
-        return job
+        return self._plan_job(scene, request)
 
     def _conclude(self, context, job: FrameJob):
         if job.error is not None:

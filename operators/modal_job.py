@@ -15,7 +15,7 @@ from typing import Optional
 
 import bpy
 
-from ..bridge.pipeline import BackgroundFrameJob, FrameJob, first_line
+from ..bridge.pipeline import BackgroundFrameJob, FrameJob, first_line, no_light_reason, prepare_frame
 
 #: seconds between two looks at the worker
 TICK = 0.1
@@ -46,6 +46,19 @@ class ModalFrameJob:
         finally:
             wm.progress_end()
         return self._conclude(context, job)
+
+    def _plan_job(self, scene, request) -> Optional[FrameJob]:
+        """``prepare_frame(scene, request)``, or None with the reason
+        reported (a bad scene, or no light to compute)."""
+        try:
+            job = prepare_frame(scene, request)
+        except (ValueError, RuntimeError) as exc:
+            self.report({"ERROR"}, f"Penumbra: {first_line(exc)}")
+            return None
+        if not job.steps:
+            self.report({"ERROR"}, f"Penumbra: {no_light_reason(job)}")
+            return None
+        return job
 
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:

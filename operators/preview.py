@@ -16,8 +16,7 @@ import bpy
 
 from ..bridge import settings
 from ..bridge.images import combine, show_preview
-from ..bridge.pipeline import (FrameRequest, first_line, no_light_reason, prepare_frame,
-                               scaled_resolution)
+from ..bridge.pipeline import FrameRequest, scaled_resolution
 from .modal_job import ModalFrameJob
 
 
@@ -70,15 +69,7 @@ class PENUMBRA_OT_preview(ModalFrameJob, bpy.types.Operator):
         side = self.max_size or (int(ss.preview_size) if ss is not None else 256)
         request = FrameRequest(resolution=scaled_resolution(scene, 1.0, side), fast=True, references=(),
                                only=only, per_light=per_light, threads=settings.preferred_threads())
-        try:
-            job = prepare_frame(scene, request)
-        except (ValueError, RuntimeError) as exc:
-            self.report({"ERROR"}, f"Penumbra: {first_line(exc)}")
-            return None
-        if not job.steps:
-            self.report({"ERROR"}, f"Penumbra: {no_light_reason(job)}")
-            return None
-        return job
+        return self._plan_job(scene, request)
 
     def _conclude(self, context, job):
         if job.error is not None:
