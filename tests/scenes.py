@@ -33,3 +33,25 @@ def load_sample(name: str, resolution=(128, 128)):
     sc = capture_scene(open_sample(name), resolution=tuple(resolution))
     sc.name = name
     return sc
+
+
+def tiny_cycles_scene(width: int, height: int, world_color=None):
+    """A factory-empty bpy scene for compositor checks: Cycles at 1 sample,
+    no denoising, ``width`` x ``height`` at 100 %, one camera (and a world of
+    ``world_color`` when given). The compositor evaluates headless only in a
+    render with ``write_still``, so these tests render this."""
+    import bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 1
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    if world_color is not None:
+        scene.world = bpy.data.worlds.new("World")
+        scene.world.color = world_color
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    return scene

@@ -11,7 +11,7 @@ import pytest
 import penumbra
 from penumbra.bridge import compat
 from penumbra.bridge import compositor
-from scenes import sample_path
+from scenes import sample_path, tiny_cycles_scene
 
 EFFECTS = bpy.app.version >= (5, 3, 0)
 
@@ -41,19 +41,7 @@ def _render(scene, path) -> np.ndarray:
 
 
 def _tiny_scene():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.samples = 1
-    scene.cycles.use_denoising = False
-    scene.render.resolution_x = scene.render.resolution_y = 8
-    scene.render.resolution_percentage = 100
-    scene.world = bpy.data.worlds.new("World")
-    scene.world.color = (0.5, 0.5, 0.5)
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    return scene
+    return tiny_cycles_scene(8, 8, world_color=(0.5, 0.5, 0.5))
 
 
 def test_api_line_is_detected():

@@ -18,21 +18,13 @@ from penumbra.bridge import compat
 from penumbra.bridge import compositor as C
 from penumbra.bridge import images
 from penumbra.core import exr
+from scenes import tiny_cycles_scene
 
 W, H = 16, 8
 
 
 def _scene():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.samples = 1
-    scene.cycles.use_denoising = False
-    scene.render.resolution_x, scene.render.resolution_y = W, H
-    scene.render.resolution_percentage = 100
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(cam)
-    scene.camera = cam
+    scene = tiny_cycles_scene(W, H)
     for name in ("Key.Light", "Fill"):
         ob = bpy.data.objects.new(name, bpy.data.lights.new(name, "AREA"))
         scene.collection.objects.link(ob)
