@@ -156,7 +156,8 @@ def render_pixel_filter(scene):
     c = getattr(scene, "cycles", None)
     return from_render_settings(scene.render.engine, getattr(c, "pixel_filter_type", None),
                                 float(getattr(c, "filter_width", 1.5)),
-                                float(getattr(scene.render, "filter_size", 1.5)))
+                                float(getattr(scene.render, "filter_size", 1.5)),
+                                int(getattr(getattr(scene, "eevee", None), "taa_render_samples", 0)))
 
 
 def pixel_filter(scene, spec=None):

@@ -15,7 +15,9 @@ samples x and y from one 1-D table each), with the user's width w:
 
 EEVEE (``eevee_film``: ``film_filter_weight``) weights by the distance r to the
 pixel centre: exp(-r^2 / (2 (0.284 R)^2)) for r <= R = ``render.filter_size``
-(a Gaussian fitted to Blackman-Harris); its radial form is kept here.
+(a Gaussian fitted to Blackman-Harris, its precomputed sample table holding
+the samples within R), and no filter at one render sample; checked against
+Blender's eevee_film.cc / eevee_film_shared.hh.
 
 A pixel's filtered value is the filter-weighted integral over its footprint,
 which reaches into the neighbouring pixels. Here it is the quadrature over a
@@ -174,12 +176,16 @@ def _grid(text: str, spec: str) -> int:
 
 
 def from_render_settings(engine: str, cycles_type: Optional[str], cycles_width: float,
-                         filter_size: float) -> PixelFilter:
+                         filter_size: float, eevee_samples: int = 0) -> PixelFilter:
     """The filter a render uses: Cycles' type and width (BOX ignores the
     width: Blender passes 1), EEVEE's ``render.filter_size``; any other
-    engine: Cycles' settings."""
+    engine: Cycles' settings. EEVEE filters nothing at one render sample
+    (``eevee_samples``, ``scene.eevee.taa_render_samples``: eevee_film.cc sets
+    the filter radius to 0 when the sample count is 1), nor at size 0."""
     if engine and engine.upper().startswith("BLENDER_EEVEE"):
-        return PixelFilter("eevee", float(filter_size)) if filter_size > 0 else PixelFilter()
+        if filter_size <= 0 or int(eevee_samples) == 1:
+            return PixelFilter()
+        return PixelFilter("eevee", float(filter_size))
     t = (cycles_type or "BLACKMAN_HARRIS").upper()
     if t == "BOX":
         return PixelFilter("box", 1.0)

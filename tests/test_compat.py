@@ -215,3 +215,20 @@ def test_image_pixels_round_trip_bit_for_bit():
     img.pixels.foreach_get(back)
     np.testing.assert_array_equal(back, rgba.ravel())
     bpy.data.images.remove(img)
+
+
+def test_the_scenes_pixel_filter_is_read_from_its_engine_settings():
+    """``settings.render_pixel_filter`` on a real scene: Cycles' type and
+    width, EEVEE's ``render.filter_size``, and none for EEVEE at one render
+    sample (``eevee.taa_render_samples``; eevee_film.cc sets the radius to 0)."""
+    from penumbra.bridge.settings import render_pixel_filter
+    from penumbra.core.pixel_filter import PixelFilter
+    scene = _tiny_scene()
+    scene.cycles.pixel_filter_type, scene.cycles.filter_width = "GAUSSIAN", 2.5
+    assert render_pixel_filter(scene) == PixelFilter("gaussian", 2.5)
+    scene.render.engine = "BLENDER_EEVEE"
+    scene.render.filter_size = 2.0
+    scene.eevee.taa_render_samples = 16
+    assert render_pixel_filter(scene) == PixelFilter("eevee", 2.0)
+    scene.eevee.taa_render_samples = 1
+    assert render_pixel_filter(scene).is_none

@@ -63,6 +63,10 @@ def test_render_settings_and_specs():
     assert from_render_settings("CYCLES", "BLACKMAN_HARRIS", 1.5, 1.5) == PixelFilter("blackman-harris", 1.5)
     assert from_render_settings("CYCLES", "BOX", 0.01, 1.5) == PixelFilter("box", 1.0)   # Cycles ignores it
     assert from_render_settings("BLENDER_EEVEE_NEXT", "GAUSSIAN", 1.0, 2.0) == PixelFilter("eevee", 2.0)
+    assert from_render_settings("BLENDER_EEVEE", "GAUSSIAN", 1.0, 2.0, 64) == PixelFilter("eevee", 2.0)
+    # EEVEE's film: radius 0 at one render sample, whatever the filter size
+    assert from_render_settings("BLENDER_EEVEE", "GAUSSIAN", 1.0, 2.0, 1).is_none
+    assert from_render_settings("BLENDER_EEVEE", "GAUSSIAN", 1.0, 0.0, 64).is_none
     assert parse("none").is_none
     assert parse("Gaussian:0.75") == PixelFilter("gaussian", 0.75)
     assert parse("blackman-harris:1.5:8") == PixelFilter("blackman-harris", 1.5, grid=8)
