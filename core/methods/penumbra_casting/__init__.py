@@ -46,6 +46,12 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
   polygons inside the slice of every closed mesh, cast first; they block only
   relations the mesh blocks, and put most umbra receivers in full umbra before
   the mesh's small triangles are cast (issue 17: 1M-triangle smooth solids).
+* Alpha-matte blockers (issue 18, section 4 "Alpha matte textures",
+  ``alpha_blockers``): processed after all opaque ones; ``alpha_fetch``
+  (default) finds the receivers in each matte blocker's V_L through the
+  hierarchy and, per relation left open, intersects the blocker, fetches
+  the alpha there and multiplies (1 - alpha) in; off: Embree rays through
+  the matte blockers for every open relation.
 * Triangles that cannot shadow a visible receiver never enter the
   traversal: a bounding-box test against the hull of the light and the
   receivers, then V_L against the receivers' bounding box.

@@ -8,11 +8,10 @@ are cast as before (``cast``), and the matte blockers come last: each
 relation (l_i, r_j) that no opaque blocker took gets its transmittance
 through the matte blockers, the product of (1 - alpha) of the texture
 fetched at each intersection of the ray with a matte blocker (as Cycles and
-``embree`` compute it, ``alpha_rays.transmittance``). The intersections are
-found with an Embree BVH over the matte blockers only (a departure: not by
-the hierarchical traversal, whose umbra shortcuts do not hold for a partly
-clear blocker), so every relation a blocker would take is tested exactly
-once; relations in an opaque umbra are never traced.
+``embree`` compute it, ``alpha_rays.transmittance``). The umbra shortcuts
+of the traversal (optimization A) do not hold for a partly clear blocker,
+so every relation a matte blocker may take is tested exactly once, after
+the opaque cast; relations in an opaque umbra are never tested.
 
 V_j = (1 / S) sum over the relations of r_j left open by the opaque
 blockers of their transmittance: with binary mattes the same relations as
@@ -31,7 +30,12 @@ Two ways to find the intersections (``alpha_fetch``):
   multiplied in. No ray is traced; receivers outside every V_L keep their
   opaque V. Shared edges are watertight: an edge function is exactly
   antisymmetric in its edge, and a ray exactly on an edge belongs to one
-  side by a fixed vertex order.
+  side by a fixed vertex order. Ours, not the paper's: the fetch runs per
+  receiver after the traversal (all samples of a receiver against its few
+  matte blockers, branch-free) rather than inside it. The rays of
+  ``embree`` start again just past each crossing (``sampling.offset_origin``);
+  the segment here does not, so a second crossing that grazes within that
+  offset can count here and not there (a few relations in a few pixels).
 * Embree (``transmitted_visibility``): every open relation of every
   receiver is traced through a BVH of the matte blockers
   (``alpha_rays.transmittance``), as the reference traces its rays.
