@@ -134,7 +134,7 @@ def _texel(m, k, ix, iy):
     return np.float64(m.texels[m.offset[k] + np.int64(iy) * w + ix])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")   # per hit: no call (tuple reference counts)
 def matte_alpha(m, k, s, t):
     """Alpha of matte ``k`` at texture coordinates (s, t), as Cycles' Image
     Texture node samples it: CLOSEST takes texel (floor(s w), floor(t h));
@@ -170,7 +170,7 @@ def matte_alpha(m, k, s, t):
     return min(max(a, 0.0), 1.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")   # per hit: no call (tuple reference counts)
 def alpha_at(m, tri, u, v):
     """Alpha of triangle ``tri`` (an index into the scene's triangles) at the
     hit with Embree barycentrics (u, v): its matte at UV = (1-u-v) uv0 +

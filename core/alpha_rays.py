@@ -97,20 +97,42 @@ def _step_past(prim, u, v, tri_index, geo, o0, d, tfar0, o, tfar):
 
 
 @njit(cache=True, nogil=True)
-def _attenuate(prim, u, v, tri_index, mattes, ray, trans, last, going):
-    """Multiply ray ``ray[i]``'s transmittance by (1 - alpha) of its hit; it
-    goes on while something is left and it has crossings left (``last``:
-    none; a hit then blocks it)."""
+def _cross_mattes(prim, u, v, tri_index, geo, last, trans, ray, o0, d, t0, o, tf):
+    """One crossing of ``transmittance``, in place: each ray's transmittance
+    ``trans[ray[i]]`` times (1 - alpha) of its hit (``last``: no crossing
+    left, a hit blocks it), and the rays that go on (something let through),
+    moved just past the hit (``_step_past``) with something left of them,
+    compacted to the front of ``ray``, ``o0``, ``d``, ``t0`` (first origins,
+    directions, lengths) and ``o``, ``tf`` (origins and lengths left): one
+    pass, no NumPy temporaries. Returns how many go on."""
+    k = 0
     for i in range(prim.shape[0]):
-        going[i] = False
         if prim[i] < 0:
             continue
         j = ray[i]
+        g = tri_index[prim[i]]
+        uu, vv = np.float64(u[i]), np.float64(v[i])
         if last:
             trans[j] = 0.0
             continue
-        trans[j] *= np.float32(1.0 - alpha_at(mattes, tri_index[prim[i]], np.float64(u[i]), np.float64(v[i])))
-        going[i] = trans[j] > 0.0
+        trans[j] *= np.float32(1.0 - alpha_at(geo.mattes, g, uu, vv))
+        if not trans[j] > 0.0:
+            continue
+        px, py, pz, n0, n1, n2 = _surface(geo.triangles, g, uu, vv)
+        if n0 * d[i, 0] + n1 * d[i, 1] + n2 * d[i, 2] < 0:
+            n0, n1, n2 = -n0, -n1, -n2
+        ox, oy, oz = offset_origin(px, py, pz, n0, n1, n2, geo.scale)
+        # as _step_past: the offset point in float32, then what is left of the ray
+        o[k, 0], o[k, 1], o[k, 2] = ox, oy, oz
+        tf[k] = t0[i] - ((ox - o0[i, 0]) * d[i, 0] + (oy - o0[i, 1]) * d[i, 1] + (oz - o0[i, 2]) * d[i, 2])
+        if not tf[k] > 0:
+            continue
+        ray[k] = j
+        o0[k, 0], o0[k, 1], o0[k, 2] = o0[i, 0], o0[i, 1], o0[i, 2]
+        d[k, 0], d[k, 1], d[k, 2] = d[i, 0], d[i, 1], d[i, 2]
+        t0[k] = t0[i]
+        k += 1
+    return k
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -180,19 +202,14 @@ def transmittance(opaque, matte, org, dirs, tfar) -> np.ndarray:
         return trans
     ray = np.flatnonzero(trans > 0)
     o0, d, t0 = org[ray], dirs[ray], tfar[ray]
-    o, tf = o0, t0
+    o, tf = np.empty_like(o0), np.empty_like(t0)
+    r = _run(matte, o0, d, t0, output=1) if len(ray) else None
     for crossing in range(MAX_CROSSINGS + 1):
-        if not len(ray):
+        if r is None:
             break
-        r = _run(matte, o, d, tf, output=1)
-        going = np.empty(len(ray), bool)
-        _attenuate(r["primID"], r["u"], r["v"], matte.tri_index, matte.alpha.mattes, ray, trans,
-                   crossing == MAX_CROSSINGS, going)
-        ray, o0, d, t0 = ray[going], o0[going], d[going], t0[going]
-        o, tf = _past(matte, r["primID"][going], r["u"][going], r["v"][going], o0, d, t0)
-        left = tf > 0
-        if not left.all():
-            ray, o0, d, t0, o, tf = ray[left], o0[left], d[left], t0[left], o[left], tf[left]
+        n = _cross_mattes(r["primID"], r["u"], r["v"], matte.tri_index, matte.alpha, crossing == MAX_CROSSINGS,
+                          trans, ray, o0, d, t0, o, tf)
+        r = _run(matte, o[:n], d[:n], tf[:n], output=1) if n else None
     return trans
 
 

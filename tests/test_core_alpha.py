@@ -100,6 +100,8 @@ def test_fractional_mattes_multiply(layers, expect):
     r = run("embree", scene, samples=16)[0]
     for p in ("embree", "embree_irr"):
         assert np.allclose(r.passes[p], expect, atol=1e-6), p
+    v = run("penumbra_casting", scene, samples=16)[0].passes["penumbra_casting"]   # the texture fetch
+    assert np.allclose(v, expect, atol=1e-6)
 
 
 def test_hard_shadow_of_a_checkerboard_matte():
@@ -198,15 +200,18 @@ def test_light_map_depth_ignores_clear_texels():
 
 
 # -- penumbra_casting: the texture fetch on the relations, matte blockers last --
-def test_penumbra_casting_equals_embree_on_a_matte_scene():
+@pytest.mark.parametrize("alpha_fetch", [True, False])
+def test_penumbra_casting_equals_embree_on_a_matte_scene(alpha_fetch):
     """A checkerboard card and an opaque half plane under a square light,
     the reference's own samples: the same relations, the same V (up to rays
-    within rounding of a texel or triangle edge)."""
+    within rounding of a texel or triangle edge), with the paper's texture
+    fetch and with Embree rays through the matte blockers."""
     checker = (np.add.outer(np.arange(8), np.arange(8)) % 2).astype(np.float32)
     scene = matte_layers_scene(area_light(size=0.5, z=HL), [(1.0, checker, CLOSEST, REPEAT)], res=48,
                                ground=2.0, camera=top_ortho_camera(2.0, height=0.5))
     e = run("embree", scene, samples=64)[0].passes["embree"]
-    p = run("penumbra_casting", scene, samples=64, shared_samples_with_reference=True)[0].passes["penumbra_casting"]
+    p = run("penumbra_casting", scene, samples=64, shared_samples_with_reference=True,
+            alpha_fetch=alpha_fetch)[0].passes["penumbra_casting"]
     assert 0.3 < e.mean() < 0.7
     assert np.abs(p - e).mean() < 1e-3
     assert np.abs(p - e).max() <= 3 / 64 + 1e-6
@@ -221,6 +226,81 @@ def test_penumbra_casting_fractional_mattes_multiply(ground_casts):
     scene.objects[0].casts_shadow = ground_casts
     v = run("penumbra_casting", scene, samples=64)[0].passes["penumbra_casting"]
     assert np.allclose(v, 0.25, atol=1e-6)
+
+
+def matte_leaf_cloud(light=None, res=40):
+    """``synthetic.leaf_cloud_scene`` with a matte on every leaf: a binary
+    8 x 8 checkerboard (Closest) on half of them, a Linear gradient
+    (fractional alpha) on the others."""
+    from synthetic import leaf_cloud_scene
+    scene = leaf_cloud_scene(n_leaves=60, res=res)
+    n = (len(scene.triangles) - 2) // 2
+    uv = np.zeros((len(scene.triangles), 3, 2), np.float32)
+    uv[2:2 + n] = [[0, 0], [1, 0], [1, 1]]
+    uv[2 + n:] = [[0, 0], [1, 1], [0, 1]]
+    matte = np.full(len(scene.triangles), -1)
+    leaf = np.arange(n) % 2
+    matte[2:2 + n] = matte[2 + n:] = leaf
+    checker = (np.add.outer(np.arange(8), np.arange(8)) % 2).ravel()
+    gradient = np.linspace(0.0, 1.0, 16)
+    scene.alpha = AlphaMattes(matte, uv, np.concatenate([checker, gradient]), [0, 64], [8, 4], [8, 4],
+                              [CLOSEST, LINEAR], [REPEAT, EXTEND], ["leaf / checker", "leaf / gradient"])
+    if light is not None:
+        scene.lights = [light]
+    return scene
+
+
+@pytest.mark.parametrize("light", ["area", "sun", "sphere"])
+def test_penumbra_casting_texture_fetch_equals_its_embree_rays(light):
+    """The paper's texture fetch (section 4) against Embree rays through the
+    matte blockers, on the same relations (the paper's sample sets): the
+    same V up to relations within rounding of a texel or triangle edge and
+    grazing second crossings that the rays' offset past each crossing steps
+    over (a few relations in a few pixels), for binary and filtered mattes,
+    area, sun and sphere lights."""
+    from synthetic import sun_light
+    lt = {"area": None, "sun": sun_light(angle=0.15), "sphere": sphere_light(radius=0.3, z=3.0)}[light]
+    scene = matte_leaf_cloud(lt)
+    fetch, _ = run("penumbra_casting", scene, samples=64)
+    rays, _ = run("penumbra_casting", scene, samples=64, alpha_fetch=False)
+    p, q = fetch.passes["penumbra_casting"], rays.passes["penumbra_casting"]
+    assert fetch.stats["matte_pairs"] > 0
+    assert float(((q > 0) & (q < 1)).mean()) > 0.03      # the mattes shadow part of the view
+    assert np.abs(p - q).mean() < 2e-4
+    assert float((np.abs(p - q) > 1e-4).mean()) < 0.03
+    assert np.abs(p - q).max() <= 3 / 64 + 1e-6
+
+
+def test_texture_fetch_counts_a_shared_edge_once():
+    """Rays through the diagonal of a quad of two triangles (alpha 0.5):
+    the edge functions are exactly 0 there, and the fixed vertex order
+    gives the crossing to one triangle only (V = 0.5, not 0.25 or 1), from
+    either side of the quad; rays beside the diagonal too."""
+    from penumbra.core.methods.penumbra_casting import alpha_blockers as ab
+    from penumbra.core.methods.penumbra_casting import prepare
+    from penumbra.core.methods.penumbra_casting.cast import Receivers
+    scene = matte_layers_scene(area_light(size=1.0, z=HL), [(HO, [[0.5]], CLOSEST, REPEAT)], res=4)
+    m = producer_of("penumbra_casting")
+    setup = prepare(FrameBuffers(scene, 4, 4), scene.lights[0], m.make_params({"samples": 64}))
+    a, b, c, d = [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]
+    tris = np.array([[a, b, c], [a, c, d]], np.float64)
+    mb = ab.MatteBlockers(tris, np.array([0, 1], np.int64), ab.corner_order(tris), np.zeros((2, 4, 1)),
+                          np.zeros(2, np.int64))
+    mattes = AlphaMattes([0, 0], np.zeros((2, 3, 2)), [0.5], [0], [1], [1], [CLOSEST], [REPEAT]).packed()
+    t = np.linspace(-0.6, 0.6, 64)
+    for z_rec, z_light in ((0.0, 2.0), (2.0, 0.0)):
+        for off in (0.0, 1e-9, -0.3):
+            SP = np.zeros((1, 64, 4))
+            # the quad (z = 1) halfway: the ray crosses it at (t, t + off)
+            SP[0, :, 0], SP[0, :, 1], SP[0, :, 2], SP[0, :, 3] = 2 * t, 2 * (t + off), z_light, 1.0
+            smp = setup.light_samples()._replace(SP=SP)
+            rec = Receivers(np.array([[0.0, 0.0, z_rec]]), np.zeros(1, np.int64), setup.idx[:1], setup.Pg[:1],
+                            setup.M)
+            V = np.empty(1)
+            ab.fetch_visibility(smp, rec, np.zeros(1, np.uint8), np.full(1, -1, np.int64),
+                                np.zeros((1, 1), np.uint64), 64, np.array([0, 2], np.int64),
+                                np.array([0, 1], np.int64), mb, mattes, V)
+            assert V[0] == 0.5, (z_rec, off, V[0])
 
 
 def test_alpha_data_only_for_the_triangles_that_need_it():

@@ -78,27 +78,11 @@ def generate_shadow_rays(P, Nrm, pix, lp, ns, seed, scale, org, dirs, tfar, w):
 
 
 @njit(cache=True, nogil=True)
-def reduce_visibility(occ, w, ns, v_avg, v_irr):
-    """occ: embreex result per ray (-1 = unblocked) -> per-pixel V (eq. 2, eq. 1 ratio)."""
-    n = v_avg.shape[0]
-    for i in range(n):
-        lit = 0
-        wl = 0.0
-        wt = 0.0
-        for s in range(ns):
-            k = i * ns + s
-            wt += w[k]
-            if occ[k] == -1:
-                lit += 1
-                wl += w[k]
-        v_avg[i] = lit / ns
-        v_irr[i] = wl / wt if wt > 0.0 else 0.0
-
-
-@njit(cache=True, nogil=True)
-def reduce_transmittance(trans, w, ns, v_avg, v_irr):
-    """trans: each ray's transmittance through alpha mattes (issue 18:
-    Cycles' product of (1 - alpha)) -> per-pixel V (eq. 2, eq. 1 ratio)."""
+def reduce_visibility(trans, w, ns, v_avg, v_irr):
+    """trans: each ray's transmittance (0 or 1 past opaque triangles; issue
+    18: Cycles' product of (1 - alpha) through mattes) -> per-pixel V (eq. 2,
+    eq. 1 ratio). A ray with nothing let through adds nothing (its weight
+    is not multiplied by 0)."""
     n = v_avg.shape[0]
     for i in range(n):
         lit = 0.0
@@ -107,8 +91,9 @@ def reduce_transmittance(trans, w, ns, v_avg, v_irr):
         for s in range(ns):
             k = i * ns + s
             wt += w[k]
-            lit += trans[k]
-            wl += w[k] * trans[k]
+            if trans[k] != 0.0:
+                lit += trans[k]
+                wl += w[k] * trans[k]
         v_avg[i] = lit / ns
         v_irr[i] = wl / wt if wt > 0.0 else 0.0
 
@@ -136,11 +121,7 @@ def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, thread
         tfar = np.empty(m, np.float32)
         w = np.empty(m, np.float64)
         generate_shadow_rays(P[a:b], Nrm[a:b], pix[a:b], lp, ns, seed, scale, org, dirs, tfar, w)
-        if tri_scene.alpha is None:
-            occ = tri_scene.occluded_f32(org, dirs, tfar)
-            reduce_visibility(occ, w, ns, v_avg[a:b], v_irr[a:b])
-        else:
-            reduce_transmittance(tri_scene.transmittance(org, dirs, tfar), w, ns, v_avg[a:b], v_irr[a:b])
+        reduce_visibility(tri_scene.transmittance(org, dirs, tfar), w, ns, v_avg[a:b], v_irr[a:b])
 
     each_in_threads(work, chunks, max(1, int(threads or numba.get_num_threads())))
     return v_avg, v_irr, n * ns

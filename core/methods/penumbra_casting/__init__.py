@@ -46,6 +46,12 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
   polygons inside the slice of every closed mesh, cast first; they block only
   relations the mesh blocks, and put most umbra receivers in full umbra before
   the mesh's small triangles are cast (issue 17: 1M-triangle smooth solids).
+* Alpha-matte blockers (issue 18, section 4 "Alpha matte textures",
+  ``alpha_blockers``): processed after all opaque ones; ``alpha_fetch``
+  (default) finds the receivers in each matte blocker's V_L through the
+  hierarchy and, per relation left open, intersects the blocker, fetches
+  the alpha there and multiplies (1 - alpha) in; off: Embree rays through
+  the matte blockers for every open relation.
 * Triangles that cannot shadow a visible receiver never enter the
   traversal: a bounding-box test against the hull of the light and the
   receivers, then V_L against the receivers' bounding box.
@@ -87,7 +93,8 @@ from numba import njit, prange
 from ... import sampling
 from ...kernels import each_in_threads
 from ..registry import register
-from .alpha_blockers import split_blockers, transmitted_visibility
+from .alpha_blockers import (MatteBlockers, corner_order, fetch_visibility, matte_pairs, matte_triangles,
+                             split_blockers, transmitted_visibility)
 from .blockers import MAXB, coplanar_blockers, pad_triangles
 from .cores import interior_blockers
 from .cast import (N_ST, ST_GROUP_TESTS, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LEAF_VISITS, ST_LIVE,
@@ -120,6 +127,8 @@ class PenumbraCastingParams:
     RebuildFraction: float = 0.25     # A, line 29: the paper's "large enough fraction" (not given)
     shared_samples_with_reference: bool = False   # the embree reference's own per-pixel samples
     materialize_hard_volumes: bool = False  # True: build the 4 planes of every V_li per triangle
+    alpha_fetch: bool = True          # section 4: alpha fetched at the relation-blocker intersection
+                                      # (False: Embree rays through the matte blockers, ``alpha_blockers``)
     chunks: int = 0                   # receiver chunks processed in parallel; 0 = automatic
     seed: int = 0
 
@@ -387,6 +396,21 @@ class _Chunk:
     hier_nodes_peak: int = 0
     leaves: int = 0
     V: np.ndarray = None
+    matte_pairs: int = 0
+
+
+def _matte_blockers(mattes, L: LightSetup, eps: float, root_bb: np.ndarray, tol: float) -> MatteBlockers:
+    """The matte blockers (``alpha_blockers``) with their V_L, those that
+    cannot shadow the receivers' box dropped."""
+    tris, tri = matte_triangles(mattes)
+    polys, nv = pad_triangles(tris)
+    VL = np.zeros((len(tris), 4, MAXP))
+    nVL = np.zeros(len(tris), np.int64)
+    keep = np.zeros(len(tris), np.bool_)
+    _light_volumes(polys, nv, L.DVL, L.nvl, L.DEL, L.nel, eps, root_bb, tol, VL, nVL, keep)
+    tris = np.ascontiguousarray(tris[keep])
+    return MatteBlockers(tris, np.ascontiguousarray(tri[keep]), corner_order(tris),
+                         np.ascontiguousarray(VL[keep]), np.ascontiguousarray(nVL[keep]))
 
 
 def _light_box(L: LightSetup):
@@ -506,6 +530,11 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
                                  setup.idx[rows].copy(), np.ascontiguousarray(setup.Pg[rows]),
                                  np.ascontiguousarray(setup.M[rows]) if L.mode == MODE_SPHERE else setup.M))
     stats["chunks"] = len(chunks)
+    mb = None
+    if mattes is not None and params.alpha_fetch:
+        with timer("cull"):
+            mb = _matte_blockers(mattes, L, setup.eps, root_bb, setup.tol)
+        stats["matte_blockers"] = int(len(mb.tri))
     blk = Blockers(order, blockers, blocker_nv, VL, nVL)
     grp = LightGroups(L.DVg, L.nvg, L.DEg, L.neg, L.g_start)
     smp = setup.light_samples()
@@ -572,7 +601,11 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             c.rebuild_s += time.perf_counter() - tr
         c.V = np.empty(len(c.rows))
         chunk_visibility(c.fu, c.slot, c.pool, L.S, c.V)
-        if mattes is not None:
+        if mb is not None:
+            ptr, lists = matte_pairs(mb, c.hier, c.pts, c.fu, setup.tol)
+            c.matte_pairs = int(ptr[-1])
+            fetch_visibility(smp, rec, c.fu, c.slot, c.pool, L.S, ptr, lists, mb, mattes.alpha.mattes, c.V)
+        elif mattes is not None:
             c.V = transmitted_visibility(mattes, smp, rec, c.fu, c.slot, c.pool, L.S)
         c.cast_s = time.perf_counter() - t_start - c.rebuild_s
 
@@ -583,6 +616,8 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
     for c in chunks:
         V[c.rows] = c.V
     st = np.sum([c.st for c in chunks], axis=0)
+    if mb is not None:
+        stats["matte_pairs"] = int(sum(c.matte_pairs for c in chunks))   # (receiver, matte blocker) in V_L
     bytes_per_mask = nwords * 8
     stats.update({
         "rebuilds": int(sum(c.rebuilds for c in chunks)),

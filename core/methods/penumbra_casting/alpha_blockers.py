@@ -8,24 +8,50 @@ are cast as before (``cast``), and the matte blockers come last: each
 relation (l_i, r_j) that no opaque blocker took gets its transmittance
 through the matte blockers, the product of (1 - alpha) of the texture
 fetched at each intersection of the ray with a matte blocker (as Cycles and
-``embree`` compute it, ``alpha_rays.transmittance``). The intersections are
-found with an Embree BVH over the matte blockers only (a departure: not by
-the hierarchical traversal, whose umbra shortcuts do not hold for a partly
-clear blocker), so every relation a blocker would take is tested exactly
-once; relations in an opaque umbra are never traced.
+``embree`` compute it, ``alpha_rays.transmittance``). The umbra shortcuts
+of the traversal (optimization A) do not hold for a partly clear blocker,
+so every relation a matte blocker may take is tested exactly once, after
+the opaque cast; relations in an opaque umbra are never tested.
 
 V_j = (1 / S) sum over the relations of r_j left open by the opaque
 blockers of their transmittance: with binary mattes the same relations as
 ``embree``'s rays (``shared_samples_with_reference``) give the same V.
+
+Two ways to find the intersections (``alpha_fetch``):
+
+* the paper's texture fetch (default, ``fetch_visibility``): the matte
+  blockers' penumbra volumes V_L find, through the receiver hierarchy (box
+  and point tests of figure 2, optimization B's active planes), the
+  receivers each one may shadow; every open relation of such a receiver is
+  intersected with those blockers only (r_j in the hard volume V_li of T
+  exactly when the segment r_j -> l_i crosses T: the edge functions of
+  ``geometry.receiver_edge_functions``, linear in the sample, give the
+  barycentrics as well), the alpha fetched there and (1 - alpha)
+  multiplied in. No ray is traced; receivers outside every V_L keep their
+  opaque V. Shared edges are watertight: an edge function is exactly
+  antisymmetric in its edge, and a ray exactly on an edge belongs to one
+  side by a fixed vertex order. Ours, not the paper's: the fetch runs per
+  receiver after the traversal (all samples of a receiver against its few
+  matte blockers, branch-free) rather than inside it. The rays of
+  ``embree`` start again just past each crossing (``sampling.offset_origin``);
+  the segment here does not, so a second crossing that grazes within that
+  offset can count here and not there (a few relations in a few pixels).
+* Embree (``transmitted_visibility``): every open relation of every
+  receiver is traced through a BVH of the matte blockers
+  (``alpha_rays.transmittance``), as the reference traces its rays.
 """
 from __future__ import annotations
 
+import math
+from collections import namedtuple
 from typing import Optional, Tuple
 
 import numpy as np
 from numba import njit
 
 from ... import alpha_rays, raycast
+from ...alpha import alpha_at
+from .geometry import box_vs_volume, point_in_volume
 from .light import sample_point
 
 #: relations traced per Embree batch
@@ -40,21 +66,25 @@ def split_blockers(scene, casting: np.ndarray) -> Tuple[np.ndarray, Optional[ray
     return (casting, None) if has is None else (casting[~has], mattes)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _open_count(pool, sl, S):
+    """How many of the S relations of the receiver with mask row ``sl``
+    (-1: none) no opaque blocker took."""
+    if sl < 0:
+        return S
+    c = 0
+    for i in range(S):
+        if not (pool[sl, i >> 6] >> np.uint64(i & 63)) & np.uint64(1):
+            c += 1
+    return c
+
+
 @njit(cache=True, nogil=True)
 def _open_relations(fu, slot, pool, S, count):
     """Per receiver: how many of its S relations no opaque blocker took
     (full umbra: none; no mask: all)."""
     for r in range(fu.shape[0]):
-        if fu[r]:
-            count[r] = 0
-        elif slot[r] < 0:
-            count[r] = S
-        else:
-            c = 0
-            for i in range(S):
-                if not (pool[slot[r], i >> 6] >> np.uint64(i & 63)) & np.uint64(1):
-                    c += 1
-            count[r] = c
+        count[r] = 0 if fu[r] else _open_count(pool, slot[r], S)
 
 
 @njit(cache=True, nogil=True)
@@ -110,3 +140,189 @@ def transmitted_visibility(bvh: raycast.TriangleScene, smp, rec, fu, slot, pool,
             total += np.bincount(owner, weights=trans, minlength=m)
         r0 = r1
     return total / S
+
+
+# -- the paper's texture fetch (section 4) -----------------------------------
+MatteBlockers = namedtuple("MatteBlockers", "tris tri lex VL nVL")
+"""Matte blocker triangles as Embree holds them (float64[K,3,3] of the
+float32 corners), their ids in ``Scene.triangles`` (``alpha_at``),
+``lex[k, e]``: corner e+1 before corner e+2 in lexicographic order (the
+tie rule of an edge function that is exactly 0), and their penumbra volumes
+V_L (planes ``VL[k, :, :nVL[k]]``)."""
+
+ALL_PLANES = np.int64(-1)
+
+
+def matte_triangles(mattes: raycast.TriangleScene):
+    """(float64[K,3,3] finite matte triangles, their global ids)."""
+    tris = np.asarray(mattes.alpha.triangles[mattes.tri_index], np.float64).reshape(-1, 3, 3)
+    ok = np.isfinite(tris.reshape(len(tris), 9)).all(axis=1)
+    return np.ascontiguousarray(tris[ok]), np.ascontiguousarray(mattes.tri_index[ok], np.int64)
+
+
+def corner_order(tris: np.ndarray) -> np.ndarray:
+    """uint8[K,3]: ``MatteBlockers.lex``."""
+    lex = np.zeros((len(tris), 3), np.uint8)
+    for e in range(3):
+        p, q = tris[:, (e + 1) % 3], tris[:, (e + 2) % 3]
+        before = (p[:, 0] < q[:, 0]) | ((p[:, 0] == q[:, 0]) & ((p[:, 1] < q[:, 1])
+                                                                 | ((p[:, 1] == q[:, 1]) & (p[:, 2] < q[:, 2]))))
+        lex[:, e] = before
+    return lex
+
+
+@njit(cache=True, nogil=True)
+def matte_candidates(mb, hier, pts, fu, tol, ptr, lists):
+    """Per receiver the matte blockers whose V_L holds it (figure 2's box and
+    point tests, B's active planes; receivers in full umbra skipped): with
+    ``lists`` empty, their count into ``ptr[r + 1]``; else the blockers,
+    ascending, into ``lists[ptr[r]:ptr[r + 1]]``."""
+    fill = len(lists) > 0
+    at = np.zeros(pts.shape[0], np.int64)
+    stack = np.empty(2 * hier.depth + 8, np.int64)
+    act_stack = np.empty(2 * hier.depth + 8, np.int64)
+    for k in range(mb.nVL.shape[0]):
+        n = mb.nVL[k]
+        if n < 0:
+            continue
+        stack[0] = 0
+        act_stack[0] = ALL_PLANES
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            ok, act = box_vs_volume(hier.bb, node, mb.VL, k, n, act_stack[sp], True, tol)
+            if not ok:
+                continue
+            if hier.left[node] < 0:
+                for q in range(hier.start[node], hier.start[node] + hier.count[node]):
+                    r = hier.perm[q]
+                    if fu[r] or not point_in_volume(mb.VL, k, n, act, pts[r, 0], pts[r, 1], pts[r, 2], tol):
+                        continue
+                    if fill:
+                        lists[ptr[r] + at[r]] = k
+                        at[r] += 1
+                    else:
+                        ptr[r + 1] += 1
+            else:
+                stack[sp] = hier.left[node]
+                act_stack[sp] = act
+                stack[sp + 1] = hier.right[node]
+                act_stack[sp + 1] = act
+                sp += 2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _edge_ok(e, lex, k, j, front):
+    """An edge function exactly 0 (the segment through edge j's line):
+    the hit counts for one of the two triangles sharing the edge only."""
+    return e != 0.0 or (lex[k, j] != 0) == front
+
+
+@njit(cache=True, nogil=True)
+def fetch_visibility(smp, rec, fu, slot, pool, S, ptr, lists, mb, mattes, V):
+    """V per receiver: (1 / S) sum over its open relations of the product of
+    (1 - alpha) at every matte blocker of ``lists[ptr[r]:ptr[r + 1]]`` the
+    segment r_j -> l_i crosses (Laine & Aila section 4: the texture fetch at
+    the ray-blocker intersection); more than ``alpha_rays.MAX_CROSSINGS``
+    crossings block it (as ``alpha_rays.transmittance``). Per receiver and
+    blocker: the edge functions U_e = (b - r) x (c - r) (linear forms in the
+    direction d = l_i - r: U_e . d) and T's plane; per relation three dot
+    products per blocker give the test, the barycentrics and t. The test
+    runs over all S samples of a receiver without branches (it vectorizes),
+    the fetch only where it hit."""
+    cap = alpha_rays.MAX_CROSSINGS
+    dx = np.empty(S)
+    dy = np.empty(S)
+    dz = np.empty(S)
+    tmax = np.empty(S)
+    tr = np.empty(S, np.float32)
+    hits = np.empty(S, np.int64)
+    hit = np.empty(S, np.uint8)
+    pts = rec.pts
+    tris = mb.tris
+    for r in range(fu.shape[0]):
+        if fu[r]:
+            V[r] = 0.0
+            continue
+        sl = slot[r]
+        a, b = ptr[r], ptr[r + 1]
+        if a == b:                       # in no matte blocker's V_L: the opaque V
+            V[r] = _open_count(pool, sl, S) / S
+            continue
+        px, py, pz = pts[r, 0], pts[r, 1], pts[r, 2]
+        for i in range(S):
+            hits[i] = 0
+            if sl >= 0 and (pool[sl, i >> 6] >> np.uint64(i & 63)) & np.uint64(1):
+                tr[i] = 0.0              # taken by an opaque blocker
+                dx[i] = dy[i] = dz[i] = tmax[i] = 0.0
+                continue
+            tr[i] = 1.0
+            x, y, z, w = sample_point(smp, i, r, rec)
+            if w != 0.0:
+                dx[i], dy[i], dz[i] = x / w - px, y / w - py, z / w - pz
+                tmax[i] = 1.0 - 1e-6     # the reference's ray length, in units of |d|
+            else:
+                dx[i], dy[i], dz[i] = x, y, z
+                tmax[i] = math.inf
+        for j in range(b - a):
+            k = lists[a + j]
+            ax, ay, az = tris[k, 0, 0] - px, tris[k, 0, 1] - py, tris[k, 0, 2] - pz
+            bx, by, bz = tris[k, 1, 0] - px, tris[k, 1, 1] - py, tris[k, 1, 2] - pz
+            cx, cy, cz = tris[k, 2, 0] - px, tris[k, 2, 1] - py, tris[k, 2, 2] - pz
+            x0, x1, x2 = by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx
+            y0, y1, y2 = cy * az - cz * ay, cz * ax - cx * az, cx * ay - cy * ax
+            z0, z1, z2 = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+            ex, ey, ez = bx - ax, by - ay, bz - az
+            fx, fy, fz = cx - ax, cy - ay, cz - az
+            nx, ny, nz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
+            no = nx * ax + ny * ay + nz * az
+            any_hit = np.uint8(0)
+            for i in range(S):
+                u0 = dx[i] * x0 + dy[i] * x1 + dz[i] * x2
+                u1 = dx[i] * y0 + dy[i] * y1 + dz[i] * y2
+                u2 = dx[i] * z0 + dy[i] * z1 + dz[i] * z2
+                s = u0 + u1 + u2
+                den = dx[i] * nx + dy[i] * ny + dz[i] * nz
+                inside = (((s > 0.0) & (u0 >= 0.0) & (u1 >= 0.0) & (u2 >= 0.0))
+                          | ((s < 0.0) & (u0 <= 0.0) & (u1 <= 0.0) & (u2 <= 0.0)))
+                # 0 < t = no / den < tmax, without the division
+                ahead = (((den > 0.0) & (no > 0.0) & (no < tmax[i] * den))
+                         | ((den < 0.0) & (no < 0.0) & (no > tmax[i] * den)))
+                h = np.uint8(inside & ahead)
+                hit[i] = h
+                any_hit |= h
+            if not any_hit:
+                continue
+            for i in range(S):
+                if not hit[i] or tr[i] == 0.0:
+                    continue
+                u0 = dx[i] * x0 + dy[i] * x1 + dz[i] * x2
+                u1 = dx[i] * y0 + dy[i] * y1 + dz[i] * y2
+                u2 = dx[i] * z0 + dy[i] * z1 + dz[i] * z2
+                s = u0 + u1 + u2
+                front = s > 0.0
+                if not (_edge_ok(u0, mb.lex, k, 0, front) and _edge_ok(u1, mb.lex, k, 1, front)
+                        and _edge_ok(u2, mb.lex, k, 2, front)):
+                    continue
+                hits[i] += 1
+                if hits[i] > cap:
+                    tr[i] = 0.0
+                else:
+                    tr[i] *= np.float32(1.0 - alpha_at(mattes, mb.tri[k], u1 / s, u2 / s))
+        total = 0.0
+        for i in range(S):
+            total += tr[i]
+        V[r] = total / S
+
+
+def matte_pairs(mb: MatteBlockers, hier, pts, fu, tol):
+    """(ptr, lists): ``matte_candidates`` as CSR arrays."""
+    m = len(pts)
+    ptr = np.zeros(m + 1, np.int64)
+    matte_candidates(mb, hier, pts, fu, tol, ptr, np.zeros(0, np.int64))
+    np.cumsum(ptr, out=ptr)
+    lists = np.empty(max(1, int(ptr[-1])), np.int64)
+    if ptr[-1]:
+        matte_candidates(mb, hier, pts, fu, tol, ptr, lists)
+    return ptr, lists

@@ -312,7 +312,7 @@ def min_rotations(P, centre, w0):
     return M, ang
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")   # per relation: a call would cost the tuples' reference counts
 def sample_point(smp, i, r, rec):
     """Homogeneous position of bit ``i`` of receiver ``r``'s light sample set
     (smp: LightSamples; rec: cast.Receivers, whose set_id, pix, Pg and M are read)."""
