@@ -137,8 +137,8 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
     refs = {"average": ref.passes["embree"], "irradiance": ref.passes["embree_irr"]}
     sheet = {"reference (embree)": refs["average"]}
     common = dict(scene=name, size=f"{res[0]}x{res[1]}", threads=numba.get_num_threads(),
-                  load=round(os.getloadavg()[0], 2), light_kind=light.kind,
-                  light_extent=light.extent, triangles=shape.triangles, light_relative=shape.light_relative)
+                  load=round(os.getloadavg()[0], 2), light_kind=light.kind, light_extent=light.extent,
+                  triangles=shape.triangles, light_relative=shape.light_relative, mattes=shape.mattes)
     for mid in SWEEPS:
         if mid not in producers:
             continue
@@ -189,9 +189,9 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
 #: study.csv's columns; the numbers among them (read back by ``kept_rows``)
 CSV_KEYS = ["scene", "size", "method", "setting", "status", "visibility", "seconds", "phases", "rmse", "max_abs",
             "mean_signed", "rmse_penumbra", "threads", "repeats", "error", "light_kind", "light_extent",
-            "triangles", "light_relative", "load"]
+            "triangles", "light_relative", "mattes", "load"]
 _FLOATS = ("seconds", "rmse", "max_abs", "mean_signed", "rmse_penumbra", "light_extent", "light_relative", "load")
-_INTS = ("threads", "repeats", "triangles")
+_INTS = ("threads", "repeats", "triangles", "mattes")
 
 
 def kept_rows(csv_path: str, rerun) -> List[dict]:
@@ -221,6 +221,16 @@ def pareto(points):
     return front
 
 
+def front_of(rows, scene):
+    """(the scene's ok rows at its largest size, their Pareto front as
+    method / setting / seconds / rmse, fastest first)."""
+    ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok" and "reference" not in r["method"]
+          and r["size"] == _largest_size(rows, scene)]
+    pts = [(float(r["seconds"]), float(r["rmse"])) for r in ok]
+    return ok, [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=pts[i][0], rmse=pts[i][1])
+                for i in sorted(pareto(pts), key=lambda i: pts[i])]
+
+
 def write_outputs(rows, sheets, out_dir):
     rows = sorted(rows, key=lambda r: SCENES.index(r["scene"]) if r["scene"] in SCENES else len(SCENES))
     with open(os.path.join(out_dir, "study.csv"), "w", newline="") as f:
@@ -233,18 +243,13 @@ def write_outputs(rows, sheets, out_dir):
     fronts = {}
     for scene in sorted({r["scene"] for r in rows}):
         fig, ax = plt.subplots(figsize=(7, 5))
-        ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok" and "reference" not in r["method"]
-              and r["size"] == _largest_size(rows, scene)]
+        ok, fronts[scene] = front_of(rows, scene)
         for mid in sorted({r["method"] for r in ok}):
             pts = [r for r in ok if r["method"] == mid]
             ax.scatter([r["seconds"] for r in pts], [max(r["rmse"], 1e-5) for r in pts], label=mid)
         if ok:
-            pts = [(r["seconds"], r["rmse"]) for r in ok]
-            front = pareto(pts)
-            fr = sorted((pts[i] for i in front))
-            ax.plot([p[0] for p in fr], [max(p[1], 1e-5) for p in fr], "k--", lw=1, label="Pareto front")
-            fronts[scene] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=ok[i]["seconds"],
-                                  rmse=ok[i]["rmse"]) for i in sorted(front, key=lambda i: pts[i][0])]
+            fr = fronts[scene]
+            ax.plot([p["seconds"] for p in fr], [max(p["rmse"], 1e-5) for p in fr], "k--", lw=1, label="Pareto front")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("wall time per light (s, median of warm runs)")
@@ -340,6 +345,8 @@ def auto_table(rows, fronts=None) -> dict:
         if lit.get("triangles") not in (None, ""):            # auto's rule 5 (SceneShape)
             entry["triangles"] = int(lit["triangles"])
             entry["light_relative"] = float(lit["light_relative"])
+        if lit.get("mattes") not in (None, ""):               # auto's rule 3 (alpha mattes or not)
+            entry["mattes"] = int(lit["mattes"])
         scenes.append(entry)
     out = {"format": "penumbra-auto-table/1", "reference": f"embree {REFERENCE_SAMPLES} spp",
            "settings": f"each method at its default parameters, {AUTO_LIGHT_SAMPLES} light samples",
@@ -369,30 +376,30 @@ def install_table(src: str, dst: str = None) -> str:
     return dst
 
 
-def table_from_csv(csv_path: str, out: str) -> str:
-    """Rebuild the table from a study.csv written before rows carried their
-    light (the light's kind and size are read from the sample scenes)."""
-    with open(csv_path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    lights = {}
-    for name in {r["scene"] for r in rows}:
+def scene_columns(rows) -> List[dict]:
+    """``rows`` (of a study.csv written before rows carried them) with each
+    scene's light kind and size, triangles, relative light size and alpha
+    mattes filled in from the captured sample scene (what they are, not a
+    measurement)."""
+    shapes = {}
+    for name in sorted({r["scene"] for r in rows}):
         sc = load_sample(name, (16, 16))
         lt = sc.lights[0]
-        shape = auto_choice.scene_shape(sc, lt)
-        lights[name] = (lt.kind, lt.extent, shape.triangles, shape.light_relative)
-    fronts = {}
+        sh = auto_choice.scene_shape(sc, lt)
+        shapes[name] = dict(light_kind=lt.kind, light_extent=lt.extent, triangles=sh.triangles,
+                            light_relative=sh.light_relative, mattes=sh.mattes)
     for r in rows:
-        if not r.get("light_kind"):
-            r["light_kind"], r["light_extent"] = lights[r["scene"]][:2]
-        if not r.get("triangles"):
-            r["triangles"], r["light_relative"] = lights[r["scene"]][2:]
-    for name in sorted(lights):
-        ok = [r for r in rows if r["scene"] == name and r["status"] == "ok" and "reference" not in r["method"]
-              and r["size"] == _largest_size(rows, name)]
-        pts = [(float(r["seconds"]), float(r["rmse"])) for r in ok]
-        fronts[name] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=pts[i][0], rmse=pts[i][1])
-                        for i in sorted(pareto(pts), key=lambda i: pts[i][0])]
-    _write_json(out, auto_table(rows, fronts))
+        for k, v in shapes[r["scene"]].items():
+            if r.get(k) in (None, ""):
+                r[k] = v
+    return rows
+
+
+def table_from_csv(csv_path: str, out: str) -> str:
+    """Rebuild the table from a study.csv (a scene's missing light and shape
+    columns are read from the sample scenes: ``scene_columns``)."""
+    rows = scene_columns(kept_rows(csv_path, ()))
+    _write_json(out, auto_table(rows, {name: front_of(rows, name)[1] for name in sorted({r["scene"] for r in rows})}))
     return out
 
 
