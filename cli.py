@@ -143,10 +143,22 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--scene", default=None, help="the .blend to time (default: sample grids)")
     b.add_argument("--repeats", type=_positive("--repeats", 1, 100), default=3)
     b.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
+    b.add_argument("--study-scenes", type=_study_scenes, default=None,
+                   help="comma-separated sample scenes for --part study (default: all); the other "
+                        "scenes' rows are kept from --out's study.csv")
     b.add_argument("--part", choices=("all", "skeleton", "methods", "scaling", "study", "filter"), default="all",
                    help="pipeline phases, per-method tables, triangle-count scaling, the accuracy-versus-time study, or filtered passes")
     add_farm_parser(sub)
     return p
+
+
+def _study_scenes(text: str):
+    from .bench.study import SCENES
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in SCENES]
+    if bad or not names:
+        raise UsageError(f"bad --study-scenes {text!r}: expected some of {','.join(SCENES)}")
+    return names
 
 
 def _check_blend(path: str) -> str:

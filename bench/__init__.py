@@ -49,5 +49,6 @@ def run_bench(args) -> int:
         # imported here, not above: ``python -m penumbra.bench.study`` runs the
         # module as __main__, and runpy warns when the package imported it first
         from .study import run_study
-        run_study(args.out, repeats=repeats, quick=args.quick)
+        from .study import SCENES
+        run_study(args.out, repeats=repeats, quick=args.quick, scenes=getattr(args, "study_scenes", None) or SCENES)
     return 0

@@ -61,7 +61,7 @@ def single_sample_table(tb: Tables) -> List[str]:
     m = tb.reg["single_sample"]
     lines = ["## single_sample (Brabec & Seidel): 512x512, 256x256 light map", "",
              "| scene | adaptive | search off | speed-up | pixels searched |", "|---|---|---|---|---|"]
-    for name in ("grids", "torus_plane"):
+    for name in ("grids", "torus_plane", "foliage"):
         sc, fb = tb.buffers(name, tb.big, tb.big // 2)
         lt = sc.lights[0]
         ta, ra = median_run(lambda: m.run(fb, lt, m.make_params({"adaptive": True})), tb.repeats)
@@ -75,7 +75,7 @@ def layered_table(tb: Tables) -> List[str]:
     m = tb.reg["layered"]
     lines = ["## layered (Agrawala et al. 4): 512x512 output, 256x256 maps", "",
              "| scene | samples | precompute | display | depth complexity |", "|---|---|---|---|---|"]
-    for name in ("grids", "torus_plane"):
+    for name in ("grids", "torus_plane", "foliage"):
         sc, fb = tb.buffers(name, tb.big, tb.big // 2)
         lt = sc.lights[0]
         for ns in ((16, 64) if tb.quick else (64, 256)):
@@ -89,22 +89,25 @@ def layered_table(tb: Tables) -> List[str]:
 
 def depth_raytrace_table(tb: Tables) -> List[str]:
     m = tb.reg["depth_raytrace"]
-    lines = ["## depth_raytrace (Agrawala et al. 5, figure 10 middle): grids 512x512", "",
-             "| samples | no accel | accel | accel + coherence | rays/pixel | embree | speed-up vs embree |",
-             "|---|---|---|---|---|---|---|"]
-    sc, fb = tb.buffers("grids", tb.big)
-    lt = sc.lights[0]
-    for ns in ((16, 64) if tb.quick else (64, 256, 1024)):
-        none = {"samples": ns, "coherence": False, "hierarchical_connectedness": False, "minmax_clipping": False,
-                "rank_images": False, "clear_miss": False, "occlusion_intervals": False}
-        acc = {"samples": ns, "coherence": False}
-        coh = {"samples": ns, "coherence": True}
-        t0, _ = median_run(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else tb.repeats)
-        t1, _ = median_run(lambda: m.run(fb, lt, m.make_params(acc)), tb.repeats)
-        t2, r2 = median_run(lambda: m.run(fb, lt, m.make_params(coh)), tb.repeats)
-        te = tb.embree_time(("grids", tb.big, ns), fb, lt, ns)
-        lines.append(f"| {ns} | {t0:.3f} | {t1:.3f} | {t2:.3f} | {r2.stats.get('rays_per_pixel', float('nan')):.1f} "
-                     f"| {te:.3f} | {te / t2:.2f}x |")
+    lines = ["## depth_raytrace (Agrawala et al. 5, figure 10 middle): 512x512, grids and sun_pillars "
+             "(issue 17: thin pillars under a 4-degree sun)", "",
+             "| scene | samples | no accel | accel | accel + coherence | rays/pixel | embree | speed-up vs embree |",
+             "|---|---|---|---|---|---|---|---|"]
+    cases = [("grids", (16, 64) if tb.quick else (64, 256, 1024)), ("sun_pillars", (16,) if tb.quick else (64, 256))]
+    for name, counts in cases:
+        sc, fb = tb.buffers(name, tb.big)
+        lt = sc.lights[0]
+        for ns in counts:
+            none = {"samples": ns, "coherence": False, "hierarchical_connectedness": False, "minmax_clipping": False,
+                    "rank_images": False, "clear_miss": False, "occlusion_intervals": False}
+            acc = {"samples": ns, "coherence": False}
+            coh = {"samples": ns, "coherence": True}
+            t0, _ = median_run(lambda: m.run(fb, lt, m.make_params(none)), 1 if ns > 256 else tb.repeats)
+            t1, _ = median_run(lambda: m.run(fb, lt, m.make_params(acc)), tb.repeats)
+            t2, r2 = median_run(lambda: m.run(fb, lt, m.make_params(coh)), tb.repeats)
+            te = tb.embree_time((name, tb.big, ns), fb, lt, ns)
+            lines.append(f"| {name} | {ns} | {t0:.3f} | {t1:.3f} | {t2:.3f} | "
+                         f"{r2.stats.get('rays_per_pixel', float('nan')):.1f} | {te:.3f} | {te / t2:.2f}x |")
     return lines
 
 
@@ -185,14 +188,20 @@ def alpha_cards_rows(tb: Tables, m) -> List[str]:
 
 def irregular_table(tb: Tables) -> List[str]:
     m = tb.reg["irregular"]
-    lines = ["## irregular (Johnson et al.): grids 512x512", "",
-             "| light size x | silhouettes from | time | phases |", "|---|---|---|---|"]
-    sc, fb = tb.buffers("grids", tb.big)
-    for scale in (0.5, 1.0, 2.0, 4.0):
+    lines = ["## irregular (Johnson et al.): 512x512, grids at four light sizes and foliage (issue 17: "
+             "overlapping occluders, the overlap C sampled or the paper's C = 0)", "",
+             "| scene | light size x | silhouettes from | overlap C | time | phases |", "|---|---|---|---|---|---|"]
+    cases = [("grids", scale, mode, "sampled") for scale in (0.5, 1.0, 2.0, 4.0) for mode in ("centre", "light")]
+    cases += [("foliage", 1.0, "centre", "sampled"), ("foliage", 1.0, "centre", "zero")]
+    scenes = {}
+    for name, scale, mode, overlap in cases:
+        if name not in scenes:
+            scenes[name] = tb.buffers(name, tb.big)
+        sc, fb = scenes[name]
         lt = _scaled(sc.lights[0], scale)
-        for mode in ("centre", "light"):
-            t, r = median_run(lambda: m.run(fb, lt, m.make_params({"silhouette_from": mode})), tb.repeats)
-            lines.append(f"| {scale} | {mode} | {t:.3f} | {_phases(r)} |")
+        prm = m.make_params({"silhouette_from": mode, "overlap": overlap})
+        t, r = median_run(lambda: m.run(fb, lt, prm), tb.repeats)
+        lines.append(f"| {name} | {scale} | {mode} | {overlap} | {t:.3f} | {_phases(r)} |")
     return lines
 
 

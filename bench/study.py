@@ -32,10 +32,16 @@ from ..core.warmup import ensure_compiled
 from .harness import ROOT, load_sample
 
 REFERENCE_SAMPLES = 1024
-SCENES = ("grids", "sphere_plane", "torus_plane")
-RESOLUTIONS = ((128, 128), (256, 256))
+SCENES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards")
+#: per scene, the two sizes a full run measures (the larger one is the Pareto
+#: plot's, the contact sheet's and the auto table's); chosen so the whole study
+#: fits a working session on the shared 2-core machine (README "Accuracy versus time")
+SIZES = {name: ((128, 128), (256, 256)) for name in SCENES}
+QUICK_SIZES = ((48, 48), (64, 64))
 
-# method id -> list of (label, params). The knobs each paper names.
+# method id -> list of (label, params) or (label, params, light kinds it runs
+# for). The knobs each paper names; "paper:" rows are the paper's version
+# where a default departs from it (issue 17: the study shows both).
 SWEEPS: Dict[str, List] = {
     "pcf": [("NumSamples=16 ResFactor=3", {}),
             ("NumSamples=64 ResFactor=3", {"NumSamples": 64}),
@@ -44,26 +50,38 @@ SWEEPS: Dict[str, List] = {
             ("map 2x", {"map_scale": 2.0}),
             ("receiver_plane off", {"receiver_plane": False})],
     "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
-    # "adaptive" labels the defaults (issue 17 made them the sum of blockers on mesh pieces,
-    # not adaptive); the label stays until the study is re-run and auto's table regenerated
-    "single_sample": [("adaptive", {}), ("no adaptive", {"adaptive": False}),
-                      ("map 2x", {"map_scale": 2.0}), ("paper radius knobs", {"auto_radius": False}),
-                      # issue 17: the paper's one blocker per pixel on object ids (adaptive, section 4.3)
-                      ("paper: nearest blocker, object ids", {"blocker": "nearest", "surfaces": "object"}),
-                      ("sum of blockers, mesh pieces, adaptive", {"adaptive": True})],
+    # the defaults (issue 17): every blocker texel's light summed, ids = connected mesh
+    # pieces, no adaptive sampling (section 4.3's interpolation is made for a ramp)
+    "single_sample": [("sum of blockers, mesh pieces", {}),
+                      ("sum of blockers, mesh pieces, adaptive", {"adaptive": True}),
+                      ("map 2x", {"map_scale": 2.0}),
+                      ("paper radius knobs", {"auto_radius": False}),
+                      # the paper's one blocker per pixel on object ids (adaptive, section 4.3)
+                      ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object"})],
+    # the default: the paper's 4-neighbour splat, ids = connected mesh pieces
     "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
                 ("bilinear", {"samples": 64, "bilinear": True}),
                 ("footprint splat", {"samples": 64, "splat": "footprint"}),
-                # issue 17: the paper's 4-neighbour splat on object ids, and footprints on mesh pieces
-                ("paper: 4-neighbour splat, object ids", {"samples": 64, "splat": "neighbours", "surfaces": "object"}),
-                ("footprint splat, mesh pieces", {"samples": 64, "splat": "footprint", "surfaces": "mesh"})],
+                ("paper: 4-neighbour splat, object ids", {"samples": 64, "splat": "neighbours", "surfaces": "object"})],
     "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
-                       ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False})],
+                       ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False}),
+                       # issue 17: the sun's reference windows fitted to the receivers (the first version)
+                       ("sun windows fitted to receivers", {"samples": 64, "fit_window": "receivers"}, ("sun",))],
     "penumbra_casting": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
-                         ("samples=256", {"samples": 256})],
+                         ("samples=256", {"samples": 256}),
+                         # the paper's per-triangle blockers (no coplanar polygons, no interior slices)
+                         ("paper: triangles", {"samples": 64, "coplanar_blockers": False,
+                                               "interior_blockers": False})],
     "irregular": [("silhouettes from centre", {}), ("overlap C=0 (paper)", {"overlap": "zero"}),
                   ("silhouettes from light", {"silhouette_from": "light"})],
 }
+
+
+def sweep(mid: str, light_kind: str = None) -> List[tuple]:
+    """``(label, params)`` of ``mid``'s sweep for a light of ``light_kind``
+    (None: every entry)."""
+    return [(e[0], e[1]) for e in SWEEPS.get(mid, ())
+            if light_kind is None or len(e) < 3 or light_kind in e[2]]
 
 
 def _apply(method, params: dict, buffers):
@@ -78,78 +96,117 @@ def _apply(method, params: dict, buffers):
     return method.make_params(p), unknown
 
 
-def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=RESOLUTIONS, quick=False) -> List[dict]:
+def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=None, quick=False) -> List[dict]:
+    """Every sweep of ``SWEEPS`` on ``scenes`` at their ``SIZES`` (or
+    ``resolutions`` for all). A full run of a subset of ``SCENES`` keeps the
+    other scenes' rows from ``out_dir/study.csv`` (so one scene is re-measured
+    alone); when the rows then cover every scene, the table is installed."""
+    unknown = [s for s in scenes if s not in SCENES]
+    if unknown:
+        raise ValueError(f"unknown study scene(s) {', '.join(unknown)}: expected some of {', '.join(SCENES)}")
     os.makedirs(out_dir, exist_ok=True)
-    rows = []
+    rows = [] if quick else kept_rows(os.path.join(out_dir, "study.csv"), scenes)
     sheets = {}
     producers = registry.producers()
     for name in scenes:
-        for res in resolutions:
-            scene = load_sample(name, res)
-            light = scene.lights[0]
-            shape = auto_choice.scene_shape(scene, light)     # what auto's cost model scales from
-            fb = FrameBuffers(scene, *res)
-            ref_m = producers["embree"]
-            ref_p = ref_m.make_params({"samples": 64 if quick else REFERENCE_SAMPLES, "seed": 12345})
-            compile_s = ensure_compiled(ref_m, light, ref_p)          # kernel compilation: not in any time
-            t0 = time.perf_counter()
-            ref = ref_m.run(fb, light, ref_p)
-            ref_time = time.perf_counter() - t0
-            mask = reach_mask(fb.gbuffer, light)
-            refs = {"average": ref.passes["embree"], "irradiance": ref.passes["embree_irr"]}
-            sheet = {"reference (embree)": refs["average"]}
-            for mid, sweep in SWEEPS.items():
-                if mid not in producers:
-                    continue
-                m = producers[mid]
-                for label, params in (sweep[:2] if quick else sweep):
-                    row = dict(scene=name, size=f"{res[0]}x{res[1]}", method=mid, setting=label,
-                               threads=numba.get_num_threads(), repeats=repeats, status="ok",
-                               light_kind=light.kind, light_extent=light.extent,
-                               triangles=shape.triangles, light_relative=shape.light_relative)
-                    try:
-                        p, unknown = _apply(m, params, fb)
-                        if unknown:
-                            raise ValueError(f"unknown knob(s) {unknown}")
-                        compile_s += ensure_compiled(m, light, p)   # kernel compilation, timed apart
-                        m.run(fb, light, p)                         # warm: shared buffers, caches
-                        phase_runs, out = [], None
-                        for _ in range(repeats):
-                            t = time.perf_counter()
-                            out = m.run(fb, light, p)
-                            wall = time.perf_counter() - t
-                            phases = dict(out.time_s)
-                            phases["wall"] = wall
-                            phase_runs.append(phases)
-                        med = {k: statistics.median(r.get(k, 0.0) for r in phase_runs) for k in phase_runs[0]}
-                        row["seconds"] = med["wall"]
-                        row["phases"] = json.dumps({k: round(v, 5) for k, v in med.items() if k not in ("wall", "total")})
-                        pid = mid if mid in out.passes else next(iter(out.passes))
-                        vis = m.passes[pid]
-                        v = np.where(mask, out.passes[pid], 1.0)
-                        e = errors(v, refs[vis], mask)
-                        row.update(visibility=vis, rmse=e["rmse"], max_abs=e["max_abs"],
-                                   mean_signed=e["mean_signed"], rmse_penumbra=e["rmse_penumbra"])
-                        if label == sweep[0][0]:
-                            sheet[mid] = v
-                    except Exception as exc:  # a failing method is shown, not dropped
-                        row.update(status="failed", error=f"{type(exc).__name__}: {exc}",
-                                   trace=traceback.format_exc(limit=2))
-                    rows.append(row)
-                    print(f"{name} {res[0]}x{res[1]} {mid:16s} {label:28s} "
-                          + (f"{row['seconds']:.4f}s rmse {row['rmse']:.4f}" if row["status"] == "ok"
-                             else row["error"]), flush=True)
-            rows.append(dict(scene=name, size=f"{res[0]}x{res[1]}", method="embree (reference)",
-                             setting=f"samples={REFERENCE_SAMPLES}", seconds=ref_time, status="ok",
-                             threads=numba.get_num_threads(), repeats=1, visibility="average",
-                             rmse=0.0, max_abs=0.0, mean_signed=0.0, rmse_penumbra=0.0))
-            print(f"{name} {res[0]}x{res[1]} kernel compilation {compile_s:.2f}s (in no row's seconds)",
-                  flush=True)
-            sheets[(name, res)] = (sheet, refs["average"], mask)
+        for res in resolutions or (QUICK_SIZES if quick else SIZES[name]):
+            rows += _measure_scene(name, res, repeats, quick, producers, sheets)
             write_outputs(rows, sheets, out_dir)      # after every scene: a cut-short run keeps its rows
-    if not quick and set(SCENES) <= set(scenes):
+    if not quick and resolutions is None and set(SCENES) <= {r["scene"] for r in rows}:
         # a full run is the planner's new measured table (core/auto_table.json)
         print(f"auto table installed: {install_table(os.path.join(out_dir, 'auto_table.json'))}")
+    return rows
+
+
+def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
+    """The reference and every sweep entry on sample ``name`` at ``res``: its
+    rows; its contact sheet into ``sheets``."""
+    rows = []
+    scene = load_sample(name, res)
+    light = scene.lights[0]
+    shape = auto_choice.scene_shape(scene, light)     # what auto's cost model scales from
+    fb = FrameBuffers(scene, *res)
+    ref_m = producers["embree"]
+    ref_ns = 64 if quick else REFERENCE_SAMPLES
+    ref_p = ref_m.make_params({"samples": ref_ns, "seed": 12345})
+    compile_s = ensure_compiled(ref_m, light, ref_p)          # kernel compilation: not in any time
+    t0 = time.perf_counter()
+    ref = ref_m.run(fb, light, ref_p)
+    ref_time = time.perf_counter() - t0
+    mask = reach_mask(fb.gbuffer, light)
+    refs = {"average": ref.passes["embree"], "irradiance": ref.passes["embree_irr"]}
+    sheet = {"reference (embree)": refs["average"]}
+    common = dict(scene=name, size=f"{res[0]}x{res[1]}", threads=numba.get_num_threads(),
+                  load=round(os.getloadavg()[0], 2), light_kind=light.kind, light_extent=light.extent,
+                  triangles=shape.triangles, light_relative=shape.light_relative, mattes=shape.mattes)
+    for mid in SWEEPS:
+        if mid not in producers:
+            continue
+        m = producers[mid]
+        entries = sweep(mid, light.kind)
+        for label, params in (entries[:2] if quick else entries):
+            row = dict(common, method=mid, setting=label, repeats=repeats, status="ok")
+            try:
+                p, unknown = _apply(m, params, fb)
+                if unknown:
+                    raise ValueError(f"unknown knob(s) {unknown}")
+                compile_s += ensure_compiled(m, light, p)   # kernel compilation, timed apart
+                m.run(fb, light, p)                         # warm: shared buffers, caches
+                phase_runs, out = [], None
+                for _ in range(repeats):
+                    t = time.perf_counter()
+                    out = m.run(fb, light, p)
+                    wall = time.perf_counter() - t
+                    phases = dict(out.time_s)
+                    phases["wall"] = wall
+                    phase_runs.append(phases)
+                med = {k: statistics.median(r.get(k, 0.0) for r in phase_runs) for k in phase_runs[0]}
+                row["seconds"] = med["wall"]
+                row["phases"] = json.dumps({k: round(v, 5) for k, v in med.items() if k not in ("wall", "total")})
+                pid = mid if mid in out.passes else next(iter(out.passes))
+                vis = m.passes[pid]
+                v = np.where(mask, out.passes[pid], 1.0)
+                e = errors(v, refs[vis], mask)
+                row.update(visibility=vis, rmse=e["rmse"], max_abs=e["max_abs"],
+                           mean_signed=e["mean_signed"], rmse_penumbra=e["rmse_penumbra"])
+                if label == entries[0][0]:
+                    sheet[mid] = v
+            except Exception as exc:  # a failing method is shown, not dropped
+                row.update(status="failed", error=f"{type(exc).__name__}: {exc}",
+                           trace=traceback.format_exc(limit=2))
+            rows.append(row)
+            print(f"{name} {res[0]}x{res[1]} {mid:16s} {label:28s} "
+                  + (f"{row['seconds']:.4f}s rmse {row['rmse']:.4f}" if row["status"] == "ok"
+                     else row["error"]), flush=True)
+    rows.append(dict(common, method="embree (reference)", setting=f"samples={ref_ns}", seconds=ref_time,
+                     status="ok", repeats=1, visibility="average", rmse=0.0, max_abs=0.0, mean_signed=0.0,
+                     rmse_penumbra=0.0))
+    print(f"{name} {res[0]}x{res[1]} kernel compilation {compile_s:.2f}s (in no row's seconds)", flush=True)
+    sheets[(name, res)] = (sheet, refs["average"], mask)
+    return rows
+
+
+#: study.csv's columns; the numbers among them (read back by ``kept_rows``)
+CSV_KEYS = ["scene", "size", "method", "setting", "status", "visibility", "seconds", "phases", "rmse", "max_abs",
+            "mean_signed", "rmse_penumbra", "threads", "repeats", "error", "light_kind", "light_extent",
+            "triangles", "light_relative", "mattes", "load"]
+_FLOATS = ("seconds", "rmse", "max_abs", "mean_signed", "rmse_penumbra", "light_extent", "light_relative", "load")
+_INTS = ("threads", "repeats", "triangles", "mattes")
+
+
+def kept_rows(csv_path: str, rerun) -> List[dict]:
+    """The rows of ``csv_path`` (if any) of scenes not in ``rerun``, numbers
+    parsed (a row written before rows carried their light has none)."""
+    if not os.path.exists(csv_path):
+        return []
+    with open(csv_path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["scene"] not in set(rerun)]
+    for r in rows:
+        for k in _FLOATS + _INTS:
+            if r.get(k) in (None, ""):
+                r.pop(k, None)
+            else:
+                r[k] = int(r[k]) if k in _INTS else float(r[k])
     return rows
 
 
@@ -164,11 +221,20 @@ def pareto(points):
     return front
 
 
+def front_of(rows, scene):
+    """(the scene's ok rows at its largest size, their Pareto front as
+    method / setting / seconds / rmse, fastest first)."""
+    ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok" and "reference" not in r["method"]
+          and r["size"] == _largest_size(rows, scene)]
+    pts = [(float(r["seconds"]), float(r["rmse"])) for r in ok]
+    return ok, [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=pts[i][0], rmse=pts[i][1])
+                for i in sorted(pareto(pts), key=lambda i: pts[i])]
+
+
 def write_outputs(rows, sheets, out_dir):
-    keys = ["scene", "size", "method", "setting", "status", "visibility", "seconds", "phases", "rmse", "max_abs",
-            "mean_signed", "rmse_penumbra", "threads", "repeats", "error"]
+    rows = sorted(rows, key=lambda r: SCENES.index(r["scene"]) if r["scene"] in SCENES else len(SCENES))
     with open(os.path.join(out_dir, "study.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, keys, extrasaction="ignore")
+        w = csv.DictWriter(f, CSV_KEYS, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
     import matplotlib                 # a dev dependency, needed only to draw the figures
@@ -177,18 +243,13 @@ def write_outputs(rows, sheets, out_dir):
     fronts = {}
     for scene in sorted({r["scene"] for r in rows}):
         fig, ax = plt.subplots(figsize=(7, 5))
-        ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok" and "reference" not in r["method"]
-              and r["size"] == _largest_size(rows, scene)]
+        ok, fronts[scene] = front_of(rows, scene)
         for mid in sorted({r["method"] for r in ok}):
             pts = [r for r in ok if r["method"] == mid]
             ax.scatter([r["seconds"] for r in pts], [max(r["rmse"], 1e-5) for r in pts], label=mid)
         if ok:
-            pts = [(r["seconds"], r["rmse"]) for r in ok]
-            front = pareto(pts)
-            fr = sorted((pts[i] for i in front))
-            ax.plot([p[0] for p in fr], [max(p[1], 1e-5) for p in fr], "k--", lw=1, label="Pareto front")
-            fronts[scene] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=ok[i]["seconds"],
-                                  rmse=ok[i]["rmse"]) for i in sorted(front, key=lambda i: pts[i][0])]
+            fr = fronts[scene]
+            ax.plot([p["seconds"] for p in fr], [max(p["rmse"], 1e-5) for p in fr], "k--", lw=1, label="Pareto front")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("wall time per light (s, median of warm runs)")
@@ -217,7 +278,15 @@ def write_outputs(rows, sheets, out_dir):
         fig.savefig(os.path.join(out_dir, f"sheet_{scene}.png"), dpi=100)
         plt.close(fig)
     _write_json(os.path.join(out_dir, "auto_table.json"), auto_table(rows, fronts))
-    lines = ["| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra |",
+    reps = sorted({int(r["repeats"]) for r in rows if r.get("repeats") not in (None, "") and "reference" not in r["method"]})
+    threads = sorted({int(r["threads"]) for r in rows if r.get("threads") not in (None, "")})
+    loads = [float(r["load"]) for r in rows if r.get("load") not in (None, "")]
+    lines = [f"Times: median wall seconds of {'/'.join(map(str, reps))} warm runs, "
+             f"{'/'.join(map(str, threads))} Numba threads"
+             + (f", 1-minute load average {min(loads):.1f}-{max(loads):.1f} (per scene in study.csv)" if loads else "")
+             + f"; errors against embree ({', '.join(sorted({r['setting'] for r in rows if 'reference' in r['method']}))})"
+             " over the pixels the light reaches.", "",
+             "| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
@@ -246,7 +315,7 @@ def _largest_size(rows, scene) -> str:
 def default_setting(mid: str):
     """The sweep label of ``mid`` at its default parameters (64 light samples
     where it samples): what a light runs when ``auto`` picks the method."""
-    for label, params in SWEEPS.get(mid, ()):
+    for label, params in sweep(mid):
         if params in ({}, {"samples": AUTO_LIGHT_SAMPLES}):
             return label
     return None
@@ -276,6 +345,8 @@ def auto_table(rows, fronts=None) -> dict:
         if lit.get("triangles") not in (None, ""):            # auto's rule 5 (SceneShape)
             entry["triangles"] = int(lit["triangles"])
             entry["light_relative"] = float(lit["light_relative"])
+        if lit.get("mattes") not in (None, ""):               # auto's rule 3 (alpha mattes or not)
+            entry["mattes"] = int(lit["mattes"])
         scenes.append(entry)
     out = {"format": "penumbra-auto-table/1", "reference": f"embree {REFERENCE_SAMPLES} spp",
            "settings": f"each method at its default parameters, {AUTO_LIGHT_SAMPLES} light samples",
@@ -305,30 +376,30 @@ def install_table(src: str, dst: str = None) -> str:
     return dst
 
 
-def table_from_csv(csv_path: str, out: str) -> str:
-    """Rebuild the table from a study.csv written before rows carried their
-    light (the light's kind and size are read from the sample scenes)."""
-    with open(csv_path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    lights = {}
-    for name in {r["scene"] for r in rows}:
+def scene_columns(rows) -> List[dict]:
+    """``rows`` (of a study.csv written before rows carried them) with each
+    scene's light kind and size, triangles, relative light size and alpha
+    mattes filled in from the captured sample scene (what they are, not a
+    measurement)."""
+    shapes = {}
+    for name in sorted({r["scene"] for r in rows}):
         sc = load_sample(name, (16, 16))
         lt = sc.lights[0]
-        shape = auto_choice.scene_shape(sc, lt)
-        lights[name] = (lt.kind, lt.extent, shape.triangles, shape.light_relative)
-    fronts = {}
+        sh = auto_choice.scene_shape(sc, lt)
+        shapes[name] = dict(light_kind=lt.kind, light_extent=lt.extent, triangles=sh.triangles,
+                            light_relative=sh.light_relative, mattes=sh.mattes)
     for r in rows:
-        if not r.get("light_kind"):
-            r["light_kind"], r["light_extent"] = lights[r["scene"]][:2]
-        if not r.get("triangles"):
-            r["triangles"], r["light_relative"] = lights[r["scene"]][2:]
-    for name in sorted(lights):
-        ok = [r for r in rows if r["scene"] == name and r["status"] == "ok" and "reference" not in r["method"]
-              and r["size"] == _largest_size(rows, name)]
-        pts = [(float(r["seconds"]), float(r["rmse"])) for r in ok]
-        fronts[name] = [dict(method=ok[i]["method"], setting=ok[i]["setting"], seconds=pts[i][0], rmse=pts[i][1])
-                        for i in sorted(pareto(pts), key=lambda i: pts[i][0])]
-    _write_json(out, auto_table(rows, fronts))
+        for k, v in shapes[r["scene"]].items():
+            if r.get(k) in (None, ""):
+                r[k] = v
+    return rows
+
+
+def table_from_csv(csv_path: str, out: str) -> str:
+    """Rebuild the table from a study.csv (a scene's missing light and shape
+    columns are read from the sample scenes: ``scene_columns``)."""
+    rows = scene_columns(kept_rows(csv_path, ()))
+    _write_json(out, auto_table(rows, {name: front_of(rows, name)[1] for name in sorted({r["scene"] for r in rows})}))
     return out
 
 

@@ -16,7 +16,10 @@ The rules, in order (each decision says which one in its reason):
 2. No readable table: the documented fallback ``FALLBACK`` (``pcf`` for
    average visibility, ``embree_irr`` for the irradiance ratio).
 3. Scene matching: the table's scenes lit by the same kind of light (area,
-   sphere, sun); when none is, every measured scene. The light's size is not
+   sphere, sun); when none is, every measured scene. With the scene at hand
+   (rule 5), of those the ones that, like it, have (or have not) shadow-casting
+   alpha mattes (issue 18: rays through mattes cost what the triangle count
+   does not say), when the table has any. The light's size is not
    matched: the scenes' penumbra widths depend on size *relative to* their
    distances, which a size alone does not give. A method counts with its
    *worst* RMSE over the matched scenes (so it meets the budget only if it
@@ -39,7 +42,9 @@ The rules, in order (each decision says which one in its reason):
    (rule "reference is fastest"). Without a shape (or a table scene without
    its triangle count) times are not scaled.
 6. The cheapest candidate with worst RMSE <= budget wins; when none meets
-   the budget, the most accurate one, and the reason says so.
+   the budget: with a shape, the reference if its own worst RMSE meets it
+   (rule "reference is fastest": no method faster than it does), else the
+   most accurate one (the reference too, with a shape), and the reason says so.
 
 Table rows are each method at its default parameters with 64 light samples
 (a light's default Light Samples), which is what the light runs with when
@@ -58,10 +63,10 @@ from .scene import LIGHT_KINDS
 
 AVERAGE, IRRADIANCE = "average", "irradiance"
 #: RMSE against the reference of the same V definition. In the study, 0.05
-#: is met by the sampling methods at 64 samples on every scene (0.004-0.046)
+#: is met by the sampling methods at 64 samples on every scene (0.004-0.042)
 #: and by the depth-map methods on one occluder (sphere_plane, torus_plane:
-#: 0.02-0.05), but not by those on the overlapping penumbrae of ``grids``
-#: (0.15-0.24): it separates "looks right" from "visibly wrong" there.
+#: 0.026-0.044), but not by those on the overlapping penumbrae of ``grids``
+#: and ``foliage`` (0.074-0.22): it separates "looks right" from "visibly wrong" there.
 DEFAULT_BUDGET = 0.05
 #: without a table: the fast depth-map method (average), the reference
 #: estimator (irradiance: no measured method writes that definition)
@@ -87,6 +92,7 @@ class MeasuredScene:
     methods: Dict[str, dict]     # pass id -> {"seconds", "rmse", "visibility", "setting", ...}
     triangles: Optional[int] = None          # shadow-casting triangles (SceneShape)
     light_relative: Optional[float] = None   # light extent / its distance to the casters
+    mattes: Optional[int] = None             # shadow-casting triangles with an alpha matte
 
     @property
     def pixels(self) -> int:
@@ -100,10 +106,11 @@ class SceneShape:
     triangles: int               # shadow-casting triangles
     pixels: int                  # output pixels
     light_relative: float        # light extent / distance from the light to the casters' centre
+    mattes: int = 0              # shadow-casting triangles with an alpha matte (issue 18)
 
     def describe(self) -> str:
-        return (f"{self.triangles:,} triangles, {self.pixels / 1e6:.2f} Mpx, "
-                f"light {self.light_relative:.2f} of its distance")
+        return (f"{self.triangles:,} triangles" + (f" ({self.mattes:,} alpha-matted)" if self.mattes else "")
+                + f", {self.pixels / 1e6:.2f} Mpx, light {self.light_relative:.2f} of its distance")
 
 
 def scene_shape(scene, light) -> SceneShape:
@@ -116,7 +123,10 @@ def scene_shape(scene, light) -> SceneShape:
         c = 0.5 * (casts.reshape(-1, 3).min(0) + casts.reshape(-1, 3).max(0))
         d = float(np.linalg.norm(np.asarray(light.position, float) - c))
         rel = float(light.extent) / max(d, 1e-30)
-    return SceneShape(int(len(casts)), int(W * H), rel)
+    mattes = 0
+    if getattr(scene, "alpha", None) is not None:
+        mattes = int((scene.alpha.tri_matte[scene.tri_casts_shadow] >= 0).sum())
+    return SceneShape(int(len(casts)), int(W * H), rel, mattes)
 
 
 #: rule 5: per method, how its time grows with the scene: (pixel exponent,
@@ -211,10 +221,12 @@ def parse_table(data: Mapping, path: str = "") -> AutoTable:
                                          rmse=_number(m["rmse"], f"{where}: {mid} rmse"))
             tri = s.get("triangles")
             rel = s.get("light_relative")
+            mat = s.get("mattes")
             scenes.append(MeasuredScene(str(s["scene"]), str(s["size"]), kind,
                                         _number(s["light_extent"], f"{where}: light_extent"), methods,
                                         None if tri is None else int(_number(tri, f"{where}: triangles")),
-                                        None if rel is None else _number(rel, f"{where}: light_relative")))
+                                        None if rel is None else _number(rel, f"{where}: light_relative"),
+                                        None if mat is None else int(_number(mat, f"{where}: mattes"))))
         except (KeyError, TypeError, AttributeError) as exc:
             raise TableError(f"{where}: scene {k} is malformed ({type(exc).__name__}: {exc})")
     if not scenes:
@@ -299,6 +311,11 @@ def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DE
     if not matched:
         matched, scope = list(table.scenes), "all scenes"
         how = f"all measured scenes (none has a {kind} light)"
+    if shape is not None:
+        alike = [s for s in matched if s.mattes is not None and (s.mattes > 0) == (shape.mattes > 0)]
+        if alike and len(alike) < len(matched):
+            matched = alike
+            how += " with alpha mattes" if shape.mattes else " without alpha mattes"
     names = [f"{s.scene} {s.size}" for s in matched]
     stats = {}
     ref = REFERENCES[0] if visibility == AVERAGE else REFERENCES[1]
@@ -333,6 +350,19 @@ def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DE
                              f"{visibility} visibility on {where}", f"{m}: fallback, nothing measured",
                           "fallback", budget, visibility, scenes=names)
     meet = [mid for mid, (e, _t) in stats.items() if e <= budget]
+    ref_e = max(r["rmse"] for r in ref_rows) if ref_t is not None else None
+    if not meet and shape is not None and ref_e is not None:
+        if ref_e <= budget:
+            return AutoChoice(ref, f"auto -> {ref}: the reference is fastest here, no method predicted faster "
+                                   f"than its {_fmt_s(ref_t)} meets the budget {budget:g} (its own worst RMSE "
+                                   f"{ref_e:.3f}) on {where}{here}", f"{ref}: reference fastest within {budget:g}",
+                              "reference is fastest", budget, visibility, ref_e, ref_t, names)
+        if ref_e < min(e for e, _t in stats.values()):
+            return AutoChoice(ref, f"auto -> {ref}: no measured method meets the budget {budget:g}; the reference "
+                                   f"(worst RMSE {ref_e:.3f} in {_fmt_s(ref_t)}) is more accurate than every method "
+                                   f"predicted faster than it on {where}{here}",
+                              f"{ref}: most accurate, RMSE {ref_e:.3f} > {budget:g}",
+                              "most accurate", budget, visibility, ref_e, ref_t, names)
     if meet:
         m = min(meet, key=lambda k: (stats[k][1], stats[k][0]))
         e, t = stats[m]

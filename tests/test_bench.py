@@ -63,3 +63,54 @@ def test_study_module_usage_error_exits_2_with_one_line():
     assert p.returncode == 2
     assert p.stderr.strip().splitlines() == [
         "usage: python -m penumbra.bench.study install-table [SRC] | table-from-csv CSV OUT"]
+
+
+def test_study_csv_alone_rebuilds_the_committed_table():
+    """study.csv carries each row's light and scene shape: the kept rows of a
+    scene-subset run (``kept_rows``) give the planner's table without
+    re-capturing the scenes."""
+    rows = study.kept_rows(os.path.join(RESULTS, "study.csv"), ())
+    assert {r["scene"] for r in rows} == set(study.SCENES)
+    assert all(isinstance(r["seconds"], float) and isinstance(r["triangles"], int) for r in rows
+               if r["status"] == "ok")
+    with open(os.path.join(RESULTS, "auto_table.json")) as g:
+        committed = json.load(g)
+    assert auto_choice.parse_table(study.auto_table(rows)).scenes == auto_choice.parse_table(committed).scenes
+    # a re-run of one scene drops only that scene's rows
+    kept = study.kept_rows(os.path.join(RESULTS, "study.csv"), ("leaf_cards",))
+    assert {r["scene"] for r in kept} == set(study.SCENES) - {"leaf_cards"}
+    assert len(kept) == len(rows) - sum(r["scene"] == "leaf_cards" for r in rows)
+
+
+def test_every_study_scene_has_two_sizes_and_its_light_kinds_sweeps():
+    assert set(study.SIZES) == set(study.SCENES)
+    for name, sizes in study.SIZES.items():
+        assert len(sizes) == 2 and study._pixels("%dx%d" % sizes[1]) > study._pixels("%dx%d" % sizes[0])
+    # an entry for one light kind runs only there; the others run for every kind
+    sun = [label for label, _ in study.sweep("depth_raytrace", "sun")]
+    area = [label for label, _ in study.sweep("depth_raytrace", "area")]
+    assert set(area) < set(sun) and "sun windows fitted to receivers" in set(sun) - set(area)
+
+
+def test_each_sweep_entry_is_a_distinct_configuration_and_the_default_is_labelled():
+    """No two entries of a method's sweep run the same parameters (a stale
+    label once measured the default twice), and the auto table's row of each
+    method is its defaults at 64 light samples."""
+    from penumbra.core import methods as registry
+    producers = registry.producers()
+    for mid in study.SWEEPS:
+        m = producers[mid]
+        configs = [(params.get("map_scale"), m.make_params({k: v for k, v in params.items() if k != "map_scale"}))
+                   for _, params in study.sweep(mid)]
+        assert len({repr(c) for c in configs}) == len(configs), mid
+        label = study.default_setting(mid)
+        assert label is not None, mid
+        (params,) = [p for lab, p in study.sweep(mid) if lab == label]
+        assert m.make_params(params) == m.make_params({"samples": study.AUTO_LIGHT_SAMPLES}), mid
+
+
+def test_bench_study_scenes_bad_name_exits_2_with_one_line(capsys):
+    from penumbra.cli import main
+    assert main(["bench", "--part", "study", "--study-scenes", "grids,nosuch", "--out", "/nonexistent"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad --study-scenes" in err[0] and "leaf_cards" in err[0]
