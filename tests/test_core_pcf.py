@@ -34,8 +34,9 @@ def hard(fb, light, bias):
 
 @pytest.mark.parametrize("make", [lambda: area_light(1.0), lambda: sphere_light(0.3), lambda: sun_light(0.1)])
 def test_zero_region_equals_hard_shadow_test(make):
+    """Figure 4's region shrunk to nothing is Williams' hard test."""
     scene = half_plane_scene(make(), res=48)
-    r, fb = run_pcf(scene, ResFactor=0.0, MinSize=0.0, MinSamples=1, Bias0=0.01, Bias1=0.01)
+    r, fb = run_pcf(scene, region="figure4", ResFactor=0.0, MinSize=0.0, MinSamples=1, Bias0=0.01, Bias1=0.01)
     np.testing.assert_array_equal(r.passes["pcf"], hard(fb, scene.lights[0], 0.01))
     v = r.passes["pcf"]
     assert (v == 0).any() and (v == 1).any()
@@ -109,14 +110,69 @@ def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane():
     assert off.passes["pcf"].mean() < 0.95
 
 
-def test_tile_early_out_changes_nothing():
+@pytest.mark.parametrize("region", ["light", "figure4"])
+def test_tile_early_out_changes_nothing(region):
     """Reeves et al. 3.3's tiles only skip regions whose result they decide:
-    the pass is bit-identical with them off."""
+    the pass is bit-identical with them off (region="light": the tiles test
+    the blocker search's region, which holds the filter's)."""
     for make in (lambda: area_light(1.0), lambda: sphere_light(0.3), lambda: sun_light(0.1)):
         scene = half_plane_scene(make(), res=48)
-        a, _ = run_pcf(scene, tiles=True)
-        b, _ = run_pcf(scene, tiles=False)
+        a, _ = run_pcf(scene, tiles=True, region=region)
+        b, _ = run_pcf(scene, tiles=False, region=region)
         np.testing.assert_array_equal(a.passes["pcf"], b.passes["pcf"])
+
+
+def _rmse(a, b):
+    return float(np.sqrt(np.mean((np.asarray(a, np.float64) - b) ** 2)))
+
+
+def test_light_region_is_the_square_light_closed_form():
+    """region="light" on the half-plane scene (a square light of side 1 at
+    height 4, the occluder's edge at height 2): the blocker search finds the
+    occluder's depth, the filter region is the light's extent there, and a
+    box region over a straight edge is the exact penumbra of a square light,
+    V = clamp(1/2 + y) on the ground (linear over a unit width). Figure 4's
+    region follows the pixel footprint (a few texels): nearly a hard edge."""
+    scene = half_plane_scene(area_light(1.0), res=64)
+    exact = np.clip(0.5 + pixel_world_y(scene, np.arange(64)), 0.0, 1.0)[:, None] * np.ones(64)
+    v = run_pcf(scene, PenumbraSamples=256)[0].passes["pcf"]
+    paper = run_pcf(scene, region="figure4")[0].passes["pcf"]
+    assert _rmse(v, exact) < 0.03, _rmse(v, exact)
+    assert _rmse(paper, exact) > 0.1
+    # the umbra and the lit side are decided whole (tiles or no blocker found)
+    assert v[exact == 0.0].max() == 0.0 and v[exact == 1.0].min() == 1.0
+
+
+def test_light_region_widens_with_the_light():
+    """The penumbra's width follows the light's size (it does not with
+    figure 4's region): more partial pixels under a larger light."""
+    partial = {}
+    for size in (0.5, 1.0, 2.0):
+        v = run_pcf(half_plane_scene(area_light(size), res=64))[0].passes["pcf"]
+        partial[size] = int(((v > 0.02) & (v < 0.98)).sum())
+    assert partial[0.5] < partial[1.0] < partial[2.0]
+    assert partial[2.0] > 3 * partial[0.5]
+
+
+def test_light_reach_closed_forms():
+    """light_reach: an area light along the view's axes gives its half
+    sides over the texel size; a sphere light its radius; a sun tan(half
+    angle) on an orthographic face; zero size: zero."""
+    from penumbra.core.methods.pcf import light_reach
+    for light, half in ((area_light(1.0, size_y=0.5, shape="RECTANGLE"), (0.5, 0.25)),
+                        (sphere_light(0.3), (0.3, 0.3)), (sun_light(0.1), (np.tan(0.05),) * 2)):
+        fb = FrameBuffers(half_plane_scene(light, res=16), 16, 16)
+        face = fb.light_view(light).faces[0]
+        l, r, b, t = face.bounds
+        k = light_reach(light, [face])[0]
+        np.testing.assert_allclose(k[:2], [half[0] * face.width / (r - l), half[1] * face.height / (t - b)],
+                                   rtol=1e-9)
+        assert k[2] == (1.0 if face.ortho else 0.0)
+
+
+def test_unknown_region_is_an_error():
+    with pytest.raises(ValueError, match="region"):
+        run_pcf(half_plane_scene(area_light(1.0), res=8), region="pcss")
 
 
 @pytest.mark.parametrize("camera", [None, persp_camera((0.3, -3.0, 2.5), (0.0, 0.0, 0.0))])

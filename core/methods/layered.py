@@ -57,22 +57,49 @@ Beyond the paper (each switchable; the defaults marked):
     from the silhouette seen by the samples, fully lit); the reference's
     rays into the surface are blocked by it. Measured RMSE on the torus's
     own pixels: 0.146 -> 0.047, the sphere's 0.145 -> 0.063.
-  * ``splat="footprint"`` (the paper's, and the default: ``"neighbours"``; footprint
-    is better on foliage and GRIDS but worse on grazing light, see LayeredParams.splat): each
-    sample pixel covers the LDI pixel centres inside its warped footprint,
-    the parallelogram spanned by half the steps to its neighbours -- one
-    pixel under an identity or pure-shift warp, several where the warp
-    magnifies -- and 1.5 steps past its object's silhouette (towards empty
-    space or a surface behind it; never past an occluder in front), so the
-    last texels of an open surface stay covered. The paper notes its
-    4-neighbour splat "can slightly overestimate object size, making the
-    shadows appear somewhat lighter": it lets each sample see a receiver up
-    to a texel into its shadow, V too light by half a texel over the
-    penumbra's width -- small on a ground plane (+0.017 on a 30-texel
+  * ``splat="footprint"`` (the paper's is ``"neighbours"``; the default
+    ``"auto"`` takes footprint where a shadow caster has an alpha matte, see
+    below; footprint is better on foliage and GRIDS but worse on grazing
+    light, see LayeredParams.splat): each sample pixel covers the LDI pixel
+    centres inside its warped footprint, the parallelogram spanned by half the
+    steps to its neighbours -- one pixel under an identity or pure-shift warp,
+    several where the warp magnifies -- and 1.5 steps past its object's
+    silhouette (towards empty space or a surface behind it; never past an
+    occluder in front), so the last texels of an open surface stay covered.
+    The paper notes its 4-neighbour splat "can slightly overestimate object
+    size, making the shadows appear somewhat lighter": it lets each sample see
+    a receiver up to a texel into its shadow, V too light by half a texel over
+    the penumbra's width -- small on a ground plane (+0.017 on a 30-texel
     penumbra) but it fills in the shadows of thin occluders (GRIDS' bars are
     about one texel wide). RMSE against ``embree`` (128 x 128 pixels, 256
-    samples), 4-neighbour / footprint: GRIDS 0.163 / 0.055 at 256-texel
-    maps, torus_plane 0.045 / 0.023 and sphere_plane 0.040 / 0.020 at 128.
+    samples), 4-neighbour / footprint: GRIDS 0.163 / 0.055 at 256-texel maps,
+    torus_plane 0.045 / 0.023 and sphere_plane 0.040 / 0.020 at 128.
+  * ``splat="auto"`` (default; issue 18): footprint when the shadow casters
+    carry alpha mattes (``TriangleScene.alpha``), neighbours otherwise (so
+    scenes without mattes are as before). Mattes make one-texel gaps and
+    occluders everywhere -- a chain-link fence's wires and holes, a leaf's
+    tip, and the ordered dither (``alpha_rays.DITHER``) that keeps a surface
+    of alpha a in a share a of a sample map's pixels, solid and clear texels
+    side by side -- and the 4-neighbour splat spreads a receiver seen
+    through a clear texel over the solid ones around it (a 0.5 veil reads
+    as nearly clear). Measured on leaf_cards (256 x 256, 256 samples,
+    against 1024-sample embree): neighbours 0.081 RMSE (+0.014, too light),
+    footprint 0.045 (0.032 with ``diagonals``); the same scene made opaque:
+    0.047 / 0.023.
+  * ``diagonals`` (default: on where a shadow caster has an alpha matte,
+    as ``splat="auto"``): the surface gradient of a sample pixel with
+    no neighbour on its surface along an axis takes the diagonal neighbour
+    (the smaller depth step) instead. A line one texel wide running
+    diagonally in the sample map (a chain-link wire, a thin stem) has no
+    axis neighbour on it, got no gradient and no span, so its raw depths at
+    the LDI pixel centres split into two or three layers on a surface
+    oblique to the light, each with part of the count (wires seen by the
+    camera at V 0.2 - 0.8 where the reference has 1). On leaf_cards'
+    fence pixels RMSE 0.32 -> 0.19 (footprint splat). Off: axes only. On
+    the scenes without mattes it changed RMSE by at most 0.001 either way
+    (256 x 256, 256 samples: grids, sphere_plane, torus_plane; foliage
+    0.0699 -> 0.0711 with the neighbours splat, 0.0505 -> 0.0499 with
+    footprint), so they keep it off and stay as before.
   * ``surfaces="mesh"`` (default; ``"object"``: object ids, as before
     issue 17): the sample maps carry each triangle's connected mesh piece
     (``surfaces.mesh_pieces``) where they carried its object id, so the
@@ -177,11 +204,16 @@ class LayeredParams:
     plane_depth: bool = True       # compare depths at LDI pixel centres (see module doc)
     horizon: bool = True           # samples below the receiver's tangent plane count as blocked
     warp: str = "auto"             # auto: eq. 3 shift for planar lights, else projective
-    splat: str = "neighbours"      # "neighbours" (the paper's 4) | "footprint" (unbiased, see doc;
-                                   # not the default: on grazing light it reaches along edge-on
+    splat: str = "auto"            # "neighbours" (the paper's 4) | "footprint" (unbiased, see doc;
+                                   # not for every scene: on grazing light it reaches along edge-on
                                    # ground, which then shadows itself: stress grazing_area 0.27)
+                                   # | "auto": footprint where a shadow caster has an alpha matte,
+                                   # else neighbours (module doc)
     surfaces: str = "mesh"         # what counts as one surface in the sample maps' id test:
                                    # "mesh" (connected mesh pieces) | "object" (object ids)
+    diagonals: Optional[bool] = None  # the surface gradient takes a diagonal neighbour where an
+                                   # axis has none (thin diagonal lines; module doc); None: on where
+                                   # a shadow caster has an alpha matte (as splat="auto"), else off
     seed: int = 0
 
 
@@ -279,14 +311,37 @@ def warp_projective(sfaces, sdepth, cfaces, wf, wx, wy, wz):
         wz[k] = dd
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _diagonal_neighbour(sobj, wf, wz, fs, r, c, sign, f, ob, z0):
+    """Flat index of the neighbour of sample pixel (fs, r, c) along the
+    diagonal (1, sign) or (-1, -sign) on the same surface ``ob`` and centre
+    face ``f`` with the smaller depth step from ``z0``; -1: none."""
+    F, h, w = sobj.shape
+    best = np.inf
+    out = -1
+    for step in (-1, 1):
+        rr, cc = r + step, c + sign * step
+        if rr < 0 or rr >= h or cc < 0 or cc >= w:
+            continue
+        m = (fs * h + rr) * w + cc
+        if wf[m] != f or sobj[fs, rr, cc] != ob:
+            continue
+        dz = abs(wz[m] - z0)
+        if dz < best:
+            best = dz
+            out = m
+    return out
+
+
 @njit(cache=True, nogil=True)
-def warp_local(sdepth, sobj, wf, wx, wy, wz, cfaces, max_slope, gx, gy, span, foot):
+def warp_local(sdepth, sobj, wf, wx, wy, wz, cfaces, max_slope, gx, gy, span, foot, diagonals):
     """The surface around each warped point, from its warped neighbours on the
     same object in the same centre face (per sample-map axis the neighbour
     with the smaller depth step, so a silhouette's far side does not count):
       * gx, gy: depth gradient in centre-map texels (the plane through the
-        three points); none where the slope exceeds ``max_slope`` (depth per
-        lateral unit);
+        three points; with ``diagonals``, a diagonal neighbour stands in for
+        an axis that has none); none where the slope exceeds ``max_slope``
+        (depth per lateral unit);
       * span: the depth change across one texel (|gx| + |gy|; on a steeper
         surface the neighbours' depth steps, at most ``max_slope`` texels);
       * foot[k] = (a0, a1, b0, b1, s-, s+, t-, t+): the sample pixel's
@@ -367,6 +422,19 @@ def warp_local(sdepth, sobj, wf, wx, wy, wz, cfaces, max_slope, gx, gy, span, fo
                 na, fa0, fa1 = nbest, v0, v1
             else:
                 nb, fb0, fb1 = nbest, v0, v1
+        # an axis with no neighbour on the surface: for the gradient, the
+        # diagonal neighbour with the smaller depth step (a line one texel
+        # wide running diagonally -- a chain-link wire, a stem -- has none
+        # along the axes, and its raw depths split into layers)
+        if diagonals and (na < 0 or nb < 0):
+            da = _diagonal_neighbour(sobj, wf, wz, fs, r, c, 1, f, ob, z0)
+            db = _diagonal_neighbour(sobj, wf, wz, fs, r, c, -1, f, ob, z0)
+            if na < 0 and nb < 0:
+                na, nb = da, db
+            elif na < 0:
+                na = da if da >= 0 else db
+            else:
+                nb = da if da >= 0 else db
         # an axis with no neighbour on the surface: the other one turned by
         # 90 degrees (sample and centre views have the same handedness)
         if fa0 == 0.0 and fa1 == 0.0:
@@ -809,14 +877,30 @@ def _sample_plans(light: Light, centre: List[ViewFace], receivers, bounds, map_s
     return plans, "projective"
 
 
+def resolved_splat(params: LayeredParams, shadow_scene) -> str:
+    """``splat``, with "auto" resolved: "footprint" when the shadow casters
+    carry alpha mattes (``shadow_scene.alpha``), else "neighbours"."""
+    if params.splat != "auto":
+        return params.splat
+    return "footprint" if shadow_scene.alpha is not None else "neighbours"
+
+
+def resolved_diagonals(params: LayeredParams, shadow_scene) -> bool:
+    """``diagonals``, with None resolved: on when the shadow casters carry
+    alpha mattes, else off."""
+    if params.diagonals is not None:
+        return bool(params.diagonals)
+    return shadow_scene.alpha is not None
+
+
 def precompute(buffers, light: Light, params: LayeredParams,
                render_workers: Optional[int] = None) -> Optional[LDI]:
     """Procedure Precompute: the LDI with per-layer counts from N light samples
     (None when no visible receiver lies in the light's view). ``render_workers``
     threads render sample maps ahead (None: Numba's thread count - 1, at least
     1; 0: rendered in the main thread, in turn)."""
-    if params.splat not in ("neighbours", "footprint"):
-        raise ValueError(f"layered: unknown splat {params.splat!r} (neighbours | footprint)")
+    if params.splat not in ("auto", "neighbours", "footprint"):
+        raise ValueError(f"layered: unknown splat {params.splat!r} (auto | neighbours | footprint)")
     if params.warp not in ("auto", "projective"):
         raise ValueError(f"layered: unknown warp {params.warp!r} (auto | projective)")
     if params.surfaces not in ("mesh", "object"):
@@ -842,8 +926,9 @@ def precompute(buffers, light: Light, params: LayeredParams,
     ldi_last = np.full((npix, LAYERS_START), -1, np.int32)
     ldi_n = np.zeros(npix, np.int32)
     cfaces = np.ascontiguousarray(np.stack([f.packed() for f in centre]))
-    footprint = params.splat == "footprint"
-    buffers.shadow_scene      # built here, not in the render threads
+    shadow = buffers.shadow_scene      # built here, not in the render threads
+    footprint = resolved_splat(params, shadow) == "footprint"
+    diagonals = resolved_diagonals(params, shadow)
     labels = mesh_pieces(scene) if params.surfaces == "mesh" else None
 
     def render(i):
@@ -877,7 +962,7 @@ def precompute(buffers, light: Light, params: LayeredParams,
             span = np.empty(n, np.float64)
             foot = np.empty((n, 8), np.float64)
             warp_local(depth, np.ascontiguousarray(lv.object_id), wf, wx, wy, wz, cfaces,
-                       MAX_SLOPE, gx, gy, span, foot)
+                       MAX_SLOPE, gx, gy, span, foot, diagonals)
             if not params.plane_depth:
                 gx[:] = 0.0
                 gy[:] = 0.0
@@ -998,7 +1083,8 @@ class LayeredAttenuationMaps(Method):
                 out[idx] = display(ldi, P, Nrm, params).astype(np.float32)
             F, h, w = ldi.shape
             stats = {"samples": ldi.samples, "epsilon": ldi.epsilon, "warp": ldi.warp,
-                     "ldi": [F, h, w],
+                     "splat": resolved_splat(params, buffers.shadow_scene),
+                     "diagonals": resolved_diagonals(params, buffers.shadow_scene), "ldi": [F, h, w],
                      "depth_complexity": ldi.depth_complexity(),
                      "depth_complexity_by_samples": ldi.complexity_by_samples,
                      "max_layers": int(ldi.n_layers.max(initial=0)),

@@ -27,8 +27,26 @@ Sizes are in map texels: ``sres`` is half the width of the footprint's box.
 Depth in the map and of the receiver is -z in the light's view space.
 Point lights use cube faces: a region that crosses a face edge samples only
 the face holding the pixel's centre (texels beyond count as lit).
-The pass is an *average visibility*-like filter, not a physical penumbra: its
-width follows ResFactor and the pixel footprint, not the light's size.
+With ``region="figure4"`` the pass is an *average visibility*-like filter,
+not a physical penumbra: its width follows ResFactor and the pixel footprint,
+not the light's size (the paper's own limit: its regions anti-alias a point
+light's shadow edge).
+
+Beyond the paper, ``region="light"`` (the default; issue 18): the region's
+width follows the light's size, as in percentage-closer soft shadows
+(Fernando 2005). A blocker search first takes ``BlockerSamples`` jittered
+samples over the region that light rays from the receiver can cross: a
+planar light of half extent L (in the map's view plane) seen from a receiver
+at depth z_r covers, at depth z_b, L (z_r - z_b) / (z_r z_b) view-plane
+units around the receiver's own projection (exact for a light parallel to
+the view's image plane, as an area light's view is; a sun's orthographic
+view: tan(half angle) (z_r - z_b) scene units); the search uses the face's
+nearest depth for z_b. The samples nearer than the receiver (the same
+comparison as the filter's, bias and ``receiver_plane`` included) give the
+mean blocker depth, the filter region is the light's extent at that depth
+(at least the figure-4 region), and it is sampled like figure 4 with
+``PenumbraSamples`` samples. No blocker found: lit. The tile test runs on the
+search region, which holds the filter region, so it stays exact.
 """
 from __future__ import annotations
 
@@ -70,7 +88,59 @@ class PCFParams:
                                   # tangent-plane depth at that texel, not the centre's z
     tiles: bool = True            # Reeves et al. 3.3's tile scheme: skip sampling where a tile's
                                   # min/max depth decides the whole region (same result)
+    region: str = "light"         # "light": width from the light's size and the blocker / receiver
+                                  # depths (PCSS, Fernando 2005; module doc) | "figure4": the paper's
+    BlockerSamples: int = 16      # region="light": samples of the blocker search
+    PenumbraSamples: int = 64     # region="light": samples of the filter region (NumSamples' role)
     seed: int = 0
+
+
+@njit(cache=True, inline="always")
+def _grid(sres, tres, NumSamples, MinSamples):
+    """Figure 4's ns x nt cells for a region of half sizes ``sres``, ``tres``
+    (texels): one per texel up to ``NumSamples`` in all, at least
+    ``MinSamples`` per axis."""
+    if sres * tres * 4.0 < NumSamples:
+        ns = int(sres * 2.0 + 0.5)
+        ns = min(max(ns, MinSamples), NumSamples)
+        nt = int(tres * 2.0 + 0.5)
+        nt = min(max(nt, MinSamples), NumSamples)
+    else:
+        nt = int(math.sqrt(tres * NumSamples / sres) + 0.5)
+        nt = min(max(nt, MinSamples), NumSamples)
+        ns = int(NumSamples / nt + 0.5)
+        ns = min(max(ns, MinSamples), NumSamples)
+    return ns, nt
+
+
+@njit(cache=True, inline="always")
+def _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st, Bias0, Bias1, plane):
+    """Cell (i, j) of the region's ns x nt grid, jittered over the whole cell
+    (section 2's method (c)): (stream, map depth there, whether the receiver
+    is behind it by more than a bias drawn in [Bias0, Bias1]). Samples past
+    the map's border read the border texel; outside the map's box of finite
+    depths nothing is behind (3.3)."""
+    ds = 2.0 * sres / ns
+    dt = 2.0 * tres / nt
+    smin = s - sres + 0.5 * ds
+    tmin = t - tres + 0.5 * dt
+    st, r0 = stream_next(st)
+    st, r1 = stream_next(st)
+    st, r2 = stream_next(st)
+    iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
+    iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
+    bias = r2 * (Bias1 - Bias0) + Bias0
+    # the map's window is fitted to the receivers, not the light's field
+    # of view: samples past its border read the border texel
+    iu = min(max(iu, 0), depth_f.shape[1] - 1)
+    iv = min(max(iv, 0), depth_f.shape[0] - 1)
+    d = depth_f[iv, iu]
+    if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
+        zs = z
+        if plane[0] != 0.0:
+            zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
+        return st, d, zs > d * DEPTH_REL_EPS + bias
+    return st, d, False
 
 
 @njit(cache=True)
@@ -88,41 +158,74 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     hv = math.ceil(t + tres)
     if lu > bbox_f[1] or hu < bbox_f[0] or lv > bbox_f[3] or hv < bbox_f[2]:
         return 0.0
-    if sres * tres * 4.0 < NumSamples:
-        ns = int(sres * 2.0 + 0.5)
-        ns = min(max(ns, MinSamples), NumSamples)
-        nt = int(tres * 2.0 + 0.5)
-        nt = min(max(nt, MinSamples), NumSamples)
-    else:
-        nt = int(math.sqrt(tres * NumSamples / sres) + 0.5)
-        nt = min(max(nt, MinSamples), NumSamples)
-        ns = int(NumSamples / nt + 0.5)
-        ns = min(max(ns, MinSamples), NumSamples)
-    ds = 2.0 * sres / ns
-    dt = 2.0 * tres / nt
-    smin = s - sres + 0.5 * ds
-    tmin = t - tres + 0.5 * dt
+    ns, nt = _grid(sres, tres, NumSamples, MinSamples)
     inshadow = 0
     st = stream_start(seed, pixel)
     for i in range(ns):
         for j in range(nt):
-            st, r0 = stream_next(st)
-            st, r1 = stream_next(st)
-            st, r2 = stream_next(st)
-            iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
-            iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
-            bias = r2 * (Bias1 - Bias0) + Bias0
-            # the map's window is fitted to the receivers, not the light's field
-            # of view: samples past its border read the border texel
-            iu = min(max(iu, 0), depth_f.shape[1] - 1)
-            iv = min(max(iv, 0), depth_f.shape[0] - 1)
-            if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
-                zs = z
-                if plane[0] != 0.0:
-                    zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
-                if zs > depth_f[iv, iu] * DEPTH_REL_EPS + bias:
-                    inshadow += 1
+            st, _, behind = _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st,
+                                         Bias0, Bias1, plane)
+            if behind:
+                inshadow += 1
     return inshadow / (ns * nt)
+
+
+@njit(cache=True, inline="always")
+def light_halfwidth(lsize, z, zb):
+    """Half extents (texels) of the light as the rays from a receiver at
+    depth ``z`` cross depth ``zb``: lsize = (ku, kv, ortho) from
+    ``light_reach``; ku (z - zb) / (z zb) for a perspective face, ku (z - zb)
+    for an orthographic one (region="light", module doc)."""
+    dz = max(z - zb, 0.0)
+    if lsize[2] == 1.0:
+        return lsize[0] * dz, lsize[1] * dz
+    q = dz / (z * max(zb, 1e-30 * z))
+    return lsize[0] * q, lsize[1] * q
+
+
+@njit(cache=True)
+def blocker_depth(depth_f, bbox_f, s, t, z, sres, tres, BlockerSamples, Bias0, Bias1, seed, pixel, plane):
+    """region="light"'s blocker search (Fernando 2005): the mean map depth of
+    the samples (figure 4's grid of about ``BlockerSamples`` jittered cells
+    on the region) that the receiver is behind (``sample_shadow``'s test);
+    0.0 when there is none."""
+    ns, nt = _grid(sres, tres, BlockerSamples, 1)
+    st = stream_start(seed, pixel)
+    acc = 0.0
+    n = 0
+    for i in range(ns):
+        for j in range(nt):
+            st, d, behind = _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st,
+                                         Bias0, Bias1, plane)
+            if behind:
+                acc += d
+                n += 1
+    return acc / n if n else 0.0
+
+
+def light_reach(light, faces) -> np.ndarray:
+    """float64[F, 3] per face: (ku, kv, ortho), the light's half extents along
+    the face's u and v over the texel size (a perspective face: view-plane
+    units at unit depth; a sun's orthographic face: tan(half angle) per unit
+    of depth), for ``light_halfwidth``. An area light's rectangle (a disk's
+    or ellipse's bounding one) is turned into the view's axes; a sphere
+    light's facing disk has its radius on both; zero for a light of size zero."""
+    out = np.zeros((len(faces), 3), np.float64)
+    for k, face in enumerate(faces):
+        rot = np.asarray(face.view_from_world, np.float64)[:3, :3]
+        l, r, b, t = face.bounds
+        tu, tv = (r - l) / face.width, (t - b) / face.height
+        if light.kind == "area":
+            ax, ay, _ = light.axes
+            hx, hy = light.half_size
+            ex, ey = rot @ (ax * hx), rot @ (ay * hy)
+            half = (abs(ex[0]) + abs(ey[0]), abs(ex[1]) + abs(ey[1]))
+        elif light.kind == "sphere":
+            half = (light.radius, light.radius)
+        else:
+            half = (light.sun_spread, light.sun_spread)
+        out[k] = (half[0] / tu, half[1] / tv, 1.0 if face.ortho else 0.0)
+    return out
 
 
 def pixel_ray_terms(cp) -> np.ndarray:
@@ -249,11 +352,14 @@ CANCEL_CHUNK = 1 << 18   # pixels per pcf_kernel call: the job's cancel token is
 CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays")
 """G-buffer positions, normals and hit flags (row-major, ``width`` wide) and
 the camera's per-pixel ray terms (``pixel_ray_terms``)."""
-ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi")
-"""Packed light-view faces, their depth maps, finite-depth boxes and the
-per-tile depth min / max (``tile_minmax``)."""
-Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles")
-"""The filter's parameters (the paper's names), ``receiver_plane`` and ``tiles``."""
+ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi lsize zmin")
+"""Packed light-view faces, their depth maps, finite-depth boxes, the
+per-tile depth min / max (``tile_minmax``), per face the light's reach
+(``light_reach``: float64[F, 3]) and nearest depth (float64[F])."""
+Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles "
+                              "light_region BlockerSamples PenumbraSamples")
+"""The filter's parameters (the paper's names), ``receiver_plane``, ``tiles``
+and ``region="light"``'s switch and sample counts."""
 
 
 @njit(cache=True, parallel=True)
@@ -356,12 +462,31 @@ def _pcf_pixel(i, cam, smap, flt, out):
         plane = receiver_plane(faces[f], px, py, pz, Nrm[i, 0], Nrm[i, 1], Nrm[i, 2])
     else:
         plane = NO_PLANE
+    lsize = smap.lsize[f]
+    light = flt.light_region and z > 0.0 and (lsize[0] > 0.0 or lsize[1] > 0.0)
+    if light:
+        # the blocker search region (PCSS): the light's reach at the face's nearest depth
+        ws, wt = light_halfwidth(lsize, z, smap.zmin[f])
+        ws = min(max(ws, sres), MaxSize)
+        wt = min(max(wt, tres), MaxSize)
+    else:
+        ws, wt = sres, tres
     if use_tiles and z >= 0.0:
-        known = region_decided(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, sres, tres,
+        known = region_decided(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, ws, wt,
                                plane, Bias0, Bias1)
         if known >= 0.0:
             out[i] = 1.0 - known
             return
+    if light:
+        zb = blocker_depth(depth[f], bbox[f], s, t, z, ws, wt, flt.BlockerSamples, Bias0, Bias1,
+                           seed + 1, i, plane)
+        if not (zb > 0.0):
+            out[i] = 1.0
+            return
+        ps, pt = light_halfwidth(lsize, z, zb)
+        sres = min(max(ps, sres), MaxSize)
+        tres = min(max(pt, tres), MaxSize)
+        NumSamples = flt.PenumbraSamples
     out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
                                  MinSamples, Bias0, Bias1, seed, i, plane)
 
@@ -417,12 +542,20 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
+                if params.region not in ("light", "figure4"):
+                    raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
+                lsize = light_reach(light, lv.faces)
+                if light.is_zero_size:
+                    lsize[:] = 0.0
+                zmin = np.array([float(np.min(lo, initial=np.inf)) for lo in tlo], np.float64)
                 with parallel_chunks(PIXEL_CHUNK):
                     cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
                                        pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)))
-                    smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi)
+                    smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi, lsize, zmin)
                     flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                                 b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles))
+                                 b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
+                                 params.region == "light", max(1, int(params.BlockerSamples)),
+                                 max(1, int(params.PenumbraSamples)))
                     for a in range(0, H * W, CANCEL_CHUNK):   # each pixel's V is its own
                         cancel.check()
                         pcf_kernel(cam, smap, flt, out, a, min(H * W, a + CANCEL_CHUNK))
