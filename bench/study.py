@@ -43,12 +43,14 @@ QUICK_SIZES = ((48, 48), (64, 64))
 # for). The knobs each paper names; "paper:" rows are the paper's version
 # where a default departs from it (issue 17: the study shows both).
 SWEEPS: Dict[str, List] = {
-    "pcf": [("NumSamples=16 ResFactor=3", {}),
-            ("NumSamples=64 ResFactor=3", {"NumSamples": 64}),
-            ("ResFactor=1", {"ResFactor": 1.0}),
-            ("ResFactor=8", {"ResFactor": 8.0}),
-            ("map 2x", {"map_scale": 2.0}),
-            ("receiver_plane off", {"receiver_plane": False})],
+    # the default (issue 18): the filter region from the light's size at the mean blocker depth
+    # (PCSS-like); the paper's figure-4 region behind region="figure4"
+    "pcf": [("light region, PenumbraSamples=64", {}),
+            ("light region, PenumbraSamples=16", {"PenumbraSamples": 16}),
+            ("light region, map 2x", {"map_scale": 2.0}),
+            ("paper: figure-4 region, NumSamples=16 ResFactor=3", {"region": "figure4"}),
+            ("paper: figure-4 region, ResFactor=8", {"region": "figure4", "ResFactor": 8.0}),
+            ("paper: figure-4 region, receiver_plane off", {"region": "figure4", "receiver_plane": False})],
     "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
     # the defaults (issue 17): every blocker texel's light summed, ids = connected mesh
     # pieces, no adaptive sampling (section 4.3's interpolation is made for a ramp)
@@ -58,7 +60,8 @@ SWEEPS: Dict[str, List] = {
                       ("paper radius knobs", {"auto_radius": False}),
                       # the paper's one blocker per pixel on object ids (adaptive, section 4.3)
                       ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object"})],
-    # the default: the paper's 4-neighbour splat, ids = connected mesh pieces
+    # the default: splat "auto" (the paper's 4-neighbour splat; the footprint splat where a
+    # shadow caster has an alpha matte), ids = connected mesh pieces
     "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
                 ("bilinear", {"samples": 64, "bilinear": True}),
                 ("footprint splat", {"samples": 64, "splat": "footprint"}),
