@@ -52,7 +52,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
         return render_frame(scene, passes, light_names, **options)
     W, H = scene.resolution
     progress = options.get("progress")
-    compile_s = ensure_filter_compiled(scene, flt, None if progress is None else (lambda msg: progress(msg, 0.0)))
+    compile_s = ensure_filter_compiled(scene, flt, render_filtered,
+                                       None if progress is None else (lambda msg: progress(msg, 0.0)))
     buffers = FrameBuffers(scene, W, H, options.get("map_size"))
     base = render_frame(scene, passes, light_names, buffers=buffers, **options)
     base.compile_s += compile_s           # the filter's kernels: compiled before anything was timed

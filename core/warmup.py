@@ -246,14 +246,16 @@ def ensure_buffers_compiled(scene: Scene, notify: Optional[Callable[[str], None]
     return spent
 
 
-def ensure_filter_compiled(scene: Scene, pixel_filter, notify: Optional[Callable[[str], None]] = None) -> float:
+def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable,
+                           notify: Optional[Callable[[str], None]] = None) -> float:
     """Compile the pixel filter's kernels (refine mask, sub-pixel G-buffer,
     resolve of an average and an irradiance pass, coverage) on the warm-up
     scene filtered by ``pixel_filter`` (``embree`` passes; one run per light
     kind of ``scene``, with a matte when it has mattes), before the real
     frame is timed; returns the seconds Numba spent compiling. The methods'
-    own kernels are warmed by ``render_frame`` as always."""
-    from .filtered_frame import render_filtered
+    own kernels are warmed by ``render_frame`` as always.
+    ``render_filtered``: ``filtered_frame.render_filtered`` (handed in: that
+    module imports this one)."""
     mattes = has_mattes(scene)
     kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
     spec = json.dumps(pixel_filter.to_json(), sort_keys=True, default=str)
