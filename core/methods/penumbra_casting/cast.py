@@ -109,7 +109,7 @@ def _popcount(x):
     return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _coefficients(ef, tn, rho, mode, r, M, centre, co):
     """Per receiver: the MAXB edge functions (rows of edges T lacks are zero)
     and T's plane (last) as linear forms in the sample, signed so that
@@ -135,7 +135,7 @@ def _coefficients(ef, tn, rho, mode, r, M, centre, co):
         co[4 * e + 3] = k
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _word_tests(T4, j, a, e, base, co, nb):
     """Bits [a, e) of one 64-bit mask word: sample i blocked by T (the edge
     forms and the plane: three edges for a triangle, four for a quad, MAXB
