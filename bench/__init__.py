@@ -1,7 +1,7 @@
 """``penumbra bench``: the benchmark and the accuracy study (not shipped in
 the extension; ``blender_manifest.toml`` excludes ``/bench/``).
 
-- :mod:`.phases`: per-phase wall times of the pipeline (``--part skeleton``),
+- :mod:`.phases`: per-phase wall times of the pipeline and the start-up table (``--part skeleton``),
 - :mod:`.methods`: the per-method tables of issues 3-5 (``--part methods``),
 - :mod:`.scaling`: embree and penumbra_casting against triangle count (``--part scaling``),
 - :mod:`.study`: accuracy versus time and the planner's table (``--part study``),
@@ -17,7 +17,8 @@ import json
 
 from .harness import machine
 from .methods import run_method_benchmarks
-from .phases import BUFFER_COLUMNS, bench_buffers, bench_preview, bench_skeleton, bench_startup, write_results
+from .phases import (BUFFER_COLUMNS, STARTUP_COLUMNS, bench_buffers, bench_preview, bench_skeleton, bench_startup,
+                     write_results)
 
 
 def run_bench(args) -> int:
@@ -26,13 +27,16 @@ def run_bench(args) -> int:
     repeats = max(1, args.repeats)
     print(f"machine: {json.dumps(machine())}")
     if args.part in ("all", "skeleton"):
-        rows = bench_skeleton(repeats, args.quick) + bench_startup()
+        rows = bench_skeleton(repeats, args.quick)
         md = write_results(rows, args.out, "skeleton")
         print(f"pipeline phases, medians of {repeats} warm runs")
         print(md)
         rows = bench_buffers(repeats, args.quick) + bench_preview(repeats, args.quick)
         md = write_results(rows, args.out, "buffers", BUFFER_COLUMNS)
         print(f"buffers and the Preview beside raw embreex (one thread, same rays), medians of {repeats} warm runs")
+        print(md)
+        md = write_results(bench_startup(args.quick), args.out, "startup", STARTUP_COLUMNS)
+        print("start-up: penumbra render from a fresh Numba cache (cold) and again (warm), one process each")
         print(md)
     if args.part in ("all", "methods"):
         run_method_benchmarks(args.out, repeats, args.quick)

@@ -1,8 +1,9 @@
 """The pipeline's phases (issue 2's benchmark, ``--part skeleton``): G-buffer,
 light depth map, the ``pcf`` filter and the ``embree`` trace on ``grids``,
-``pcf`` at 1920x1080, and the start-up of a tiny render with a cold and a warm
-Numba cache. Written as ``skeleton.csv`` / ``skeleton.md`` beside
-``machine.json``; the 1080p buffer table (issue 15: each buffer beside raw
+``pcf`` at 1920x1080. Written as ``skeleton.csv`` / ``skeleton.md`` beside
+``machine.json``; the start-up table (issue 15: ``penumbra render`` per
+method and all seven from a fresh Numba cache, cold and warm,
+``bench_startup``) as ``startup.csv`` / ``startup.md``; the 1080p buffer table (issue 15: each buffer beside raw
 embreex for its rays, ``bench_buffers``, and the Preview end to end,
 ``bench_preview``) as ``buffers.csv`` / ``buffers.md``.
 """
@@ -193,28 +194,57 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
     return rows
 
 
-_STARTUP = r"""
-import time, sys
-t0 = time.perf_counter()
-sys.path.insert(0, {tests!r})
-from synthetic import half_plane_scene, area_light
-from penumbra.core.frame import render_frame
-render_frame(half_plane_scene(area_light(1.0), res=32), ["pcf", "embree"], overrides={{"samples": 4}})
-print(time.perf_counter() - t0)
-"""
+#: the columns of startup.csv / startup.md (issue 15's start-up table)
+STARTUP_COLUMNS = ["scene", "size", "methods", "cold_s", "warm_s", "cold_minus_warm_s", "cold_cpu_s", "warm_cpu_s",
+                   "compile_s", "target_s", "met", "load"]
+#: the core methods of the start-up table and their targets (issue 15: cold minus warm wall time)
+STARTUP_TARGETS = {"pcf": 10.0, "single_sample": 10.0, "layered": 10.0, "penumbra_casting": 15.0,
+                   "irregular": 15.0, "depth_raytrace": 30.0, "embree": None}
+#: all seven in one run: at most this much more than warm
+STARTUP_ALL_TARGET = 60.0
 
 
-def bench_startup():
-    """Cold (empty Numba cache) and warm (second process) start-up of a tiny render."""
-    code = _STARTUP.format(tests=TESTS)
-    with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=cache)
-        out = []
-        for label in ("cold", "warm"):
-            p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-            out.append(dict(scene="synthetic 32x32", size="32x32", phase=f"start-up {label}", method="pcf+embree",
-                            threads="", samples=4, seconds=float(p.stdout.strip().splitlines()[-1]), rays_per_s=""))
-    return out
+def _cli_run(args, env):
+    """(wall s, CPU s of the child: user + sys) of one ``penumbra`` command in a new process."""
+    import resource
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import sys; from penumbra.cli import main; sys.exit(main())", *args],
+                   env=env, capture_output=True, text=True, check=True)
+    wall = time.perf_counter() - t
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def bench_startup(quick: bool = False, scene: str = "sphere_plane", size: str = "128x128"):
+    """Issue 15's start-up table: per core method, and all seven in one run,
+    ``penumbra render`` at ``size`` from a fresh Numba cache folder (cold)
+    and again on the cache it left (warm), each in a new process; wall and
+    CPU (user + sys, robust on a loaded machine) with the load average, and
+    the JSON's ``compile_s`` of the cold run."""
+    methods = ["pcf", "embree"] if quick else list(STARTUP_TARGETS)
+    runs = [[m] for m in methods] + ([list(STARTUP_TARGETS)] if not quick else [])
+    rows = []
+    blend = os.path.join(os.path.dirname(TESTS), "sample_blends", f"{scene}.blend")
+    for ms in runs:
+        with tempfile.TemporaryDirectory() as tmp:
+            env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=os.path.join(tmp, "cache"))
+            env.pop("NUMBA_CACHE_DIR", None)
+            args = ["render", blend, "--out", os.path.join(tmp, "out"), "--methods", ",".join(ms),
+                    "--resolution", size, "--samples", "64", "--seed", "0", "--no-previews", "--quiet", "--force"]
+            load = os.getloadavg()[0]
+            cold, cold_cpu = _cli_run(args, env)
+            sidecar = next(f for f in os.listdir(os.path.join(tmp, "out")) if f.endswith(".json"))
+            with open(os.path.join(tmp, "out", sidecar)) as f:
+                compile_s = json.load(f).get("compile_s", 0.0)
+            warm, warm_cpu = _cli_run(args, env)
+        target = STARTUP_TARGETS[ms[0]] if len(ms) == 1 else STARTUP_ALL_TARGET
+        rows.append(dict(scene=scene, size=size, methods="all seven" if len(ms) > 1 else ms[0], cold_s=cold,
+                         warm_s=warm, cold_minus_warm_s=cold - warm, cold_cpu_s=cold_cpu, warm_cpu_s=warm_cpu,
+                         compile_s=compile_s, target_s="" if target is None else f"<= {target:g}",
+                         met="" if target is None else ("yes" if cold - warm <= target else "no"),
+                         load=f"{load:.1f}-{os.getloadavg()[0]:.1f}"))
+    return rows
 
 
 def write_results(rows, out_dir, name, columns=COLUMNS):
@@ -230,7 +260,7 @@ def write_results(rows, out_dir, name, columns=COLUMNS):
         cells = []
         for k in columns:
             v = r[k]
-            if k in ("seconds", "embree_1t_s"):
+            if k in ("seconds", "embree_1t_s") or k.endswith("_s") and isinstance(v, float):
                 v = f"{v:.4f}"
             elif k == "ratio":
                 v = f"{v:.2f}x"

@@ -61,7 +61,7 @@ def dither_band(row0: int, row1: int, width: int) -> np.ndarray:
 AlphaGeometry = namedtuple("AlphaGeometry", "mattes triangles scale")
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _surface(triangles, g, uu, vv):
     """Point (float64, from barycentrics on the float32 triangle ``g``) and
     unit geometric normal of a hit."""
@@ -135,7 +135,7 @@ def _cross_mattes(prim, u, v, tri_index, geo, last, trans, ray, o0, d, t0, o, tf
     return k
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _cutoff(cut, dither, crossing):
     """The alpha a ray's ``crossing``-th surface must reach to stop it: its
     own ``cut``; with ``dither`` (cut a DITHER level) the level's rank r

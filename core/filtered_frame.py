@@ -37,6 +37,7 @@ from .metrics import errors, reach_mask
 from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footprint_samples,
                            refine_mask, resolve_pass)
 from .scene import GBuffer, Scene
+from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
 
@@ -50,8 +51,12 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     if flt.is_none:
         return render_frame(scene, passes, light_names, **options)
     W, H = scene.resolution
+    progress = options.get("progress")
+    compile_s = ensure_filter_compiled(scene, flt, render_filtered,
+                                       None if progress is None else (lambda msg: progress(msg, 0.0)))
     buffers = FrameBuffers(scene, W, H, options.get("map_size"))
     base = render_frame(scene, passes, light_names, buffers=buffers, **options)
+    base.compile_s += compile_s           # the filter's kernels: compiled before anything was timed
     t0 = time.perf_counter()
     g = buffers.gbuffer
     s = int(flt.grid)

@@ -17,7 +17,7 @@ from .methods.base import AVERAGE, IRRADIANCE, params_dict
 from .metrics import errors
 from .planner import Plan, plan_frame
 from .scene import Scene
-from .warmup import ensure_compiled
+from .warmup import ensure_buffers_compiled, ensure_compiled, has_mattes
 
 REFERENCE_FOR = {AVERAGE: "embree", IRRADIANCE: "embree_irr"}
 
@@ -70,13 +70,14 @@ def _compile(plan: Plan, scene: Scene, overrides, method_overrides, progress) ->
     is timed (``core/warmup.py``); returns the seconds that took."""
     registry = method_registry.producers()
     spent = 0.0
+    mattes = has_mattes(scene)
     for lp in plan.lights:
         for prod_id in lp.producers if lp.action != "skip" else ():
             if prod_id in registry:
                 m = registry[prod_id]
                 notify = None if progress is None else (lambda msg: progress(msg, 0.0))
                 spent += ensure_compiled(m, scene.light(lp.name), _params(m, overrides, method_overrides),
-                                         notify)
+                                         notify, mattes)
     return spent
 
 
@@ -112,8 +113,10 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         buffers = FrameBuffers(scene, W, H, map_size)
     if reuse is not None:
         buffers.adopt(reuse)
+    notify = None if progress is None else (lambda msg: progress(msg, 0.0))
+    compile_s = ensure_buffers_compiled(scene, notify)   # before the real buffers are built (and timed)
     plan, reach = plan_frame(scene, passes, light_names, error_budget, buffers)
-    compile_s = _compile(plan, scene, overrides, method_overrides, progress)
+    compile_s += _compile(plan, scene, overrides, method_overrides, progress)
     registry = method_registry.producers()
     results = []
     n_lights = max(1, len(plan.lights))

@@ -95,7 +95,7 @@ def make_rays_list(p, width, height, cols, rows, org, dirs, tfar):
         _put_ray(p, cols[i], rows[i], width, height, i, org, dirs, tfar)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _gbuffer_sample(p, col, row, width, height, i, prim, u, v, tri_index, triangles, tri_object, fwd,
                     position, normal, depth, object_id, triangle_id):
     """``gbuffer_pixels``' body for hit i, pixel (col, row)."""

@@ -6,7 +6,12 @@ Before a method runs on a light for the first time in a process,
 of that light (same kind, shape, size, cone; the same parameters), so every
 Numba kernel the real run calls is compiled (or loaded from Numba's on-disk
 cache) there. Numba's compile time in it is the frame's compile time; the
-real run then has no compilation in it.
+real run then has no compilation in it. A scene with alpha mattes warms on
+a warm-up scene with a matte (``warmup_scene(..., mattes=True)``), so the
+matte kernels compile there too; :func:`ensure_buffers_compiled` compiles
+the frame's buffer kernels (camera G-buffer, light views, the planner's
+reach) before ``render_frame`` builds the real ones, and
+:func:`ensure_filter_compiled` the pixel filter's (``filtered_frame``).
 
 :func:`kernels_cached` says, before compiling, whether a method's kernels
 are already in the on-disk cache (the CLI prints "compiling ... (first run
@@ -26,6 +31,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
+from .alpha import LINEAR, REPEAT, AlphaMattes
 from .scene import Camera, Light, ObjectInfo, Scene
 from .views import look_rotation
 
@@ -33,8 +39,9 @@ from .views import look_rotation
 WARMUP_SIZE = 8
 MARKER_DIR = "penumbra-warm"
 
-_lock = threading.Lock()          # one warm-up at a time (the add-on's and a job's)
+_lock = threading.RLock()         # one warm-up at a time (the add-on's and a job's)
 _warm: set = set()                # keys warmed in this process
+_busy: set = set()                # keys being warmed (``_warm_once``)
 
 
 class CompileNotice(str):
@@ -47,10 +54,12 @@ class CompileNotice(str):
         return s
 
 
-def warmup_scene(light: Light) -> Scene:
+def warmup_scene(light: Light, mattes: bool = False) -> Scene:
     """A tiny scene lit by a copy of ``light``: the light at height ``D`` shining
     down on a ground quad, an occluder quad halfway, the camera at the light
-    looking down (so every pixel sees a receiver the light reaches)."""
+    looking down (so every pixel sees a receiver the light reaches). With
+    ``mattes`` the occluder carries a 2x2 alpha matte (clear, opaque and
+    partial texels: ``core/alpha.py``), so the matte kernels run."""
     D = max(4.0 * light.extent, 1.0) if light.kind != "sun" else 1.0
     m = np.eye(4)
     m[:3, :3] = look_rotation(np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]))
@@ -66,13 +75,25 @@ def warmup_scene(light: Light) -> Scene:
     cam_m[2, 3] = 0.9 * D
     cam = Camera(cam_m, kind="PERSP", lens=20.0, clip_start=1e-3 * D, clip_end=10.0 * D)
     objs = [ObjectInfo("ground", 0), ObjectInfo("occluder", 1)]
+    alpha = None
+    if mattes:
+        uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+        alpha = AlphaMattes(np.array([-1, -1, 0, 0], np.int32), np.concatenate([np.zeros_like(uv), uv]),
+                            np.array([0.0, 1.0, 0.5, 1.0], np.float32), np.array([0], np.int64),
+                            np.array([2], np.int32), np.array([2], np.int32), np.array([LINEAR], np.int8),
+                            np.array([REPEAT], np.int8), ["warm-up"])
     return Scene(tris, np.array([0, 0, 1, 1], np.int32), objs, cam, [lt],
-                 (WARMUP_SIZE, WARMUP_SIZE), name="warm-up")
+                 (WARMUP_SIZE, WARMUP_SIZE), name="warm-up", alpha=alpha)
 
 
-def _key(method, light: Light, params) -> Tuple:
+def has_mattes(scene: Scene) -> bool:
+    """The scene has a triangle with an alpha matte (its kernels then run)."""
+    return scene.alpha is not None and bool(np.any(scene.alpha.tri_matte >= 0))
+
+
+def _key(method, light: Light, params, mattes: bool = False) -> Tuple:
     from .methods.base import params_dict
-    return (method.id, light.kind, light.shape, light.is_spot, light.is_zero_size,
+    return (method.id, light.kind, light.shape, light.is_spot, light.is_zero_size, bool(mattes),
             json.dumps(params_dict(params), sort_keys=True, default=str))
 
 
@@ -145,15 +166,16 @@ def _write_marker(method_id: str, names: List[str]) -> None:
 
 # --------------------------------------------------------------------------
 def ensure_compiled(method, light: Light, params,
-                    notify: Optional[Callable[[str], None]] = None) -> float:
+                    notify: Optional[Callable[[str], None]] = None, mattes: bool = False) -> float:
     """Compile (or load from the cache) every kernel ``method.run`` calls for
     ``light`` with ``params``, once per process; returns the seconds Numba
     spent compiling (its ``numba:compile`` events: 0.0 when every kernel came
     from the on-disk cache or was compiled already; loading from the cache
     and the tiny run are in no figure but the frame's total).
     ``notify(CompileNotice)`` is called first when the kernels are not in the
-    on-disk cache."""
-    key = _key(method, light, params)
+    on-disk cache. ``mattes``: warm on a scene with an alpha matte (for a
+    scene that has one, ``has_mattes``)."""
+    key = _key(method, light, params, mattes)
     if key in _warm:
         return 0.0
     with _lock:
@@ -164,7 +186,7 @@ def ensure_compiled(method, light: Light, params,
         from numba.core.event import install_timer
         from .buffers import FrameBuffers
         before = _overload_counts()
-        scene = warmup_scene(light)
+        scene = warmup_scene(light, mattes)
         spent: List[float] = []
         with install_timer("numba:compile", spent.append):
             buffers = FrameBuffers(scene, WARMUP_SIZE, WARMUP_SIZE, WARMUP_SIZE)
@@ -175,3 +197,72 @@ def ensure_compiled(method, light: Light, params,
         _warm.add(key)
         return sum(spent)
 
+
+
+def _warm_once(key: Tuple, marker: str, notify, work: Callable[[], None]) -> float:
+    """Run ``work`` once per process under ``key`` with Numba's compile time
+    measured (as ``ensure_compiled``; ``marker``: its name in the cache
+    markers and the notice)."""
+    if key in _warm:
+        return 0.0
+    with _lock:
+        if key in _warm or key in _busy:      # _busy: the warm-up's own frame asks again
+            return 0.0
+        _busy.add(key)
+        if notify is not None and not kernels_cached(marker):
+            notify(CompileNotice(marker))
+        from numba.core.event import install_timer
+        before = _overload_counts()
+        spent: List[float] = []
+        try:
+            with install_timer("numba:compile", spent.append):
+                work()
+        finally:
+            _busy.discard(key)
+        after = _overload_counts()
+        _write_marker(marker, [k for k, n in after.items() if n > before.get(k, 0)])
+        _warm.add(key)
+        return sum(spent)
+
+
+def ensure_buffers_compiled(scene: Scene, notify: Optional[Callable[[str], None]] = None) -> float:
+    """Compile the kernels of the frame's shared buffers (camera G-buffer,
+    the planner's reach, each light kind's view), with the matte kernels
+    when ``scene`` has mattes, on the warm-up scene, before ``render_frame``
+    builds the real buffers (their build times are in the methods' times);
+    returns the seconds Numba spent compiling."""
+    from .buffers import FrameBuffers
+    from .planner import plan_frame
+    mattes = has_mattes(scene)
+    kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
+    spent = 0.0
+    for kind, light in kinds:
+        def work(light=light):
+            ws = warmup_scene(light, mattes)
+            fb = FrameBuffers(ws, WARMUP_SIZE, WARMUP_SIZE, WARMUP_SIZE)
+            plan_frame(ws, ["embree"], None, None, fb)
+            fb.light_view(ws.lights[0])
+        spent += _warm_once(("buffers", kind, mattes), "buffers", notify, work)
+    return spent
+
+
+def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable,
+                           notify: Optional[Callable[[str], None]] = None) -> float:
+    """Compile the pixel filter's kernels (refine mask, sub-pixel G-buffer,
+    resolve of an average and an irradiance pass, coverage) on the warm-up
+    scene filtered by ``pixel_filter`` (``embree`` passes; one run per light
+    kind of ``scene``, with a matte when it has mattes), before the real
+    frame is timed; returns the seconds Numba spent compiling. The methods'
+    own kernels are warmed by ``render_frame`` as always.
+    ``render_filtered``: ``filtered_frame.render_filtered`` (handed in: that
+    module imports this one)."""
+    mattes = has_mattes(scene)
+    kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
+    spec = json.dumps(pixel_filter.to_json(), sort_keys=True, default=str)
+    spent = 0.0
+    for kind, light in kinds:
+        def work(light=light):
+            render_filtered(warmup_scene(light, mattes), ["embree", "embree_irr"], None, pixel_filter,
+                            overrides={"samples": 4, "seed": 0})
+        spent += _warm_once(("filter", kind, mattes, spec), "pixel_filter", notify, work)
+    return spent

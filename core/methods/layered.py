@@ -266,7 +266,7 @@ def warp_shift(sdepth, kx, ky, ax, ay, wf, wx, wy, wz):
         wz[k] = d
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _unproject(fp, r, c, d):
     """World point seen at pixel (r, c) of packed face ``fp`` at depth ``d``."""
     x = fp[17] + (c + 0.5) / fp[21] * (fp[18] - fp[17])
@@ -577,7 +577,7 @@ def ldi_insert(ldi_depth, ldi_span, ldi_count, ldi_last, ldi_n, wf, wx, wy, wz, 
 
 # --------------------------------------------------------------------------
 # display
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _plane_depth(fp, pvx, pvy, pvz, nvx, nvy, nvz, col, row, d, cos_min):
     """Depth where the centre view's ray through pixel centre (col, row) meets
     the tangent plane through view-space point pv with normal nv; ``d`` when
@@ -596,7 +596,7 @@ def _plane_depth(fp, pvx, pvy, pvz, nvx, nvy, nvz, col, row, d, cos_min):
     return ((pvx - x) * nvx + (pvy - y) * nvy + pvz * nvz) / den
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _point_span(fp, pvx, pvy, pvz, nvx, nvy, nvz, d, max_slope):
     """Depth change of the tangent plane (view-space point pv, normal nv)
     across one texel along each axis of face ``fp``, summed; at most
@@ -618,7 +618,7 @@ def _point_span(fp, pvx, pvy, pvz, nvx, nvy, nvz, d, max_slope):
     return num / den
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _match(ldi_depth, ldi_span, ldi_n, pix, z, sp, eps):
     """(layer, status) for depth z at LDI pixel ``pix``: status 0 = the nearest
     layer within tolerance (eps + half the larger depth span across a texel,
@@ -641,7 +641,7 @@ def _match(ldi_depth, ldi_span, ldi_n, pix, z, sp, eps):
     return -1, 2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _lookup(ldi_depth, ldi_span, ldi_count, ldi_n, pix, z, sp, eps, invN):
     """Attenuation at one LDI pixel: the matching layer's; the nearest layer's
     if z is in front of every layer; 0 if behind / between; -1 if empty."""

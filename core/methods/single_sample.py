@@ -186,7 +186,7 @@ class SingleSampleParams:
 
 # --------------------------------------------------------------------------
 # per-pixel setup
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _light_axes(prm, finfo, fp, pvx, pvy, pvz):
     """The light's two half axes in the face's view coordinates:
     area: per face; sphere: the disk facing P; sun: tan(angle/2) along x, y."""
@@ -214,7 +214,7 @@ def _light_axes(prm, finfo, fp, pvx, pvy, pvz):
     return t, 0.0, 0.0, 0.0, t, 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _warp(P, Nrm, i, faces, depth, prm):
     """Warp pixel i into the light view (section 3.2) and run the hard test.
 
@@ -286,7 +286,7 @@ def _warp(P, Nrm, i, faces, depth, prm):
     return f, u, v, zr, inner, zmap, planar, A, B, C, tol, pvx, pvy, pvz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _shape(prm, finfo_f, fp, pvx, pvy, pvz, zr):
     """The light's shape in the map (auto_radius): G maps texel offsets to
     the light's shape coordinates per unit of s(z_b) (gauge ``prm[P_NORM]``),
@@ -327,7 +327,7 @@ def _shape(prm, finfo_f, fp, pvx, pvy, pvz, zr):
     return gs * n11 / det, -gs * n01 / det, -gs * n10 / det, gs * n00 / det, max(eu, ev) / gs
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _s_of(zb, zr, ortho):
     """Penumbra scale of a blocker at depth zb over a receiver at zr:
     1/zb - 1/zr (perspective), zr - zb (orthographic)."""
@@ -338,7 +338,7 @@ def _s_of(zb, zr, ortho):
     return 1.0 / zb - 1.0 / zr
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _tile_range(tiles_f, iu, iv, c, pid):
     """Over the tiles covering texels [iu-c, iu+c] x [iv-c, iv+c]: least and
     largest depth, and whether every texel shows object ``pid``."""
@@ -359,7 +359,7 @@ def _tile_range(tiles_f, iu, iv, c, pid):
     return zmin, zmax, own
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _layer_range(A, B, C, iu, iv, c, ortho):
     """Least and largest depth of the layer over the texel centres of that
     box (1/z, or z, is affine in texel coordinates: extremes at the corners)."""
@@ -378,7 +378,7 @@ def _layer_range(A, B, C, iu, iv, c, ortho):
     return zlo, zhi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _nearer(d, lv, ortho, tol):
     """Is map depth ``d`` in front of the layer, whose value at the texel is
     ``lv``: z_l = lv (orthographic) or 1 / lv (perspective, +inf where
@@ -390,7 +390,7 @@ def _nearer(d, lv, ortho, tol):
     return d < np.inf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _overlap(c, hw):
     """Share of the interval [c - hw, c + hw] inside [-1, 1]."""
     if hw <= 0.0:
@@ -398,7 +398,7 @@ def _overlap(c, hw):
     return min(max((min(c + hw, 1.0) - max(c - hw, -1.0)) / (2.0 * hw), 0.0), 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _overlap_radial(r, hw):
     """Share of [r - hw, r + hw] inside the unit disk's radius."""
     if hw <= 0.0:
@@ -728,7 +728,7 @@ def hard_all(P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
             hid[i] = pid_arr[i]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _same(hface, hinner, hid, idx0, stride, a, b):
     """Section 4.3's group criterion over pixels a..b: equal hard results and
     ids (and, conservatively, the same light-view face)."""

@@ -72,7 +72,7 @@ def _adjacency(ids: np.ndarray) -> np.ndarray:
     return nbr.reshape(n, 3)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _turn(P, u, v, p, q, r):
     """2D cross product (q - p) x (r - q) in the plane basis (u, v), and the
     length of r - p (the collinearity yardstick)."""

@@ -44,7 +44,7 @@ def _cross(ax, ay, az, bx, by, bz):
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _separating(tri, nb, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
     """Candidate plane with normal n through point s: append it to ``out``
     at column k, oriented with T's side >= 0, when it separates T and the
@@ -153,7 +153,7 @@ def penumbra_volume(tri, nb, DV, nv, DE, ne, eps, out):
     return k
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def hard_volume(tri, nb, px, py, pz, pw, hv):
     """Hard shadow volume V_l of sample ``(p, w)`` and T into ``hv[MAXB + 1, 4]``:
     row 0 T's plane (inside strictly > 0), rows 1..nb the edge planes through
@@ -299,7 +299,7 @@ def blocked_by_edges(ef, rho, tn, px, py, pz, pw):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _newell(tri, nb):
     """Newell's normal of polygon ``tri[:nb]`` (twice its area, oriented by its winding)."""
     nx = ny = nz = 0.0
@@ -311,7 +311,7 @@ def _newell(tri, nb):
     return nx, ny, nz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def triangle_plane(tri, nb, tn):
     """T's (unnormalized) plane into tn[4]: n_T = (b - a) x (c - a) for a
     triangle, Newell's normal for a polygon; o_T = n_T . a."""

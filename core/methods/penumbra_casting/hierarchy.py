@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _area(x0, y0, z0, x1, y1, z1):
     dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
     return dx * dy + dy * dz + dz * dx
