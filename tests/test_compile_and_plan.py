@@ -139,3 +139,54 @@ def test_progress_bar_only_on_a_terminal_and_not_quiet(monkeypatch, capsys):
     assert bar.bar.n == pytest.approx(1.5)
     bar.close()
     assert "frame 5: Key: pcf" in capsys.readouterr().err
+
+
+_COMPILES_OUTSIDE_WARM_UP = r"""
+import json, sys
+sys.path.insert(0, {tests!r})
+from numba.core import event
+from penumbra.core import warmup
+from penumbra.core.alpha import CLOSEST, REPEAT
+from penumbra.core.frame import render_frame
+from synthetic import area_light, matte_layers_scene
+
+inside, outside = [], []
+
+def in_warm_up():
+    # the warm-up holds warmup._lock while it runs (its worker threads see it taken)
+    owned = getattr(warmup._lock, "_is_owned", None)      # an RLock: its owner may re-acquire it
+    if owned is not None and owned():
+        return True
+    if warmup._lock.acquire(blocking=False):
+        warmup._lock.release()
+        return False
+    return True
+
+class Compiles(event.Listener):
+    def on_start(self, ev):
+        (inside if in_warm_up() else outside).append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Compiles())
+sc = matte_layers_scene(area_light(1.0), [(2.0, [[0.0, 1.0], [1.0, 0.0]], CLOSEST, REPEAT)], res=16,
+                        camera_sees=True)
+render_frame(sc, {methods!r}, overrides={{"samples": 4}})
+print(json.dumps({{"inside": inside, "outside": outside}}))
+"""
+
+
+def test_a_matte_scene_compiles_nothing_outside_the_warm_up(tmp_path):
+    """Issue 15 / 18: on a fresh Numba cache, every kernel a frame with
+    alpha mattes compiles (camera G-buffer pass-through, dithered light map,
+    matte transmittance, the planner's reach) compiles inside the warm-up,
+    never inside a buffer's or a method's time."""
+    env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=str(tmp_path / "cache"))
+    env.pop("NUMBA_CACHE_DIR", None)
+    code = _COMPILES_OUTSIDE_WARM_UP.format(tests=os.path.dirname(os.path.abspath(__file__)),
+                                            methods=["pcf", "embree"])
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    seen = json.loads(p.stdout.strip().splitlines()[-1])
+    assert any("transmittance" in n or "cross" in n or "clear" in n for n in seen["inside"]), seen["inside"]
+    assert seen["outside"] == [], seen["outside"]
