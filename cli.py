@@ -11,6 +11,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 from typing import List, Optional
 
 from .farm import watchdog
@@ -364,9 +365,22 @@ def main(argv: Optional[List[str]] = None) -> int:
     except KeyboardInterrupt:
         print("penumbra: interrupted", file=sys.stderr)
         return 130
+    except Exception:
+        if not _TERMINATED.is_set():
+            raise
+        # the SIGTERM's KeyboardInterrupt landed inside a Blender callback (the
+        # capture render's), which Blender catches and prints; what failed after
+        # it is its echo: the run was interrupted, not broken
+        print("penumbra: interrupted", file=sys.stderr)
+        return 130
+
+
+#: set by SIGTERM (``_interrupt``): a farm stopping the task
+_TERMINATED = threading.Event()
 
 
 def _interrupt(signum, frame):
+    _TERMINATED.set()
     raise KeyboardInterrupt
 
 

@@ -162,3 +162,33 @@ def test_frame_ranges_resume_and_force(tmp_path, capsys):
 def test_bad_frame_ranges(tmp_path, capsys, frames):
     assert main(["render", sample_path("torus_plane"), "--out", str(tmp_path), "--frames", frames]) == 2
     assert "bad --frames" in capsys.readouterr().err
+
+
+def test_an_error_after_sigterm_is_an_interrupt(monkeypatch, capsys):
+    """A farm's SIGTERM raises KeyboardInterrupt wherever Python is; inside a
+    Blender callback (the capture render's) Blender catches and prints it,
+    and the capture then fails ("did not run"). That failure is the
+    interrupt's echo: exit 130 with "penumbra: interrupted", as for any
+    interrupt, no traceback. Without a SIGTERM the same error is not hidden."""
+    import signal
+    import threading
+    from penumbra import cli
+
+    def render_swallowing_the_interrupt(args):
+        try:
+            cli._interrupt(signal.SIGTERM, None)
+        except KeyboardInterrupt:
+            pass                                   # as Blender does around its callbacks
+        raise RuntimeError("capture_scene: the capture render of scene 'x' did not run")
+
+    monkeypatch.setattr(cli, "_TERMINATED", threading.Event())
+    monkeypatch.setattr(cli, "cmd_render", render_swallowing_the_interrupt)
+    assert main(["render", "x.blend"]) == 130
+    assert capsys.readouterr().err.strip() == "penumbra: interrupted"
+
+    def render_failing(args):
+        raise RuntimeError("a real bug")
+    monkeypatch.setattr(cli, "_TERMINATED", threading.Event())
+    monkeypatch.setattr(cli, "cmd_render", render_failing)
+    with pytest.raises(RuntimeError, match="a real bug"):
+        main(["render", "x.blend"])
