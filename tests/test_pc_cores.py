@@ -6,7 +6,7 @@ import pytest
 
 from penumbra.bench.scaling import bulge_split, uv_sphere_triangles
 from penumbra.core.methods.penumbra_casting.blockers import coplanar_blockers
-from penumbra.core.methods.penumbra_casting.cores import interior_blockers
+from penumbra.core.methods.penumbra_casting.cores import closed_solids, interior_blockers
 from penumbra.core.scene import Camera, ObjectInfo, Scene
 from penumbra.core.views import look_rotation
 from synthetic import area_light, quad, sun_light
@@ -21,22 +21,43 @@ def _sphere(n=4000, centre=(0.0, 0.0, 1.0), radius=1.0):
 
 
 def test_interior_blockers_lie_inside_the_closed_sphere_and_are_convex():
-    polys, nv = interior_blockers(_sphere(), **LIGHT)
+    polys, nv = interior_blockers(_sphere(40000), **LIGHT)          # 9 slices (one per 4096 triangles)
     assert len(polys) >= 2
     d = np.linalg.norm(polys - [0.0, 0.0, 1.0], axis=2)
     # inside the sphere, and inside its polygonal (inscribed) tessellation
-    assert d.max() < 1.0 - 1e-5 and d.min() > 0.9
-    # one plane, perpendicular to the direction from the light to the centre
+    assert d.max() < 1.0 - 1e-5
+    # slices perpendicular to the direction from the light to the centre
     n = np.array([0.0, 0.0, 1.0]) - LIGHT["light_point"]
     n /= np.linalg.norm(n)
-    h = polys.reshape(-1, 3) @ n
-    assert np.ptp(h) < 1e-9
-    # the union of the fan is about the slice's area (16 corners of a circle)
-    area = 0.0
-    for p, k in zip(polys, nv):
+    h = np.einsum("pkd,d->pk", polys - [0.0, 0.0, 1.0], n)
+    assert np.ptp(h, axis=1).max() < 1e-9
+    # the union of each slice's fan is about the slice's disk (its corners on a circle)
+    area = {}
+    for p, k, hp in zip(polys, nv, h[:, 0]):
         for j in range(1, k - 1):
-            area += 0.5 * np.linalg.norm(np.cross(p[j] - p[0], p[j + 1] - p[0]))
-    assert 0.9 * np.pi * 0.98 < area < np.pi
+            area[round(hp, 6)] = area.get(round(hp, 6), 0.0) + 0.5 * np.linalg.norm(np.cross(p[j] - p[0], p[j + 1] - p[0]))
+    assert len(area) >= 8
+    for hp, a in area.items():
+        disk = np.pi * (1.0 - hp * hp)
+        assert 0.9 * disk < a < disk
+
+
+def test_solids_orientation_and_disks_inside_their_slices():
+    """``closed_solids``: the winding sign of a closed sphere (flipped when
+    its triangles are), nothing for an open one, and every disk inside its
+    slice polygon (each disk's boundary points within the sphere)."""
+    sph = _sphere(40000)
+    s = closed_solids(sph, **LIGHT)
+    assert (s.facing == 1).all() and (s.solid_of == 0).all()
+    assert (closed_solids(sph[:, ::-1].copy(), **LIGHT).facing == -1).all()
+    assert (closed_solids(sph[1:], **LIGHT).facing == 0).all()
+    ok = s.disks[:, 7] > 0
+    assert ok.sum() >= 8
+    for dk in s.disks[ok]:
+        nrm, c, r = dk[:3], dk[4:7], np.sqrt(dk[7])
+        u = np.cross(nrm, [1.0, 0.0, 0.0]); u /= np.linalg.norm(u)
+        assert abs(nrm @ c - dk[3]) < 1e-9
+        assert np.linalg.norm(c + r * u - [0.0, 0.0, 1.0]) < 1.0
 
 
 def test_no_interior_blockers_for_open_meshes_or_a_light_inside():
@@ -95,9 +116,13 @@ def test_hexagons_and_interior_blockers_block_exactly_embrees_rays(light):
     scene = _mixed_scene(light)
     fb, setup, V, stats = run_pc(scene)
     assert stats["interior_blockers"] >= 2
+    # the sphere's triangles facing away from the light, and pairs hidden behind its slices
+    assert stats["triangles_backface_culled"] > 0 and stats["hidden_pairs"] > 0 and stats["hidden_nodes"] > 0
     assert_exact(V, own_rays(fb, setup), setup.light.S)
-    _, _, V_paper, st_paper = run_pc(scene, MaxCorners=4, interior_blockers=False, coplanar_blockers=False)
+    _, _, V_paper, st_paper = run_pc(scene, MaxCorners=4, interior_blockers=False, coplanar_blockers=False,
+                                     backface_cull=False)
     assert st_paper["interior_blockers"] == 0 and st_paper["blockers"] > stats["blockers"]
+    assert st_paper["triangles_backface_culled"] == st_paper["hidden_pairs"] == 0
     assert_exact(V, V_paper, setup.light.S)
 
 
@@ -111,3 +136,39 @@ def test_a_concave_slice_gives_no_polygon():
     star = circle * (1.0 + 0.4 * (np.cos(5 * a) > 0.95))[:, None]       # five thin spikes
     dent = circle * (1.0 - 0.3 * np.exp(-((a - 1.0) / 0.2) ** 2))[:, None]   # one dent
     assert _convex_fan(star, normal) is None and _convex_fan(dent, normal) is None
+
+
+@pytest.mark.parametrize("light", [area_light(1.0, z=4.5), sun_light(0.08)], ids=["area", "sun"])
+def test_backface_cull_and_hidden_pairs_change_no_relation_on_a_smooth_sphere(light):
+    """The closed sphere's back-facing triangles dropped and the (blocker,
+    receiver) pairs hidden behind its slices skipped: the same relations as
+    with every triangle tested, and as Embree's rays (issue 17)."""
+    sph = uv_sphere_triangles(20000, 1.0, (0.3, 0.2, 1.0))
+    tris = np.concatenate([np.array(quad(-5, 5, -5, 5, 0.0)), sph]).astype(np.float32)
+    m = np.eye(4)
+    eye = np.array([4.0, -5.0, 4.0])
+    m[:3, :3] = look_rotation(-eye)
+    m[:3, 3] = eye
+    scene = Scene(tris, np.zeros(len(tris), np.int32), [ObjectInfo("all", 0)], Camera(m, lens=35.0), [light],
+                  (64, 64))
+    fb, setup, V, st = run_pc(scene)
+    assert st["triangles_backface_culled"] > 0.3 * len(sph)
+    assert st["hidden_pairs"] + st["hidden_nodes"] > 0.3 * st["receiver_blocker_pairs"]
+    _, _, V_all, st_all = run_pc(scene, backface_cull=False, hidden_behind_cores=False)
+    assert st_all["hidden_pairs"] == st_all["hidden_nodes"] == st_all["triangles_backface_culled"] == 0
+    assert_exact(V, V_all, setup.light.S, frac=0.0005)
+    assert_exact(V, own_rays(fb, setup), setup.light.S)
+
+
+def test_merge_on_the_solids_mesh_equals_the_merge_from_scratch():
+    """``sub_mesh``: the merge of a subset of triangles on the vertex ids and
+    adjacency built once for all of them is the merge built from the subset."""
+    from penumbra.core.methods.penumbra_casting.blockers import sub_mesh
+    rng = np.random.default_rng(3)
+    tris = np.concatenate([_sphere(3000), _leaf_fans(rng, 20), np.array(quad(-3, 3, -3, 3, 0.0), float)])
+    s = closed_solids(tris, **LIGHT)
+    sel = np.flatnonzero(rng.random(len(tris)) < 0.7)
+    a = coplanar_blockers(tris[sel])
+    b = coplanar_blockers(tris[sel], mesh=sub_mesh(s.mesh, sel))
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)

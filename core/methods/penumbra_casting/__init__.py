@@ -95,9 +95,11 @@ from ...kernels import each_in_threads
 from ..registry import register
 from .alpha_blockers import (MatteBlockers, corner_order, fetch_visibility, matte_pairs, matte_triangles,
                              split_blockers, transmitted_visibility)
-from .blockers import MAXB, coplanar_blockers, pad_triangles
-from .cores import interior_blockers
-from .cast import (N_ST, ST_GROUP_TESTS, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_LEAF_VISITS, ST_LIVE,
+from .blockers import MAXB, coplanar_blockers, pad_triangles, sub_mesh
+from .cores import closed_solids
+from .cast import (N_ST, ST_GROUP_TESTS, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_VOLUMES, ST_HIDDEN, ST_HIDDEN_NODES,
+                   ST_LEAF_VISITS,
+                   ST_LIVE,
                    ST_NODES, ST_PEAK, ST_PAIRS, ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers,
                    CastSwitches, Hierarchy, LightGroups, Masks, Receivers, UmbraBits, cast_chunk, chunk_visibility)
 from .geometry import MAXP, _newell, box_vs_volume, penumbra_volume
@@ -123,6 +125,10 @@ class PenumbraCastingParams:
     coplanar_blockers: bool = True    # cast coplanar convex triangle groups as one polygon (section 5)
     MaxCorners: int = 6               # corners of a merged blocker (<= MAXB; 4: quads, the earlier merge)
     interior_blockers: bool = True    # convex slices inside closed meshes, cast first (``cores``)
+    backface_cull: bool = True        # closed meshes: drop triangles facing away from the whole light
+    hidden_behind_cores: bool = True  # skip (blocker, receiver) pairs whose rays all pass an interior blocker
+    CoreSlices: int = 16              # at most this many interior slices per closed solid (``cores``)
+    CoreCorners: int = 128            # corners of each slice's convex polygon
     SortBuckets: int = 32             # area buckets (paper: a histogram; count not given)
     RebuildFraction: float = 0.25     # A, line 29: the paper's "large enough fraction" (not given)
     shared_samples_with_reference: bool = False   # the embree reference's own per-pixel samples
@@ -413,6 +419,24 @@ def _matte_blockers(mattes, L: LightSetup, eps: float, root_bb: np.ndarray, tol:
                          np.ascontiguousarray(VL[keep]), np.ascontiguousarray(nVL[keep]))
 
 
+def _backfacing(tris, facing, L: LightSetup, tol: float) -> np.ndarray:
+    """Triangles of a closed solid (``facing`` != 0: the sign that orients
+    (b - a) x (c - a) outward) whose plane has every vertex of the light's
+    bounding polygon / volume strictly behind it. A segment from a light
+    sample outside the solid to any receiver that meets the solid enters it
+    first (going from the sample) through a triangle facing the sample, so
+    such triangles block nothing the rest of the solid does not (issue 17;
+    the solid's winding number is never negative: no inside-out parts)."""
+    a = tris[:, 0]
+    n = np.cross(tris[:, 1] - a, tris[:, 2] - a) * facing[:, None]
+    verts = L.DVL[:L.nvl]
+    if not len(verts) or L.nvl == 0:
+        return np.zeros(len(tris), np.bool_)
+    h = n @ verts[:, :3].T - np.einsum("ij,ij->i", n, a)[:, None] * verts[None, :, 3]
+    margin = np.linalg.norm(n, axis=1) * tol
+    return (facing != 0) & np.all(h < -margin[:, None], axis=1)
+
+
 def _light_box(L: LightSetup):
     """``cores.interior_blockers``' view of the light: (centre, direction,
     box lo, box hi); the sun's samples are at infinity (no box)."""
@@ -467,24 +491,43 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         tmax = tris.max(1)
         inbox = np.all((tmax >= blo - setup.tol) & (tmin <= bhi + setup.tol), axis=1)
         cand_tris = tris[inbox]
+    n_cores = 0
+    n_back = 0
+    solids = None
+    mesh = None
+    if (params.interior_blockers or params.backface_cull) and len(cand_tris):
+        with timer("cores"):             # every triangle: the box cull may open a closed mesh
+            solids = closed_solids(tris, *_light_box(L), params.CoreSlices, params.CoreCorners)
+            sel = np.flatnonzero(inbox)
+            facing = solids.facing[sel]
+            core_of = solids.solid_of[sel] if (params.interior_blockers and params.hidden_behind_cores) \
+                else np.full(len(cand_tris), -1, np.int64)
+            if params.backface_cull and facing.any():
+                back = _backfacing(cand_tris, facing, L, setup.tol)
+                n_back = int(back.sum())
+                cand_tris, core_of, sel = cand_tris[~back], core_of[~back], sel[~back]
+            if solids.mesh is not None:
+                mesh = sub_mesh(solids.mesh, sel)   # the merge reuses the vertex ids and adjacency
     with timer("merge"):
         if params.coplanar_blockers:
-            cand, cand_nv, _ = coplanar_blockers(cand_tris, params.MaxCorners)
+            cand, cand_nv, poly_of = coplanar_blockers(cand_tris, params.MaxCorners, mesh)
         else:
             cand, cand_nv = pad_triangles(cand_tris)
-    n_cores = 0
-    if params.interior_blockers and len(cand_tris):
-        with timer("cores"):             # every triangle: the box cull may open a closed mesh
-            cores, cores_nv = interior_blockers(tris, *_light_box(L))
-            n_cores = len(cores)
-            if n_cores:
-                cand = np.concatenate([cores, cand])
-                cand_nv = np.concatenate([cores_nv, cand_nv])
+            poly_of = np.arange(len(cand_tris))
+        cand_core = np.full(len(cand), -1, np.int64)
+        if solids is not None:
+            cand_core[poly_of] = core_of     # a polygon's triangles are edge-adjacent: one solid
+    if params.interior_blockers and solids is not None:
+        n_cores = len(solids.polys)
+        if n_cores:
+            cand = np.concatenate([solids.polys, cand])
+            cand_nv = np.concatenate([solids.nverts, cand_nv])
+            cand_core = np.concatenate([np.full(n_cores, -1, np.int64), cand_core])
     with timer("cull"):
         # V_L of every candidate, in batches (bounds the MAXP-wide temporary);
         # survivors keep only as many plane slots as they use
         parts, nparts, widest = [], [], 1
-        blocker_parts, nv_parts = [], []
+        blocker_parts, nv_parts, core_parts = [], [], []
         for a in range(0, len(cand), _VL_BATCH):
             cb = np.ascontiguousarray(cand[a:a + _VL_BATCH])
             cnv = np.ascontiguousarray(cand_nv[a:a + _VL_BATCH])
@@ -499,6 +542,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             nparts.append(nVLb[keep])
             blocker_parts.append(cb[keep])
             nv_parts.append(cnv[keep])
+            core_parts.append(cand_core[a:a + _VL_BATCH][keep])
         VL = np.zeros((sum(len(q) for q in parts), 4, widest))
         o = 0
         for q in parts:
@@ -508,8 +552,10 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         blockers = np.ascontiguousarray(np.concatenate(blocker_parts)) if blocker_parts \
             else np.zeros((0, MAXB, 3))
         blocker_nv = np.ascontiguousarray(np.concatenate(nv_parts)) if nv_parts else np.zeros(0, np.int64)
+        blocker_core = np.ascontiguousarray(np.concatenate(core_parts)) if core_parts else np.zeros(0, np.int64)
     stats["interior_blockers"] = int(n_cores)
-    stats["triangles_box_culled"] = int(len(tris) - len(cand_tris))
+    stats["triangles_backface_culled"] = int(n_back)
+    stats["triangles_box_culled"] = int(len(tris) - int(inbox.sum()))
     stats["blocker_polygons"] = int(len(cand))
     stats["triangles_volume_culled"] = int(len(cand) - len(blockers))   # blockers (polygons)
     stats["blockers"] = int(len(blockers))
@@ -535,11 +581,12 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         with timer("cull"):
             mb = _matte_blockers(mattes, L, setup.eps, root_bb, setup.tol)
         stats["matte_blockers"] = int(len(mb.tri))
-    blk = Blockers(order, blockers, blocker_nv, VL, nVL)
+    sol = solids if solids is not None else closed_solids(np.zeros((0, 3, 3)), None, None, None, None)
+    blk = Blockers(order, blockers, blocker_nv, VL, nVL, blocker_core, sol.solids, sol.disks)
     grp = LightGroups(L.DVg, L.nvg, L.DEg, L.neg, L.g_start)
     smp = setup.light_samples()
     switches = CastSwitches(optA, optB, optC, optD, float(params.RebuildFraction), leaf, setup.tol, setup.eps,
-                            bool(params.materialize_hard_volumes))
+                            bool(params.materialize_hard_volumes), bool(blocker_core.size and blocker_core.max() >= 0))
 
     def run_pool(fn):
         each_in_threads(fn, chunks, workers)
@@ -641,6 +688,8 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
         "leaf_visits": int(st[ST_LEAF_VISITS]),
         "receiver_blocker_pairs": int(st[ST_PAIRS]),
         "group_volume_tests": int(st[ST_GROUP_TESTS]),
+        "hidden_pairs": int(st[ST_HIDDEN]),
+        "hidden_nodes": int(st[ST_HIDDEN_NODES]),
         "blockers_per_leaf": float(st[ST_LEAF_VISITS] / max(1, sum(c.leaves for c in chunks))),
         "blockers_per_receiver": float(st[ST_PAIRS] / max(1, n)),
         "sample_tests_per_relation": float(st[ST_HARD_TESTS] / max(1, n * L.S)),

@@ -48,9 +48,10 @@ def pad_triangles(tris: np.ndarray):
     return polys, np.full(n, 3, np.int64)
 
 
-def _adjacency(ids: np.ndarray) -> np.ndarray:
+def _adjacency(ids: np.ndarray, nonmanifold: bool = False):
     """nbr[t, e]: the triangle sharing edge e = (ids[t, e], ids[t, e+1]) with t
-    when exactly two triangles share it, else -1 (vectorized edge sort)."""
+    when exactly two triangles share it, else -1 (vectorized edge sort);
+    ``nonmanifold``: also whether some edge is shared by three or more."""
     n = len(ids)
     a = ids[:, [0, 1, 2]].ravel()
     b = ids[:, [1, 2, 0]].ravel()
@@ -69,6 +70,8 @@ def _adjacency(ids: np.ndarray) -> np.ndarray:
     ok = t0 != t1
     nbr[e0[ok]] = t1[ok]
     nbr[e1[ok]] = t0[ok]
+    if nonmanifold:
+        return nbr.reshape(n, 3), bool(np.any(same & prev_same))
     return nbr.reshape(n, 3)
 
 
@@ -263,19 +266,36 @@ def _unique_vertices(V: np.ndarray):
     return np.ascontiguousarray(s[first]), inv
 
 
-def coplanar_blockers(tris: np.ndarray, max_corners: int = MAXB):
+def sub_mesh(mesh, sel: np.ndarray):
+    """``mesh`` = (P, ids, nbr, nonmanifold) of some triangles restricted to
+    triangles ``sel`` (indices): the same as building it from them, unless
+    an edge of the whole is shared by three or more (None then)."""
+    P, ids, nbr, nonmanifold = mesh
+    if nonmanifold:
+        return None
+    remap = np.full(len(ids) + 1, -1, np.int64)
+    remap[sel] = np.arange(len(sel))
+    sub = nbr[sel]
+    return P, np.ascontiguousarray(ids[sel]), np.ascontiguousarray(remap[sub]), False
+
+
+def coplanar_blockers(tris: np.ndarray, max_corners: int = MAXB, mesh=None):
     """Merge edge-adjacent coplanar triangles float64[T,3,3] into convex
     polygons of at most ``max_corners`` (3..MAXB) corners; returns (polys
     float64[M, MAXB, 3], nverts int64[M], poly_of int64[T]: the polygon
-    holding each triangle)."""
+    holding each triangle). ``mesh``: their vertices, vertex ids and
+    adjacency already built (``sub_mesh``)."""
     max_corners = min(MAXB, max(3, int(max_corners)))
     tris = np.ascontiguousarray(tris, np.float64)
     n = len(tris)
     if n == 0:
         return np.zeros((0, MAXB, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
-    P, inv = _unique_vertices(tris.reshape(-1, 3))
-    ids = np.ascontiguousarray(inv.reshape(n, 3), np.int64)
-    nbr = _adjacency(ids)
+    if mesh is not None:
+        P, ids, nbr = mesh[0], mesh[1], mesh[2]
+    else:
+        P, inv = _unique_vertices(tris.reshape(-1, 3))
+        ids = np.ascontiguousarray(inv.reshape(n, 3), np.int64)
+        nbr = _adjacency(ids)
     vid, nv, poly_of = _grow(P, ids, nbr, max_corners, PLANE_ULPS)
     if max_corners < MAXB:                           # the last corner repeated
         vid = np.concatenate([vid, np.repeat(vid[:, -1:], MAXB - max_corners, 1)], 1)

@@ -59,12 +59,16 @@ ST_ROOT_CULLED = 12     # triangles culled at the root
 ST_LEAF_VISITS = 13     # (blocker, leaf node) pairs reaching a leaf's points
 ST_PAIRS = 14           # (blocker, receiver) pairs inside V_L (the receiver's blocker count)
 ST_GROUP_TESTS = 15     # point-vs-V_Gk penumbra volume tests
-N_ST = 16
+ST_HIDDEN = 16          # (blocker, receiver) pairs in V_L skipped: hidden behind its solid's core
+ST_HIDDEN_NODES = 17    # (blocker, node) pairs skipped: the whole box hidden behind its solid's core
+N_ST = 18
 
 # argument groups of ``cast_chunk``
-Blockers = namedtuple("Blockers", "tri_sel tris nverts VL nVL")
+Blockers = namedtuple("Blockers", "tri_sel tris nverts VL nVL solid solids disks")
 """Blocker polygons (float64[T, MAXB, 3], corners ``nverts``), their light
-volumes V_L (planes ``VL[t, :, :nVL[t]]``) and the cast order ``tri_sel``."""
+volumes V_L (planes ``VL[t, :, :nVL[t]]``), the cast order ``tri_sel``, and
+per blocker its closed solid ``solid[t]`` (-1: none) with the solid's slices
+and their disks (``cores.Solids``)."""
 LightGroups = namedtuple("LightGroups", "DVg nvg DEg neg g_start")
 """Bounding polygons Delta_Gk (vertices DVg/nvg, edges DEg/neg) and the bit
 range ``g_start[k]:g_start[k + 1]`` of each group G_k."""
@@ -78,9 +82,9 @@ UmbraBits = namedtuple("UmbraBits", "fu gu node_gu node_fu")
 Masks = namedtuple("Masks", "slot pool free")
 """Optimization D: the mask row of each receiver (-1: none), the mask pool
 and the stack of released rows."""
-CastSwitches = namedtuple("CastSwitches", "optA optB optC optD rebuild_frac leaf_size tol eps materialize")
-"""Optimizations A-D, ``RebuildFraction``, ``LeafSize``, tolerances, and
-``materialize_hard_volumes``."""
+CastSwitches = namedtuple("CastSwitches", "optA optB optC optD rebuild_frac leaf_size tol eps materialize hidden")
+"""Optimizations A-D, ``RebuildFraction``, ``LeafSize``, tolerances,
+``materialize_hard_volumes`` and ``hidden_behind_cores``."""
 
 
 @njit(cache=True, inline="always")
@@ -190,6 +194,86 @@ def _word_tests(T4, j, a, e, base, co, nb):
     return acc
 
 
+@njit(cache=True, inline="always")
+def _slice_of(solids, sid, x, y, z, ax, ay, az):
+    """The disk of solid ``sid`` for the ray from (x, y, z) along (ax, ay,
+    az): the slice nearest the ray's closest approach to the centroid (-1:
+    that slice has no disk)."""
+    aa = ax * ax + ay * ay + az * az
+    if not (aa > 0.0):
+        return np.int64(-1)
+    sm = ((solids[sid, 0] - x) * ax + (solids[sid, 1] - y) * ay + (solids[sid, 2] - z) * az) / aa
+    hm = (solids[sid, 3] * (x + sm * ax - solids[sid, 0]) + solids[sid, 4] * (y + sm * ay - solids[sid, 1])
+          + solids[sid, 5] * (z + sm * az - solids[sid, 2]))
+    fi = (hm - solids[sid, 6]) / solids[sid, 7] + 0.5
+    fi = min(max(fi, 0.0), solids[sid, 9] - 1.0)
+    return np.int64(solids[sid, 8]) + np.int64(fi)
+
+
+@njit(cache=True, inline="always")
+def _through_disk(disks, c, x, y, z, vx, vy, vz):
+    """The ray from (x, y, z) through (vx, vy, vz) meets disk ``c`` at a
+    positive distance: 1 before the point, 2 beyond it, 0 not."""
+    nx, ny, nz, o = disks[c, 0], disks[c, 1], disks[c, 2], disks[c, 3]
+    hr = nx * x + ny * y + nz * z - o
+    dx = vx - x
+    dy = vy - y
+    dz = vz - z
+    den = nx * dx + ny * dy + nz * dz
+    if not (den * hr < 0.0):             # the disk's plane behind r along this ray, or parallel
+        return 0
+    t = -hr / den
+    qx = x + t * dx - disks[c, 4]
+    qy = y + t * dy - disks[c, 5]
+    qz = z + t * dz - disks[c, 6]
+    if not (qx * qx + qy * qy + qz * qz < disks[c, 7]):
+        return 0
+    return 1 if t < 1.0 else 2
+
+
+@njit(cache=True)
+def _box_hidden(bb, node, tris, k, nb, solids, disks, sid):
+    """``_hidden_behind`` for every point of box ``bb[node]``: for each corner
+    v of T, the 8 box corners all see the same disk through v, and all
+    before v or all beyond it (each of those two sets of points is convex:
+    the disk's shadow frustum from v, and the cone from v away from it)."""
+    c = _slice_of(solids, sid, 0.5 * (bb[node, 0] + bb[node, 3]), 0.5 * (bb[node, 1] + bb[node, 4]),
+                  0.5 * (bb[node, 2] + bb[node, 5]),
+                  tris[k, 0, 0] - 0.5 * (bb[node, 0] + bb[node, 3]), tris[k, 0, 1] - 0.5 * (bb[node, 1] + bb[node, 4]),
+                  tris[k, 0, 2] - 0.5 * (bb[node, 2] + bb[node, 5]))
+    if c < 0 or not (disks[c, 7] > 0.0):
+        return False
+    for j in range(nb):
+        vx, vy, vz = tris[k, j, 0], tris[k, j, 1], tris[k, j, 2]
+        side = -1
+        for q in range(8):
+            x = bb[node, 3] if q & 1 else bb[node, 0]
+            y = bb[node, 4] if q & 2 else bb[node, 1]
+            z = bb[node, 5] if q & 4 else bb[node, 2]
+            h = _through_disk(disks, c, x, y, z, vx, vy, vz)
+            if h == 0 or (side >= 0 and h != side):
+                return False
+            side = h
+    return True
+
+
+@njit(cache=True, inline="always")
+def _hidden_behind(tris, k, nb, solids, disks, sid, x, y, z):
+    """Every ray from r = (x, y, z) through a corner of blocker ``k`` (so
+    through all of it: convex) passes, at a positive distance, through one
+    disk inside an interior blocker of its solid ``sid`` (the slice nearest
+    the closest approach of the ray through the first corner to the solid's
+    centroid): any segment from r to a light sample that T blocks is blocked
+    by that polygon (``hidden_behind_cores``)."""
+    c = _slice_of(solids, sid, x, y, z, tris[k, 0, 0] - x, tris[k, 0, 1] - y, tris[k, 0, 2] - z)
+    if c < 0 or not (disks[c, 7] > 0.0):
+        return False
+    for j in range(nb):
+        if _through_disk(disks, c, x, y, z, tris[k, j, 0], tris[k, j, 1], tris[k, j, 2]) == 0:
+            return False
+    return True
+
+
 @njit(cache=True, nogil=True)
 def chunk_visibility(fu, slot, pool, S, out):
     """V = 1 - blocked / S; full umbra (mask released) = 0; no mask = 1."""
@@ -213,6 +297,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
     (the chunk's, in leaf order); hier: Hierarchy; umb: UmbraBits (A);
     masks: Masks (D); st: counters (``ST_*``); opt: CastSwitches."""
     tri_sel, tris, nverts, VL, nVL = blk.tri_sel, blk.tris, blk.nverts, blk.VL, blk.nVL
+    bsolid, solids, disks = blk.solid, blk.solids, blk.disks
     DVg, nvg, DEg, neg, g_start = grp.DVg, grp.nvg, grp.DEg, grp.neg, grp.g_start
     mode, SP, Q, centre, bit2s = smp.mode, smp.SP, smp.Q, smp.centre, smp.bit2s
     pts, set_id, M = rec.pts, rec.set_id, rec.M
@@ -222,6 +307,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
     slot, pool, free = masks.slot, masks.pool, masks.free
     optA, optB, optC, optD = opt.optA, opt.optB, opt.optC, opt.optD
     rebuild_frac, leaf_size, tol, eps = opt.rebuild_frac, opt.leaf_size, opt.tol, opt.eps
+    hidden = opt.hidden
     G = g_start.shape[0] - 1
     planes = opt.materialize and mode == MODE_FIXED     # the paper's V_li planes per (set, sample)
     S = bit2s.shape[0]
@@ -268,6 +354,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
         nL = nVL[k]
         tri = tris[k]
         nb = nverts[k]
+        kc = bsolid[k] if hidden else np.int64(-1)
         triangle_plane(tri, nb, tn)
         st[ST_STAMP] += 1
         stamp = st[ST_STAMP]
@@ -318,6 +405,9 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
                     st[ST_ROOT_CULLED] += 1
             if not ok:
                 continue
+            if kc >= 0 and count[node] <= 4 * leaf_size and _box_hidden(bb, node, tris, k, nb, solids, disks, kc):
+                st[ST_HIDDEN_NODES] += 1
+                continue
             nl = lev + 1
             anyg = False
             for g in range(G):                                           # lines 37-45
@@ -363,6 +453,9 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
                 if not point_in_volume(VL, k, nL, PLv[nl], x, y, z, tol):  # line 58
                     continue
                 st[ST_PAIRS] += 1
+                if kc >= 0 and _hidden_behind(tris, k, nb, solids, disks, kc, x, y, z):
+                    st[ST_HIDDEN] += 1
+                    continue
                 if slot[r] < 0:                                          # line 59 (D)
                     if st[ST_FREE] > 0:
                         st[ST_FREE] -= 1

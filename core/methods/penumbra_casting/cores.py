@@ -27,6 +27,8 @@ used when they form a strictly convex polygon that no edge of the loop enters
 """
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
@@ -34,8 +36,12 @@ from .blockers import _adjacency, _unique_vertices
 from .geometry import MAXB
 
 MIN_TRIANGLES = 64
-CORNERS = 16
+CORNERS = 128
+SLICES = 16            # at most this many slices per closed solid, evenly along the light's direction
+SLICE_TRIANGLES = 4096  # a slice per this many triangles of the solid (at least one, the centroid's)
+MIN_TURN = 1e-6        # a slice polygon's corners turn by at least this (radians)
 SHRINK = 1e-4          # relative shrink of the polygon toward the loop's centre
+DISK_SHRINK = 1e-6     # relative shrink of the disk inside the polygon (``hidden_behind_cores``)
 
 
 @njit(cache=True)
@@ -151,6 +157,14 @@ def _convex_fan(loop, normal):
     """``CORNERS`` points evenly along the slice ``loop``, shrunk toward its
     centre, as a fan of polygons [Q, MAXB, 3], when they form a convex
     polygon inside the loop (else None)."""
+    got = _convex_core(loop, normal)
+    return None if got is None else got[:2]
+
+
+def _convex_core(loop, normal, corners=CORNERS):
+    """``_convex_fan``'s fan and the disk inside the fan's union (centre,
+    radius: the polygon's centroid and its distance to the nearest edge,
+    shrunk by ``DISK_SHRINK``), or None."""
     u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
     v = np.cross(normal, u)
@@ -159,8 +173,22 @@ def _convex_fan(loop, normal):
     area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
     if area < 0:                                      # counter-clockwise
         loop, x, y = loop[::-1], x[::-1], y[::-1]
-    k = min(CORNERS, len(loop))
-    sel = np.unique(np.linspace(0, len(loop), k, endpoint=False).astype(np.int64))
+    k = min(int(corners), len(loop))
+    # evenly along the loop's length (a slice of a UV sphere crosses its rings unevenly)
+    seg = np.hypot(np.roll(x, -1) - x, np.roll(y, -1) - y)
+    arc = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    sel = np.unique(np.minimum(np.searchsorted(arc, np.linspace(0.0, seg.sum(), k, endpoint=False)), len(loop) - 1))
+    # corners that do not turn left (collinear ones: the slice of one flat face) dropped;
+    # the polygon left must still lie inside the loop (checked below)
+    for _ in range(len(sel)):
+        ex, ey = np.roll(x[sel], -1) - x[sel], np.roll(y[sel], -1) - y[sel]
+        turn = np.roll(ex, 1) * ey - np.roll(ey, 1) * ex          # at each corner
+        # and nearly collinear ones (a turn under MIN_TURN radians): a hard volume's
+        # edge plane is oriented by the next corner, which must be off the edge's line
+        bad = turn <= MIN_TURN * np.hypot(np.roll(ex, 1), np.roll(ey, 1)) * np.hypot(ex, ey)
+        if not bad.any() or len(sel) < 3:
+            break
+        sel = sel[~bad] if (~bad).sum() >= 3 else sel[:0]
     pick = c + (1.0 - SHRINK) * (loop[sel] - c)
     qx, qy = (1.0 - SHRINK) * x[sel], (1.0 - SHRINK) * y[sel]
     ex, ey = np.roll(qx, -1) - qx, np.roll(qy, -1) - qy
@@ -173,7 +201,48 @@ def _convex_fan(loop, normal):
         q = pick[[0] + list(range(a, min(a + MAXB - 1, len(pick))))]
         counts.append(len(q))
         quads.append(np.concatenate([q, np.repeat(q[-1:], MAXB - len(q), 0)]))
-    return np.array(quads), np.array(counts, np.int64)
+    # the disk: distance from the polygon's centroid (inside: convex) to each edge line
+    cr = qx * np.roll(qy, -1) - np.roll(qx, -1) * qy
+    mx = float(np.sum((qx + np.roll(qx, -1)) * cr) / (3.0 * np.sum(cr)))
+    my = float(np.sum((qy + np.roll(qy, -1)) * cr) / (3.0 * np.sum(cr)))
+    el = np.hypot(ex, ey)
+    dist = (ex * (my - qy) - ey * (mx - qx)) / el     # > 0 inside (counter-clockwise)
+    rad = (1.0 - DISK_SHRINK) * float(dist.min())
+    centre = c + mx * u + my * v
+    return np.array(quads), np.array(counts, np.int64), centre, rad
+
+
+def _oriented(ids, nbr):
+    """Per triangle: every neighbour across an edge traverses that edge the
+    other way (consistent winding)."""
+    n = len(ids)
+    t = np.repeat(np.arange(n), 3)
+    e = np.tile(np.arange(3), n)
+    o = nbr.ravel()
+    has = o >= 0
+    a = ids[t, e]
+    b = ids[t, (e + 1) % 3]
+    oo = np.where(has, o, 0)
+    # in o, the corner after b must be a (o runs b -> a)
+    ok = np.ones(3 * n, np.bool_)
+    for j in range(3):
+        at = ids[oo, j] == b
+        ok &= ~has | ~at | (ids[oo, (j + 1) % 3] == a)
+    return ok.reshape(n, 3).all(1)
+
+
+Solids = namedtuple("Solids", "polys nverts solid_of solids disks facing mesh")
+"""``closed_solids``: the interior blockers (polys float64[M, MAXB, 3],
+nverts int64[M]); per triangle its solid ``solid_of`` (int64[T], -1: none)
+into ``solids`` (float64[S, 10]: centroid c, unit slicing direction n, the
+offset h0 of its first slice along n from c, the slice spacing dh, its first
+disk in ``disks`` and its slice count); ``disks`` (float64[K, 8]: plane nx,
+ny, nz, o, centre, radius^2, or radius^2 = -1 where the slice gave no
+polygon); per triangle ``facing`` (int8[T]): +1 / -1 when its component is
+a closed, consistently wound mesh the light is outside of, the sign that
+makes (b - a) x (c - a) point out of the solid; 0 otherwise; ``mesh``: the
+vertices, vertex ids, adjacency and non-manifold flag of ``tris`` (for
+``blockers.sub_mesh``; None under ``MIN_TRIANGLES``)."""
 
 
 def interior_blockers(tris: np.ndarray, light_point, light_dir, light_lo, light_hi):
@@ -182,21 +251,38 @@ def interior_blockers(tris: np.ndarray, light_point, light_dir, light_lo, light_
     ``light_point``: the light's centre (None for the sun, whose
     ``light_dir`` is used); ``light_lo/hi``: the box of its bounding polygon
     (None: at infinity, outside every solid)."""
-    empty = (np.zeros((0, MAXB, 3)), np.zeros(0, np.int64))
+    got = closed_solids(tris, light_point, light_dir, light_lo, light_hi)
+    return got.polys, got.nverts
+
+
+def closed_solids(tris: np.ndarray, light_point, light_dir, light_lo, light_hi, slices: int = SLICES,
+                  corners: int = CORNERS) -> Solids:
+    """``interior_blockers`` and what the casting may drop because of them
+    (``Solids``): ``SLICES`` slices of each closed component perpendicular to
+    the light's direction (evenly over its extent), the disk inside each
+    slice's polygon (``hidden_behind_cores``), and the outward orientation of
+    each closed, consistently wound component the light is outside of
+    (``backface_cull``)."""
     n = len(tris)
+    none = Solids(np.zeros((0, MAXB, 3)), np.zeros(0, np.int64), np.full(n, -1, np.int64), np.zeros((1, 10)),
+                  np.zeros((1, 8)), np.zeros(n, np.int8), None)
     if n < MIN_TRIANGLES:
-        return empty
+        return none
     P, inv = _unique_vertices(np.ascontiguousarray(tris.reshape(-1, 3), np.float64))
     ids = np.ascontiguousarray(inv.reshape(n, 3), np.int64)
-    nbr = _adjacency(ids)
+    nbr, nonmanifold = _adjacency(ids, True)
+    none = none._replace(mesh=(P, ids, nbr, nonmanifold))
     label, closed = _components(nbr)
     sizes = np.bincount(label, minlength=len(closed))
     good = np.flatnonzero(closed & (sizes >= MIN_TRIANGLES))
     if not len(good):
-        return empty
+        return none
     order = np.argsort(label, kind="stable")
     starts = np.searchsorted(label[order], np.arange(len(closed) + 1))
-    polys, nvs = [], []
+    wound = _oriented(ids, nbr)
+    polys, nvs, disks, solids = [], [], [], []
+    solid_of = np.full(n, -1, np.int64)
+    facing = np.zeros(n, np.int8)
     for comp in good:                     # per closed object, not per triangle
         tl = np.ascontiguousarray(order[starts[comp]:starts[comp + 1]])
         verts = P[np.unique(ids[tl])]
@@ -204,24 +290,44 @@ def interior_blockers(tris: np.ndarray, light_point, light_dir, light_lo, light_
         if light_lo is not None and np.all(light_hi >= lo) and np.all(light_lo <= hi):
             continue                      # the light may be inside the solid
         centroid = verts.mean(0)
+        if wound[tl].all():
+            # signed volume about the centroid: > 0 when (b - a) x (c - a) points out
+            t = tris[tl] - centroid
+            vol = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum()
+            if vol != 0.0:
+                facing[tl] = 1 if vol > 0 else -1
         d = centroid - light_point if light_point is not None else np.asarray(light_dir, float)
         ln = np.linalg.norm(d)
         if not ln > 0:
             continue
         nrm = d / ln
+        hv = (verts - centroid) @ nrm
+        ns = min(max(1, int(slices)), max(1, len(tl) // SLICE_TRIANGLES))
+        dh = float(hv.max() - hv.min()) / ns
+        if not dh > 0:
+            continue
+        h0 = float(hv.min()) + 0.5 * dh if ns > 1 else 0.0      # one slice: through the centroid
         out = np.empty((len(tl), 3))
         step = 1e-7 * float(np.abs(hi - lo).max())
-        for nudge in range(3):            # off a vertex lying exactly on the plane
-            k = _slice_loop(P, ids, nbr, tl, nrm[0], nrm[1], nrm[2], float(nrm @ centroid) + nudge * step, out)
-            if k >= 3:
-                break
-        if k < 3:
-            continue
-        fan = _convex_fan(out[:k], nrm)
-        if fan is None:
-            continue
-        polys.append(fan[0])
-        nvs.append(fan[1])
+        first = len(disks)
+        for s_i in range(ns):
+            off = float(nrm @ centroid) + h0 + s_i * dh
+            for nudge in range(3):        # off a vertex lying exactly on the plane
+                k = _slice_loop(P, ids, nbr, tl, nrm[0], nrm[1], nrm[2], off + nudge * step, out)
+                if k >= 3:
+                    break
+            fan = _convex_core(out[:k], nrm, corners) if k >= 3 else None
+            if fan is None:
+                disks.append(np.r_[nrm, off, centroid, -1.0])
+                continue
+            polys.append(fan[0])
+            nvs.append(fan[1])
+            disks.append(np.r_[nrm, nrm @ fan[2], fan[2], fan[3] ** 2 if fan[3] > 0.0 else -1.0])
+        if len(polys) and any(dk[7] > 0 for dk in disks[first:]):
+            solid_of[tl] = len(solids)
+            solids.append(np.r_[centroid, nrm, h0, dh, first, ns])
     if not polys:
-        return empty
-    return np.ascontiguousarray(np.concatenate(polys)), np.concatenate(nvs)
+        return none._replace(facing=facing)
+    return Solids(np.ascontiguousarray(np.concatenate(polys)), np.concatenate(nvs), solid_of,
+                  np.array(solids).reshape(-1, 10) if solids else np.zeros((1, 10)),
+                  np.array(disks).reshape(-1, 8), facing, none.mesh)
