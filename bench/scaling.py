@@ -120,8 +120,8 @@ def dense_foliage_scene(base: Scene, levels: int) -> Scene:
 # --------------------------------------------------------------------------
 # the tables
 #: counters of penumbra_casting's stats shown as "where the time goes"
-WHERE = ("blockers", "interior_blockers", "blockers_per_leaf", "blockers_per_receiver", "group_volume_tests",
-         "hard_volume_tests", "sample_tests_per_relation")
+WHERE = ("blockers", "interior_blockers", "triangles_backface_culled", "blockers_per_leaf", "blockers_per_receiver",
+         "hidden_pairs", "hidden_nodes", "group_volume_tests", "hard_volume_tests", "sample_tests_per_relation")
 COLUMNS = ["scene", "triangles", "size", "samples", "embree_s", "penumbra_casting_s", "speedup", "rmse_pc_vs_embree",
            "phases"] + list(WHERE)
 SPHERE_TRIANGLES = (10_000, 100_000, 1_000_000)

@@ -43,9 +43,30 @@ sample, the triangle that blocks the ray, every blocker triangle T finds all
   A polygon costs one linear form per corner per sample test. Off: the paper's
   per-triangle algorithm.
 * Interior blockers (``interior_blockers``, module ``cores``): convex
-  polygons inside the slice of every closed mesh, cast first; they block only
-  relations the mesh blocks, and put most umbra receivers in full umbra before
-  the mesh's small triangles are cast (issue 17: 1M-triangle smooth solids).
+  polygons inside slices of every closed mesh (up to ``CoreSlices``, one
+  per 4096 triangles, perpendicular to the light's direction, of
+  ``CoreCorners`` corners), cast first; they block only relations the mesh
+  blocks, and put most umbra receivers in full umbra before the mesh's small
+  triangles are cast (issue 17: 1M-triangle smooth solids).
+* ``hidden_behind_cores`` (ours, issue 17): a (triangle, receiver) pair is
+  skipped when every ray from the receiver through the triangle's corners
+  passes through a disk inside one slice polygon of the triangle's solid
+  (the slice nearest the ray's closest approach to the solid's centroid):
+  the light is outside the solid's box, so the slice is crossed before the
+  light sample and blocks every relation the triangle would; near the leaves
+  (boxes of up to 4 ``LeafSize`` points) the test is made for the whole box
+  (per triangle corner, the box's 8 corners all before, or all beyond it:
+  two convex sets). Penumbra receivers of a smooth solid then test only the
+  triangles whose rays graze its silhouette.
+* ``backface_cull`` (issue 17; ``group_backface_cull`` the same per group
+  G_k: a blocker never activates the groups whose bounding polygon is
+  entirely behind it): triangles of a closed, consistently wound
+  solid the light is outside of, facing away from every vertex of the
+  light's bounding polygon / volume, are dropped: a segment from a light
+  sample outside the solid that meets it enters it first (going from the
+  sample) through a triangle facing that sample. Condition: the solid's
+  winding number is never negative (no inside-out part: true without
+  self-intersections), not checked.
 * Alpha-matte blockers (issue 18, section 4 "Alpha matte textures",
   ``alpha_blockers``): processed after all opaque ones; ``alpha_fetch``
   (default) finds the receivers in each matte blocker's V_L through the
@@ -127,6 +148,7 @@ class PenumbraCastingParams:
     interior_blockers: bool = True    # convex slices inside closed meshes, cast first (``cores``)
     backface_cull: bool = True        # closed meshes: drop triangles facing away from the whole light
     hidden_behind_cores: bool = True  # skip (blocker, receiver) pairs whose rays all pass an interior blocker
+    group_backface_cull: bool = True  # closed meshes: a blocker skips the groups G_k it faces away from
     CoreSlices: int = 16              # at most this many interior slices per closed solid (``cores``)
     CoreCorners: int = 128            # corners of each slice's convex polygon
     SortBuckets: int = 32             # area buckets (paper: a histogram; count not given)
@@ -419,18 +441,33 @@ def _matte_blockers(mattes, L: LightSetup, eps: float, root_bb: np.ndarray, tol:
                          np.ascontiguousarray(VL[keep]), np.ascontiguousarray(nVL[keep]))
 
 
-def _backfacing(tris, facing, L: LightSetup, tol: float) -> np.ndarray:
-    """Triangles of a closed solid (``facing`` != 0: the sign that orients
-    (b - a) x (c - a) outward) whose plane has every vertex of the light's
-    bounding polygon / volume strictly behind it. A segment from a light
-    sample outside the solid to any receiver that meets the solid enters it
-    first (going from the sample) through a triangle facing the sample, so
-    such triangles block nothing the rest of the solid does not (issue 17;
-    the solid's winding number is never negative: no inside-out parts)."""
+def _backfacing(tris, facing, verts, tol: float, nverts=None) -> np.ndarray:
+    """Triangles (polygons with ``nverts`` corners) of a closed solid
+    (``facing`` != 0: the sign that orients (b - a) x (c - a), or Newell's
+    normal, outward) whose plane has every homogeneous vertex ``verts`` (of
+    the light's bounding polygon / volume, or of a group's) strictly behind
+    it. A segment from a light sample outside the solid to any receiver that
+    meets the solid enters it first (going from the sample) through a
+    triangle facing the sample, so such triangles block nothing from those
+    samples the rest of the solid does not (issue 17; the solid's winding
+    number is never negative: no inside-out parts)."""
     a = tris[:, 0]
-    n = np.cross(tris[:, 1] - a, tris[:, 2] - a) * facing[:, None]
-    verts = L.DVL[:L.nvl]
-    if not len(verts) or L.nvl == 0:
+    n = np.cross(tris[:, 1] - a, tris[:, 2] - a)
+    if nverts is not None and (nverts > 3).any():
+        big = np.flatnonzero(nverts > 3)
+        q = tris[big]
+        nn = np.zeros((len(big), 3))
+        for j in range(q.shape[1]):                  # Newell's normal (the kernel's triangle_plane)
+            k = np.where(j + 1 < nverts[big], j + 1, 0)
+            r = q[np.arange(len(big)), k]
+            on = j < nverts[big]
+            p = q[:, j]
+            nn[:, 0] += on * (p[:, 1] - r[:, 1]) * (p[:, 2] + r[:, 2])
+            nn[:, 1] += on * (p[:, 2] - r[:, 2]) * (p[:, 0] + r[:, 0])
+            nn[:, 2] += on * (p[:, 0] - r[:, 0]) * (p[:, 1] + r[:, 1])
+        n[big] = nn
+    n = n * facing[:, None]
+    if not len(verts):
         return np.zeros(len(tris), np.bool_)
     h = n @ verts[:, :3].T - np.einsum("ij,ij->i", n, a)[:, None] * verts[None, :, 3]
     margin = np.linalg.norm(n, axis=1) * tol
@@ -503,9 +540,9 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             core_of = solids.solid_of[sel] if (params.interior_blockers and params.hidden_behind_cores) \
                 else np.full(len(cand_tris), -1, np.int64)
             if params.backface_cull and facing.any():
-                back = _backfacing(cand_tris, facing, L, setup.tol)
+                back = _backfacing(cand_tris, facing, L.DVL[:L.nvl], setup.tol)
                 n_back = int(back.sum())
-                cand_tris, core_of, sel = cand_tris[~back], core_of[~back], sel[~back]
+                cand_tris, core_of, sel, facing = cand_tris[~back], core_of[~back], sel[~back], facing[~back]
             if solids.mesh is not None:
                 mesh = sub_mesh(solids.mesh, sel)   # the merge reuses the vertex ids and adjacency
     with timer("merge"):
@@ -515,19 +552,23 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             cand, cand_nv = pad_triangles(cand_tris)
             poly_of = np.arange(len(cand_tris))
         cand_core = np.full(len(cand), -1, np.int64)
+        cand_facing = np.zeros(len(cand), np.int8)
         if solids is not None:
             cand_core[poly_of] = core_of     # a polygon's triangles are edge-adjacent: one solid
+            if params.backface_cull:
+                cand_facing[poly_of] = facing
     if params.interior_blockers and solids is not None:
         n_cores = len(solids.polys)
         if n_cores:
             cand = np.concatenate([solids.polys, cand])
             cand_nv = np.concatenate([solids.nverts, cand_nv])
             cand_core = np.concatenate([np.full(n_cores, -1, np.int64), cand_core])
+            cand_facing = np.concatenate([np.zeros(n_cores, np.int8), cand_facing])
     with timer("cull"):
         # V_L of every candidate, in batches (bounds the MAXP-wide temporary);
         # survivors keep only as many plane slots as they use
         parts, nparts, widest = [], [], 1
-        blocker_parts, nv_parts, core_parts = [], [], []
+        blocker_parts, nv_parts, core_parts, facing_parts = [], [], [], []
         for a in range(0, len(cand), _VL_BATCH):
             cb = np.ascontiguousarray(cand[a:a + _VL_BATCH])
             cnv = np.ascontiguousarray(cand_nv[a:a + _VL_BATCH])
@@ -543,6 +584,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             blocker_parts.append(cb[keep])
             nv_parts.append(cnv[keep])
             core_parts.append(cand_core[a:a + _VL_BATCH][keep])
+            facing_parts.append(cand_facing[a:a + _VL_BATCH][keep])
         VL = np.zeros((sum(len(q) for q in parts), 4, widest))
         o = 0
         for q in parts:
@@ -553,8 +595,16 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             else np.zeros((0, MAXB, 3))
         blocker_nv = np.ascontiguousarray(np.concatenate(nv_parts)) if nv_parts else np.zeros(0, np.int64)
         blocker_core = np.ascontiguousarray(np.concatenate(core_parts)) if core_parts else np.zeros(0, np.int64)
+        blocker_facing = np.concatenate(facing_parts) if facing_parts else np.zeros(0, np.int8)
+        # per blocker of a solid: the groups G_k it may face (the others' samples all see its back)
+        gface = np.ones((len(blockers), L.G), np.uint8)
+        solid_b = np.flatnonzero(blocker_facing != 0)
+        for g in range(L.G if len(solid_b) and params.group_backface_cull else 0):
+            gface[solid_b, g] = ~_backfacing(blockers[solid_b], blocker_facing[solid_b], L.DVg[g, :L.nvg[g]],
+                                             setup.tol, blocker_nv[solid_b])
     stats["interior_blockers"] = int(n_cores)
     stats["triangles_backface_culled"] = int(n_back)
+    stats["group_backface_culled"] = int((gface == 0).sum())      # (blocker, G_k) pairs
     stats["triangles_box_culled"] = int(len(tris) - int(inbox.sum()))
     stats["blocker_polygons"] = int(len(cand))
     stats["triangles_volume_culled"] = int(len(cand) - len(blockers))   # blockers (polygons)
@@ -582,7 +632,7 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
             mb = _matte_blockers(mattes, L, setup.eps, root_bb, setup.tol)
         stats["matte_blockers"] = int(len(mb.tri))
     sol = solids if solids is not None else closed_solids(np.zeros((0, 3, 3)), None, None, None, None)
-    blk = Blockers(order, blockers, blocker_nv, VL, nVL, blocker_core, sol.solids, sol.disks)
+    blk = Blockers(order, blockers, blocker_nv, VL, nVL, blocker_core, sol.solids, sol.disks, gface)
     grp = LightGroups(L.DVg, L.nvg, L.DEg, L.neg, L.g_start)
     smp = setup.light_samples()
     switches = CastSwitches(optA, optB, optC, optD, float(params.RebuildFraction), leaf, setup.tol, setup.eps,

@@ -64,11 +64,13 @@ ST_HIDDEN_NODES = 17    # (blocker, node) pairs skipped: the whole box hidden be
 N_ST = 18
 
 # argument groups of ``cast_chunk``
-Blockers = namedtuple("Blockers", "tri_sel tris nverts VL nVL solid solids disks")
+Blockers = namedtuple("Blockers", "tri_sel tris nverts VL nVL solid solids disks gface")
 """Blocker polygons (float64[T, MAXB, 3], corners ``nverts``), their light
 volumes V_L (planes ``VL[t, :, :nVL[t]]``), the cast order ``tri_sel``, and
 per blocker its closed solid ``solid[t]`` (-1: none) with the solid's slices
-and their disks (``cores.Solids``)."""
+and their disks (``cores.Solids``), and ``gface[t, k]`` = 0 where every
+sample of G_k sees the back of a solid's blocker (it blocks nothing from
+them that the solid's other triangles do not: G_k never active for it)."""
 LightGroups = namedtuple("LightGroups", "DVg nvg DEg neg g_start")
 """Bounding polygons Delta_Gk (vertices DVg/nvg, edges DEg/neg) and the bit
 range ``g_start[k]:g_start[k + 1]`` of each group G_k."""
@@ -297,7 +299,7 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
     (the chunk's, in leaf order); hier: Hierarchy; umb: UmbraBits (A);
     masks: Masks (D); st: counters (``ST_*``); opt: CastSwitches."""
     tri_sel, tris, nverts, VL, nVL = blk.tri_sel, blk.tris, blk.nverts, blk.VL, blk.nVL
-    bsolid, solids, disks = blk.solid, blk.solids, blk.disks
+    bsolid, solids, disks, gface = blk.solid, blk.solids, blk.disks, blk.gface
     DVg, nvg, DEg, neg, g_start = grp.DVg, grp.nvg, grp.DEg, grp.neg, grp.g_start
     mode, SP, Q, centre, bit2s = smp.mode, smp.SP, smp.Q, smp.centre, smp.bit2s
     pts, set_id, M = rec.pts, rec.set_id, rec.M
@@ -375,9 +377,14 @@ def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
             st[ST_GROUP_VOLUMES] += 1
         # lines 32-34
         PLv[0] = ALLP
+        anyface = False
         for g in range(G):
             act[0, g] = ALLP
-            act_on[0, g] = 1
+            act_on[0, g] = gface[k, g]
+            if gface[k, g]:
+                anyface = True
+        if not anyface:
+            continue
         sp = 1
         st_node[0] = 0
         st_lev[0] = 0

@@ -285,7 +285,9 @@ def closed_solids(tris: np.ndarray, light_point, light_dir, light_lo, light_hi, 
     facing = np.zeros(n, np.int8)
     for comp in good:                     # per closed object, not per triangle
         tl = np.ascontiguousarray(order[starts[comp]:starts[comp + 1]])
-        verts = P[np.unique(ids[tl])]
+        used = np.zeros(len(P), np.bool_)
+        used[ids[tl].ravel()] = True      # the component's vertices (np.unique's set, no sort)
+        verts = P[used]
         lo, hi = verts.min(0), verts.max(0)
         if light_lo is not None and np.all(light_hi >= lo) and np.all(light_lo <= hi):
             continue                      # the light may be inside the solid
