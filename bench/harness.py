@@ -62,3 +62,18 @@ def median_run(fn, repeats: int):
         out = fn()
         times.append(time.perf_counter() - t)
     return statistics.median(times), out
+
+
+def median_runs(fns, repeats: int):
+    """Median seconds of each of ``fns``, measured interleaved (round i calls
+    every fn once, in turn) after one warm call each, so a change of the
+    machine's load hits all of them alike."""
+    for fn in fns:
+        fn()
+    times = [[] for _ in fns]
+    for _ in range(repeats):
+        for k, fn in enumerate(fns):
+            t = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t)
+    return [statistics.median(ts) for ts in times]

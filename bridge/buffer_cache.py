@@ -1,9 +1,10 @@
 """The Preview's buffers kept from one Preview to the next (issue 15).
 
 While the camera and the geometry do not change, a Preview takes over the
-last one's camera G-buffer, BVHs and the views of the lights that did not
-move (``core.buffers.FrameBuffers.adopt``): moving a light re-computes only
-its light view and the filter.
+last one's camera G-buffer, BVHs and the views and passes of the lights that
+did not move (``core.buffers.FrameBuffers.adopt``): moving a light
+re-computes only its light view and the filter, and a light whose shape,
+place and method settings did not change is not computed again.
 
 What changed is the depsgraph's to say: :func:`on_depsgraph_update`
 (``bpy.app.handlers.depsgraph_update_post``; :func:`watch` installs it)

@@ -90,6 +90,7 @@ class FrameBuffers:
         self._culled: Dict[str, raycast.TriangleScene] = {}
         self._bvh_key: Dict[str, str] = {}        # light -> key of the BVH its shadow rays use
         self.culling: Dict[str, Dict[str, int]] = {}
+        self._results: Dict[tuple, object] = {}   # ``result_key`` -> a method's MethodResult
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
@@ -112,8 +113,8 @@ class FrameBuffers:
     def adopt(self, prev: "FrameBuffers") -> None:
         """Take over what ``prev`` built for the same camera and geometry:
         the BVHs, the camera G-buffer and its receivers, and each light's
-        views and culled BVH while that light is unchanged (``light_key``;
-        a moved light gets new ones). The caller vouches that the geometry
+        views, culled BVH and methods' results (``keep_result``) while that
+        light is unchanged (``light_key``; a moved light gets new ones). The caller vouches that the geometry
         (triangles, their flags and mattes) did not change since ``prev``
         was built (the add-on's Preview knows it from the depsgraph,
         ``bridge/buffer_cache.py``); the resolution, the camera and the
@@ -135,9 +136,31 @@ class FrameBuffers:
         self._bvh_key = {n: k for n, k in prev._bvh_key.items() if n in same}
         self.culling = {n: c for n, c in prev.culling.items() if n in same}
         self._reach = {n: m for n, m in prev._reach.items() if n in same}
+        self._results = {k: r for k, r in prev._results.items() if k[0] in same}
         kept = {"bvh_shadow", "bvh_camera", "gbuffer", "shadow_triangles"}
         kept |= {f"bvh_culled:{n}" for n in same} | {f"light_view:{n}:{ms}:{k}" for n, ms, k in self._views}
         self._builds = {k: _Build(0.0, b.phase, b.built_from) for k, b in prev._builds.items() if k in kept}
+
+    def result_key(self, light: Light, method_id: str, params: dict) -> tuple:
+        """What a method's result on this frame's buffers is a function of:
+        the light (``light_key``), the method, its parameters, the frame's
+        map size and Numba's thread count (DESIGN.md: the same inputs, seed
+        and thread count give the same bits); the camera and geometry are
+        the buffers' own."""
+        import json
+        import numba
+        return (light.name, light_key(light), method_id, json.dumps(params, sort_keys=True, default=str),
+                self.map_size, numba.get_num_threads())
+
+    def kept_result(self, key: tuple):
+        """The MethodResult kept under ``key`` (``keep_result``; taken over by
+        ``adopt`` while the light is unchanged), else None."""
+        return self._results.get(key)
+
+    def keep_result(self, key: tuple, result) -> None:
+        """Keep a method's result for a later frame that adopts these
+        buffers (a Preview after one that changed nothing for this light)."""
+        self._results[key] = result
 
     def _timed(self, key: str, phase: str, fn, built_from: Iterable[str] = (), total: Optional[str] = None):
         """Build ``key`` with ``fn``, timed: ``build_times[total or key]``

@@ -105,7 +105,11 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     camera and geometry, whose G-buffer, BVHs and unchanged lights' views
     are taken over (``FrameBuffers.adopt``; the caller vouches for the
     geometry); ``keep_buffers``: the result holds this frame's buffers
-    (``result.buffers``, else None) for a later ``reuse``.
+    (``result.buffers``, else None) for a later ``reuse``, with each
+    method's result: a frame that adopts them takes a method's result over
+    for a light, method and parameters that did not change
+    (``FrameBuffers.keep_result``; billed 0 s, ``"reused": true`` in its
+    record) instead of running it again.
     """
     t0 = time.perf_counter()
     W, H = scene.resolution
@@ -131,6 +135,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
             results.append(lr)
             continue
         done = {}
+        reused = set()                        # producers whose result an adopted frame kept
         for k, prod_id in enumerate(lp.producers):
             if progress:
                 progress(f"{lp.name}: {prod_id}", (li + k / max(1, len(lp.producers))) / n_lights)
@@ -144,10 +149,19 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                 continue
             m = registry[prod_id]
             params = _params(m, overrides, method_overrides)
-            with buffers.view(m.needs, m.id) as view:   # run() sees only what it declared
-                res = m.run(view, light, params)
-            phases = view.phase_times()       # the buffers it used, whoever built them
-            phases.update({k2: v for k2, v in res.time_s.items() if k2 != "total"})
+            key = buffers.result_key(light, m.id, params_dict(params))
+            res = buffers.kept_result(key)    # only an adopted frame has any
+            if res is not None:               # an adopted frame's result for this very light: nothing to do
+                reused.add(prod_id)
+                phases = buffers.billed((), m.needs)
+                phases.update({k2: 0.0 for k2 in res.time_s if k2 != "total"})
+            else:
+                with buffers.view(m.needs, m.id) as view:   # run() sees only what it declared
+                    res = m.run(view, light, params)
+                phases = view.phase_times()   # the buffers it used, whoever built them
+                phases.update({k2: v for k2, v in res.time_s.items() if k2 != "total"})
+                if keep_buffers:
+                    buffers.keep_result(key, res)
             phases = {k2: round(v, 6) for k2, v in phases.items()}
             phases["total"] = round(sum(phases.values()), 6)
             done[prod_id] = (m, params, res, phases)
@@ -172,6 +186,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                 rec["computed_with"] = [q for q in m.passes if q != pid]
             if res.stats:
                 rec["stats"] = res.stats
+            if m is not None and m.id in reused:
+                rec["reused"] = True
             lr.record[pid] = rec
         for pid in lp.passes:
             ref = REFERENCE_FOR[lr.record[pid]["visibility"]]

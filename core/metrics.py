@@ -10,48 +10,81 @@ import math
 from typing import Dict, Optional
 
 import numpy as np
+from numba import njit
 
 from .scene import GBuffer, Light
 
 PENUMBRA_LO, PENUMBRA_HI = 0.02, 0.98
 
 
+REACH_SUN, REACH_SPHERE, REACH_SPOT, REACH_AREA = 0, 1, 2, 3
+
+
 def reach_mask(g: GBuffer, light: Light) -> np.ndarray:
     """bool[H,W]: visible pixels some part of the light can illuminate,
-    ignoring occlusion (tests on the light's boundary points / cone)."""
-    P = g.position
-    n = g.normal.astype(np.float64)
-    ok = g.hit.copy()
-    c = light.position
+    ignoring occlusion (tests on the light's boundary points / cone), in
+    one Numba pass over the G-buffer (``_reach_kernel``)."""
+    c = np.asarray(light.position, np.float64)
+    pts = np.zeros((0, 3), np.float64)
+    axis = np.zeros(3, np.float64)
+    limit = 0.0
     if light.kind == "sun":
-        to_sun = -light.direction
-        sin_half = math.sin(light.sun_half_angle)
-        return ok & ((n @ to_sun) > -sin_half)
-    d = c - P
-    dist = np.linalg.norm(d, axis=-1)
-    dist = np.where(dist > 0, dist, 1e-300)
-    if light.kind == "sphere":
-        sin_half = np.minimum(light.radius / dist, 1.0)
-        ok &= np.einsum("...i,...i->...", n, d) / dist > -sin_half
+        mode, axis, limit = REACH_SUN, np.asarray(-light.direction, np.float64), math.sin(light.sun_half_angle)
+    elif light.kind == "sphere":
+        mode = REACH_SPOT if light.is_spot else REACH_SPHERE
         if light.is_spot:
-            cosang = -(np.einsum("...i,...i->...", d, light.direction)) / dist
-            ok &= cosang >= light.spot_cos
-        return ok
-    # area: in front of the emitting side and some boundary point above the tangent plane
-    m = light.world_from_light
-    ax, ay, az = m[:3, 0], m[:3, 1], m[:3, 2]
-    ok &= ((P - c) @ (-az)) > 0
-    hx, hy = light.half_size
-    if light.is_round:
-        ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
-        pts = [c + ax * hx * math.cos(a) + ay * hy * math.sin(a) for a in ang]
+            axis, limit = np.asarray(light.direction, np.float64), float(light.spot_cos)
     else:
-        pts = [c + ax * sx * hx + ay * sy * hy for sx in (-1, 1) for sy in (-1, 1)]
-    pts.append(c)
-    above = np.zeros(ok.shape, bool)
-    for q in pts:
-        above |= np.einsum("...i,...i->...", n, q - P) > 0
-    return ok & above
+        # area: in front of the emitting side and some boundary point above the tangent plane
+        mode = REACH_AREA
+        m = light.world_from_light
+        ax, ay, axis = m[:3, 0], m[:3, 1], -np.asarray(m[:3, 2], np.float64)
+        hx, hy = light.half_size
+        if light.is_round:
+            ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+            pts = [c + ax * hx * math.cos(a) + ay * hy * math.sin(a) for a in ang]
+        else:
+            pts = [c + ax * sx * hx + ay * sy * hy for sx in (-1, 1) for sy in (-1, 1)]
+        pts = np.array(pts + [c], np.float64)
+    H, W = g.hit.shape
+    out = np.empty(H * W, np.bool_)
+    _reach_kernel(np.ascontiguousarray(g.position, np.float64).reshape(-1, 3),
+                  np.ascontiguousarray(g.normal, np.float32).reshape(-1, 3), np.ascontiguousarray(g.hit).reshape(-1),
+                  mode, c, np.ascontiguousarray(axis, np.float64), float(limit), float(light.radius),
+                  np.ascontiguousarray(pts, np.float64), out)
+    return out.reshape(H, W)
+
+
+@njit(cache=True, nogil=True)
+def _reach_kernel(P, N, hit, mode, c, axis, limit, radius, pts, out):
+    """``reach_mask`` per pixel: sun: n . to_sun > -sin(half angle); sphere:
+    n . d / |d| > -min(r / |d|, 1) (d: to the centre) and, for a spot, the
+    cone; area: in front of the emitting side and n . (q - P) > 0 for some
+    boundary point or the centre q."""
+    for i in range(P.shape[0]):
+        if not hit[i]:
+            out[i] = False
+            continue
+        n0, n1, n2 = np.float64(N[i, 0]), np.float64(N[i, 1]), np.float64(N[i, 2])
+        if mode == REACH_SUN:
+            out[i] = n0 * axis[0] + n1 * axis[1] + n2 * axis[2] > -limit
+            continue
+        d0, d1, d2 = c[0] - P[i, 0], c[1] - P[i, 1], c[2] - P[i, 2]
+        if mode != REACH_AREA:
+            dist = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            dist = dist if dist > 0 else 1e-300
+            ok = (n0 * d0 + n1 * d1 + n2 * d2) / dist > -min(radius / dist, 1.0)
+            if ok and mode == REACH_SPOT:
+                ok = -(d0 * axis[0] + d1 * axis[1] + d2 * axis[2]) / dist >= limit
+            out[i] = ok
+            continue
+        ok = (-d0) * axis[0] + (-d1) * axis[1] + (-d2) * axis[2] > 0
+        above = False
+        for k in range(pts.shape[0]):
+            if n0 * (pts[k, 0] - P[i, 0]) + n1 * (pts[k, 1] - P[i, 1]) + n2 * (pts[k, 2] - P[i, 2]) > 0:
+                above = True
+                break
+        out[i] = ok and above
 
 
 def errors(v: np.ndarray, ref: np.ndarray, mask: Optional[np.ndarray] = None) -> Dict[str, float]:

@@ -40,7 +40,7 @@ def pack_rays(rotation, eye, window, ortho: bool, near: float = 0.0, far: float 
     return p
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _local_xy(p, col, row, width, height):
     """View-plane point of the pixel centre (col + 0.5, row + 0.5)."""
     x = p[WINDOW] + (col + 0.5) / width * (p[WINDOW + 1] - p[WINDOW])
@@ -48,7 +48,7 @@ def _local_xy(p, col, row, width, height):
     return x, y
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ray(p, col, row, width, height):
     """(origin, unit direction, view-axis depth per unit of ray length) of one
     pixel's ray, float64, as ``views.camera_rays`` computes them."""

@@ -6,9 +6,10 @@ else pcf, with no references. Several lights combine as their
 energy-weighted mean visibility (1 = every light fully visible). In the UI
 it computes in a worker thread (``modal_job.py``); headless, at once.
 Preview quality (``FrameRequest.fast``): light views at
-``jobs.PREVIEW_MAP_SCALE`` of the output's larger side, and the last
-Preview's camera G-buffer while the camera and the geometry do not change
-(``bridge/buffer_cache.py``).
+``jobs.PREVIEW_MAP_SCALE`` of the output's larger side, the fast methods at
+``jobs.PREVIEW_PARAMS`` (said in the report), and the last Preview's camera
+G-buffer, and the views and passes of the lights that did not change, while
+the camera and the geometry do not change (``bridge/buffer_cache.py``).
 """
 from __future__ import annotations
 
@@ -16,8 +17,18 @@ import bpy
 
 from ..bridge import settings
 from ..bridge.images import combine, show_preview
+from ..bridge.jobs import PREVIEW_PARAMS
 from ..bridge.pipeline import FrameRequest, scaled_resolution
 from .modal_job import ModalFrameJob
+
+
+def preview_label(pass_id: str) -> str:
+    """A pass id with the preview's own settings of it (``jobs.PREVIEW_PARAMS``),
+    for the report: "single_sample (preview settings: blocker nearest, ...)"."""
+    ps = PREVIEW_PARAMS.get(pass_id)
+    if not ps:
+        return pass_id
+    return f"{pass_id} (preview settings: {', '.join(f'{k} {v}' for k, v in ps.items())})"
 
 
 def _show_in_image_editors(context, img) -> int:
@@ -34,7 +45,8 @@ def _show_in_image_editors(context, img) -> int:
 
 
 class PENUMBRA_OT_preview(ModalFrameJob, bpy.types.Operator):
-    """Quick look at the soft shadows: a fast method at reduced resolution,
+    """Quick look at the soft shadows: a fast method at preview settings
+    (single_sample: the paper's nearest blocker) and reduced resolution,
     shown in the "Penumbra Preview" image"""
 
     bl_idname = "penumbra.preview"
@@ -81,7 +93,7 @@ class PENUMBRA_OT_preview(ModalFrameJob, bpy.types.Operator):
         result = job.result()
         img = show_preview(combine(result, job.captured))
         shown = _show_in_image_editors(context, img)
-        methods = sorted({p for lr in result.lights for p in lr.passes})
+        methods = [preview_label(p) for p in sorted({p for lr in result.lights for p in lr.passes})]
         where = "" if shown or bpy.app.background else " (open an Image Editor to see it)"
         res = job.captured.resolution
         self.report({"INFO"}, f"Penumbra: preview {res[0]}x{res[1]}, {len(result.lights)} light(s), "

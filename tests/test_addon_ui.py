@@ -293,12 +293,12 @@ def test_preview_updates_one_image_in_place(registered):
     img = bpy.data.images["Penumbra Preview"]
     assert img.as_pointer() == ptr and tuple(img.size) == (24, 16)
     assert len(bpy.data.images) == n_images
-    # the preview is the pcf pass at that size, its light view at preview quality
+    # the preview is the pcf pass at that size, its light view and samples at preview quality
     from penumbra.core.frame import render_frame
     from penumbra.bridge.capture import capture_scene
-    from penumbra.bridge.jobs import PREVIEW_MAP_SCALE
+    from penumbra.bridge.jobs import PREVIEW_MAP_SCALE, PREVIEW_PARAMS
     ref = render_frame(capture_scene(scene, resolution=(24, 16)), ["pcf"], overrides={"seed": 0, "samples": 64},
-                       map_size=round(24 * PREVIEW_MAP_SCALE))
+                       method_overrides={"pcf": PREVIEW_PARAMS["pcf"]}, map_size=round(24 * PREVIEW_MAP_SCALE))
     np.testing.assert_allclose(_pixels(img), ref.lights[0].passes["pcf"], atol=1e-6)
     # no image nodes, no pass images: a preview changes nothing else
     assert not any(i.name.startswith("Penumbra ") and i.name != "Penumbra Preview" for i in bpy.data.images)

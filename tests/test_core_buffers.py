@@ -144,13 +144,19 @@ def test_reused_buffers_give_the_passes_of_fresh_ones():
     """issue 15: a frame may take over an earlier frame's G-buffer and BVHs
     (same camera and geometry) and the views of unchanged lights; a moved
     light gets a new view. Passes are those of a fresh frame; what was taken
-    over is billed 0 s."""
+    over is billed 0 s, an unchanged light's pass included (its method does
+    not run again); another parameter runs it."""
     scene = _scene()
     first = render_frame(scene, ["pcf"], keep_buffers=True)
     assert first.buffers is not None and render_frame(scene, ["pcf"]).buffers is None
     again = render_frame(scene, ["pcf"], reuse=first.buffers, keep_buffers=True)
     np.testing.assert_array_equal(again.lights[0].passes["pcf"], first.lights[0].passes["pcf"])
-    t = again.lights[0].record["pcf"]["time_s"]
+    rec = again.lights[0].record["pcf"]
+    assert rec["reused"] and all(v == 0.0 for v in rec["time_s"].values()) and "filter" in rec["time_s"]
+    other = render_frame(scene, ["pcf"], reuse=first.buffers, method_overrides={"pcf": {"PenumbraSamples": 32}},
+                         keep_buffers=True)
+    t = other.lights[0].record["pcf"]["time_s"]
+    assert "reused" not in other.lights[0].record["pcf"]
     assert t["gbuffer"] == t["light_view"] == t["bvh"] == 0.0 and t["filter"] > 0.0
     assert again.buffers._views and again.buffers._gbuffer is first.buffers._gbuffer
     moved = _moved(scene, 0.3)

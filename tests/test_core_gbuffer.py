@@ -6,7 +6,7 @@ import pytest
 
 from penumbra.core import raycast, views
 from penumbra.core.scene import Camera, GBuffer
-from synthetic import area_light, box, grid_quad, make_scene, quad, sphere_light, sun_light
+from synthetic import area_light, box, grid_quad, make_scene, quad, sphere_light, stress_cases, sun_light
 
 
 def numpy_gbuffer(scene, width, height, tri_scene):
@@ -167,3 +167,47 @@ def test_empty_bvh_gives_an_empty_gbuffer():
     g = raycast.camera_gbuffer(scene, 20, 10, raycast.TriangleScene(np.zeros((0, 3, 3), np.float32)))
     assert not g.hit.any() and np.isinf(g.depth).all() and (g.object_id == -1).all()
     assert g.position.dtype == np.float64 and (g.position == 0).all()
+
+
+def numpy_reach_mask(g, light):
+    """``metrics.reach_mask`` as NumPy computed it before its Numba kernel."""
+    import math
+    P, n, ok, c = g.position, g.normal.astype(np.float64), g.hit.copy(), light.position
+    if light.kind == "sun":
+        return ok & ((n @ -light.direction) > -math.sin(light.sun_half_angle))
+    d = c - P
+    dist = np.linalg.norm(d, axis=-1)
+    dist = np.where(dist > 0, dist, 1e-300)
+    if light.kind == "sphere":
+        ok &= np.einsum("...i,...i->...", n, d) / dist > -np.minimum(light.radius / dist, 1.0)
+        if light.is_spot:
+            ok &= -(np.einsum("...i,...i->...", d, light.direction)) / dist >= light.spot_cos
+        return ok
+    m = light.world_from_light
+    ax, ay, az = m[:3, 0], m[:3, 1], m[:3, 2]
+    ok &= ((P - c) @ (-az)) > 0
+    hx, hy = light.half_size
+    if light.is_round:
+        pts = [c + ax * hx * math.cos(a) + ay * hy * math.sin(a)
+               for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
+    else:
+        pts = [c + ax * sx * hx + ay * sy * hy for sx in (-1, 1) for sy in (-1, 1)]
+    above = np.zeros(ok.shape, bool)
+    for q in pts + [c]:
+        above |= np.einsum("...i,...i->...", n, q - P) > 0
+    return ok & above
+
+
+@pytest.mark.parametrize("case", sorted(stress_cases()))
+def test_reach_mask_kernel_equals_the_numpy_formula(case):
+    """The reach mask (which pixels a light can illuminate at all) of the
+    Numba kernel is the NumPy formula's, pixel for pixel, for every light
+    kind and area shape of the stress suite, and it is a subset of the hits."""
+    from penumbra.core.metrics import reach_mask
+    scene = stress_cases(res=40)[case]
+    W, H = scene.resolution
+    g = raycast.camera_gbuffer(scene, W, H)
+    for light in scene.lights:
+        m = reach_mask(g, light)
+        assert m.dtype == np.bool_ and m.shape == (H, W) and not (m & ~g.hit).any()
+        np.testing.assert_array_equal(m, numpy_reach_mask(g, light))

@@ -220,3 +220,23 @@ def _centre_texel(face, p):
     from penumbra.core.kernels import face_project
     u, v, _ = face_project(face, p[0], p[1], p[2])
     return u, v
+
+
+def test_tile_tables_give_the_min_and_max_of_any_block_of_tiles():
+    """The tile test's sparse tables: the min / max over any block of tiles
+    in four lookups equal a loop over the tiles, on maps of odd sizes with
+    empty (+inf) texels, one and several faces."""
+    from penumbra.core.methods.pcf import tile_minmax, tile_range, tile_tables
+    rng = np.random.default_rng(3)
+    for shape in ((1, 8, 8), (1, 37, 101), (3, 64, 17)):
+        depth = rng.uniform(1.0, 5.0, shape).astype(np.float32)
+        depth[rng.random(shape) < 0.2] = np.inf
+        lo, hi = tile_minmax(depth)
+        tlo, thi = tile_tables(lo, hi)
+        F, th, tw = lo.shape
+        for _ in range(200):
+            f = rng.integers(F)
+            y0, y1 = sorted(rng.integers(0, th, 2))
+            x0, x1 = sorted(rng.integers(0, tw, 2))
+            dmin, dmax = tile_range(tlo[f], thi[f], y0, y1, x0, x1)
+            assert dmin == lo[f, y0:y1 + 1, x0:x1 + 1].min() and dmax == hi[f, y0:y1 + 1, x0:x1 + 1].max()

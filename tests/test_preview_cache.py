@@ -114,3 +114,67 @@ def test_cancel_inside_a_method_writes_nothing_back(scene, monkeypatch):
     assert not bg.job.results and bg.job.buffers is None
     assert buffer_cache.lookup(buffer_cache.ticket(scene, bg.job.captured)) is None
     assert not [i.name for i in bpy.data.images if i.name.startswith("Penumbra ")]
+
+
+def test_an_unchanged_light_keeps_its_pass_a_moved_one_does_not(scene):
+    """Two lights: moving one re-runs its method only; the other's pass is
+    taken over (``"reused"``, 0 s); every pass equals a fresh compute, and a
+    changed knob is not taken over."""
+    key = _light()
+    data = key.data.copy()
+    fill = bpy.data.objects.new("Fill", data)
+    fill.location = (key.location.x - 1.5, key.location.y + 1.0, key.location.z)
+    scene.collection.objects.link(fill)
+    bpy.context.view_layer.update()
+    buffer_cache.invalidate()
+
+    def run():
+        job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=()))
+        job.run()
+        return job, {lr.name: lr for lr in job.result().lights}
+    run()
+    job, lights = run()
+    assert job.reused and len(lights) == 2
+    assert all(lr.record["pcf"].get("reused") and lr.record["pcf"]["time_s"]["total"] == 0.0
+               for lr in lights.values())
+    fill.location.x += 0.3
+    bpy.context.view_layer.update()
+    job, moved = run()
+    assert job.reused and moved[key.name].record["pcf"].get("reused")
+    assert "reused" not in moved["Fill"].record["pcf"] and moved["Fill"].record["pcf"]["time_s"]["filter"] > 0
+    fill.data.penumbra.knobs.pcf.PenumbraSamples = 32      # Fill's own light data: Fill re-runs
+    job, knob = run()
+    assert knob[key.name].record["pcf"].get("reused") and "reused" not in knob["Fill"].record["pcf"]
+    buffer_cache.invalidate()
+    fresh_job, fresh = run()
+    assert not fresh_job.reused
+    for name, lr in knob.items():
+        np.testing.assert_array_equal(lr.passes["pcf"], fresh[name].passes["pcf"])
+    fill.data.penumbra.knobs.pcf.PenumbraSamples = 64
+    buffer_cache.invalidate()
+    _, fresh = run()
+    for name, lr in moved.items():
+        np.testing.assert_array_equal(lr.passes["pcf"], fresh[name].passes["pcf"])
+
+
+def test_the_preview_runs_the_fast_methods_at_preview_settings(scene):
+    """single_sample previews with the paper's nearest blocker and object
+    ids, pcf with fewer samples (``jobs.PREVIEW_PARAMS``); a light's own
+    knob wins; the Compute keeps the accurate defaults."""
+    from penumbra.bridge.jobs import PREVIEW_PARAMS
+    lt = _light()
+    lt.data.penumbra.method = "single_sample"
+    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=()))
+    job.run()
+    params = job.result().lights[0].record["single_sample"]["params"]
+    assert {k: params[k] for k in PREVIEW_PARAMS["single_sample"]} == PREVIEW_PARAMS["single_sample"]
+    job = prepare_frame(scene, FrameRequest(resolution=RES, references=()))
+    job.run()
+    params = job.result().lights[0].record["single_sample"]["params"]
+    assert (params["blocker"], params["surfaces"]) == ("sum", "mesh")
+    lt.data.penumbra.method = "pcf"
+    lt.data.penumbra.knobs.pcf.PenumbraSamples = 48
+    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=()))
+    job.run()
+    params = job.result().lights[0].record["pcf"]["params"]
+    assert (params["PenumbraSamples"], params["BlockerSamples"]) == (48, PREVIEW_PARAMS["pcf"]["BlockerSamples"])

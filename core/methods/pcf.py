@@ -354,7 +354,7 @@ CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays")
 the camera's per-pixel ray terms (``pixel_ray_terms``)."""
 ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi lsize zmin")
 """Packed light-view faces, their depth maps, finite-depth boxes, the
-per-tile depth min / max (``tile_minmax``), per face the light's reach
+per-tile depth min / max as sparse tables (``tile_tables``), per face the light's reach
 (``light_reach``: float64[F, 3]) and nearest depth (float64[F])."""
 Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles "
                               "light_region BlockerSamples PenumbraSamples")
@@ -386,12 +386,80 @@ def tile_minmax(depth):
     return lo, hi
 
 
+def _levels(n: int) -> int:
+    """Sparse-table levels over n tiles: 2^k <= n for k < levels."""
+    return max(1, int(n).bit_length())
+
+
+def tile_tables(lo, hi):
+    """Sparse tables of the per-tile min / max (``tile_minmax``): float32[F,
+    KY, KX, th, tw], entry [f, ky, kx, y, x] the min (max) over the tiles
+    [y, y + 2^ky) x [x, x + 2^kx), so ``tile_range`` reads the min / max over
+    any block of tiles in four lookups (the same values as a loop over the
+    tiles: min and max are exact)."""
+    F, th, tw = lo.shape
+    ky, kx = _levels(th), _levels(tw)
+    tlo = np.empty((F, ky, kx, th, tw), np.float32)
+    thi = np.empty((F, ky, kx, th, tw), np.float32)
+    _fill_tables(lo, hi, tlo, thi)
+    return tlo, thi
+
+
+@njit(cache=True, nogil=True)
+def _fill_tables(lo, hi, tlo, thi):
+    """``tile_tables``' levels: along x, then along y (entries whose block
+    runs past the grid repeat the last valid one; ``tile_range`` never reads them)."""
+    F, KY, KX, th, tw = tlo.shape
+    for f in range(F):
+        tlo[f, 0, 0] = lo[f]
+        thi[f, 0, 0] = hi[f]
+        for kx in range(1, KX):
+            step = 1 << (kx - 1)
+            for y in range(th):
+                for x in range(tw):
+                    x2 = min(x + step, tw - 1)
+                    tlo[f, 0, kx, y, x] = min(tlo[f, 0, kx - 1, y, x], tlo[f, 0, kx - 1, y, x2])
+                    thi[f, 0, kx, y, x] = max(thi[f, 0, kx - 1, y, x], thi[f, 0, kx - 1, y, x2])
+        for ky in range(1, KY):
+            step = 1 << (ky - 1)
+            for kx in range(KX):
+                for y in range(th):
+                    y2 = min(y + step, th - 1)
+                    for x in range(tw):
+                        tlo[f, ky, kx, y, x] = min(tlo[f, ky - 1, kx, y, x], tlo[f, ky - 1, kx, y2, x])
+                        thi[f, ky, kx, y, x] = max(thi[f, ky - 1, kx, y, x], thi[f, ky - 1, kx, y2, x])
+
+
+@njit(cache=True, inline="always")
+def _floor_log2(n):
+    k = 0
+    while (2 << k) <= n:
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def tile_range(tlo, thi, ty0, ty1, tx0, tx1):
+    """(min, max) map depth over the tiles [ty0, ty1] x [tx0, tx1] of one
+    face's sparse tables (``tile_tables``): four overlapping power-of-two
+    blocks that cover the range exactly."""
+    ky = _floor_log2(ty1 - ty0 + 1)
+    kx = _floor_log2(tx1 - tx0 + 1)
+    ya, yb = ty0, ty1 - (1 << ky) + 1
+    xa, xb = tx0, tx1 - (1 << kx) + 1
+    dmin = min(min(tlo[ky, kx, ya, xa], tlo[ky, kx, ya, xb]), min(tlo[ky, kx, yb, xa], tlo[ky, kx, yb, xb]))
+    dmax = max(max(thi[ky, kx, ya, xa], thi[ky, kx, ya, xb]), max(thi[ky, kx, yb, xa], thi[ky, kx, yb, xb]))
+    return dmin, dmax
+
+
 @njit(cache=True)
 def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
     """The tile test: 0.0 when every sample of the region must be lit, 1.0
     when every one must be in shadow, -1.0 when samples must be taken. Exact:
     the receiver's depth over the region lies between its values at the
-    region's corners (a linear-fractional function of the texel position)."""
+    region's corners (a linear-fractional function of the texel position).
+    ``tlo``, ``thi``: one face's sparse tables (``tile_tables``), so the
+    test costs the same for a region of any size."""
     u0 = max(0.0, math.floor(s - sres))
     u1 = min(float(w), math.ceil(s + sres))
     v0 = max(0.0, math.floor(t - tres))
@@ -409,11 +477,8 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
                     return -1.0
                 zlo = min(zlo, zc)
                 zhi = max(zhi, zc)
-    dmin, dmax = np.inf, -np.inf
-    for ty in range(int(v0) // TILE, (int(v1) - 1) // TILE + 1):
-        for tx in range(int(u0) // TILE, (int(u1) - 1) // TILE + 1):
-            dmin = min(dmin, tlo[ty, tx])
-            dmax = max(dmax, thi[ty, tx])
+    dmin, dmax = tile_range(tlo, thi, int(v0) // TILE, (int(v1) - 1) // TILE,
+                            int(u0) // TILE, (int(u1) - 1) // TILE)
     if zhi <= dmin * DEPTH_REL_EPS + Bias0:
         return 0.0
     if dmax < np.inf and zlo > dmax * DEPTH_REL_EPS + Bias1:
@@ -542,6 +607,7 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
+                tlo_t, thi_t = tile_tables(tlo, thi)
                 if params.region not in ("light", "figure4"):
                     raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
                 lsize = light_reach(light, lv.faces)
@@ -551,7 +617,8 @@ class PercentageCloserFiltering(Method):
                 with parallel_chunks(PIXEL_CHUNK):
                     cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
                                        pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)))
-                    smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo, thi, lsize, zmin)
+                    smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, lsize,
+                                     zmin)
                     flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                                  b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                                  params.region == "light", max(1, int(params.BlockerSamples)),
