@@ -3,7 +3,8 @@
 Per method (pcf, penumbra_casting) on a sample scene at 1920x1080 (``--quick``:
 480x270): the wall time of the pixel-centre pass (``--pixel-filter none``)
 and of the adaptive filtered pass (Cycles' default Blackman-Harris 1.5 px,
-4 x 4 sub-pixel samples where a footprint holds an edge), their ratio, and
+4 x 4 sub-pixel samples where a footprint holds an edge), their ratio (wall
+and CPU time: the machine is shared, CPU time is the steadier), and
 the filtered pass's RMSE against the fully supersampled one (16 sub-pixel
 samples in every pixel: every pixel refined), over the pixels that see a
 surface. Medians of warm runs; the machine is recorded beside them.
@@ -13,6 +14,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import resource
+import statistics
 
 import numpy as np
 
@@ -37,8 +40,10 @@ def bench_pixel_filter(out_dir: str, repeats: int, quick: bool) -> str:
     full = dataclasses.replace(flt, threshold=-1.0)        # every pixel refined: 16 samples each
     rows = []
     for m in METHODS:
-        t_centre, _ = median_run(lambda: render_frame(scene, [m]), repeats)
-        t_filt, r = median_run(lambda: render_filtered(scene, [m], pixel_filter=flt), repeats)
+        cpu_centre, cpu_filt = [], []
+        t_centre, _ = median_run(_cpu_timed(lambda: render_frame(scene, [m]), cpu_centre), repeats)
+        t_filt, r = median_run(_cpu_timed(lambda: render_filtered(scene, [m], pixel_filter=flt), cpu_filt), repeats)
+        c_centre, c_filt = statistics.median(cpu_centre[1:]), statistics.median(cpu_filt[1:])   # warm runs
         ref = render_filtered(scene, [m], pixel_filter=full)
         hit = ref.coverage > 0
         errs = [float(np.sqrt(np.mean((a.passes[m].astype(np.float64) - b.passes[m])[hit] ** 2)))
@@ -46,18 +51,39 @@ def bench_pixel_filter(out_dir: str, repeats: int, quick: bool) -> str:
         st = r.lights[0].record[m]["pixel_filter"]
         rows.append({"method": m, "resolution": f"{res[0]}x{res[1]}", "centre_s": round(t_centre, 3),
                      "filtered_s": round(t_filt, 3), "ratio": round(t_filt / t_centre, 3),
+                     "centre_cpu_s": round(c_centre, 3), "filtered_cpu_s": round(c_filt, 3),
+                     "cpu_ratio": round(c_filt / c_centre, 3),
                      "refined_pixels": st["refined_pixels"], "subpixel_samples": st["subpixel_samples"],
                      "rmse_vs_16": round(max(errs), 5)})
-    head = ("method", "resolution", "centre_s", "filtered_s", "ratio", "refined_pixels",
-            "subpixel_samples", "rmse_vs_16")
+    head = ("method", "resolution", "centre_s", "filtered_s", "ratio", "centre_cpu_s", "filtered_cpu_s",
+            "cpu_ratio", "refined_pixels", "subpixel_samples", "rmse_vs_16")
     md = "\n".join(["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
                    + ["| " + " | ".join(str(r[k]) for k in head) + " |" for r in rows])
-    md += (f"\n\nscene {SCENE}, filter {flt.spec()}, medians of {repeats} warm runs; targets: ratio <= "
-           f"{TARGET_RATIO}, rmse_vs_16 <= {TARGET_RMSE} (issue 14)\n")
+    load = os.getloadavg()
+    md += (f"\n\nscene {SCENE}, filter {flt.spec()}, threshold {flt.threshold:g} ({flt.v_test}), reach "
+           f"{flt.reach} px, medians of {repeats} warm runs (wall; cpu: user + sys of the process, all "
+           f"threads), {machine()['numba_threads']} Numba threads, load average at the end "
+           f"{load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f}; targets: ratio <= {TARGET_RATIO}, rmse_vs_16 <= "
+           f"{TARGET_RMSE} (issue 14)\n")
     os.makedirs(out_dir, exist_ok=True)
     stem = os.path.join(out_dir, "pixel_filter" + ("_quick" if quick else ""))
     with open(stem + ".md", "w") as f:
         f.write(md)
     with open(stem + ".json", "w") as f:
-        json.dump({"machine": machine(), "rows": rows}, f, indent=2)
+        json.dump({"machine": machine(), "load_average": list(load), "rows": rows}, f, indent=2)
     return md
+
+
+def _cpu_timed(fn, seconds: list):
+    """``fn`` that appends its CPU time (user + sys, every thread) to ``seconds``."""
+    def run():
+        t = _cpu()
+        out = fn()
+        seconds.append(_cpu() - t)
+        return out
+    return run
+
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime

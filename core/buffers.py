@@ -98,7 +98,8 @@ class FrameBuffers:
                      seconds: float) -> "FrameBuffers":
         """Buffers for ``pixel_filter``'s sub-pixel stage: ``scene`` at the
         supersampled ``width`` x ``height`` with its camera G-buffer given
-        (built in ``seconds``), sharing this frame's BVHs, shadow triangles and
+        (built in ``seconds``; a packed one: the passes are packed too,
+        ``shape``), sharing this frame's BVHs, shadow triangles and
         light views (fitted to the pixel-centre receivers; their build time is
         billed to the pixel-centre stage) and its map size."""
         sub = FrameBuffers(scene, width, height, self.map_size)
@@ -176,6 +177,13 @@ class FrameBuffers:
     def _use(self, key: str) -> None:
         if self._used is not None:
             self._used.add(key)
+
+    @property
+    def shape(self) -> Tuple[int, int]:
+        """(rows, cols) of every pass of this frame: (height, width), or
+        (1, N) when the G-buffer given is a packed one (``supersampled``)."""
+        g = self._gbuffer
+        return g.shape if g is not None and g.pixel is not None else (self.height, self.width)
 
     def view(self, needs: Iterable[str], owner: str = "method") -> "BufferView":
         """What ``owner``'s ``run()`` may see: the builders of ``needs``."""

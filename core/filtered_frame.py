@@ -7,10 +7,11 @@ Two stages, both ``frame.render_frame`` with the methods unchanged:
 2. sub-pixel samples: where a pixel's footprint holds a discontinuity or a
    shadow edge (``pixel_filter.refine_mask``), the G-buffer is traced at the
    ``grid`` x ``grid`` sub-pixel samples of every footprint that needs them
-   (the pixel centres of a supersampled view: ``raycast.camera_gbuffer_at``)
-   and every method runs on that supersampled view: point methods on its
-   receivers, image methods on its image (the other sub-samples are empty,
-   so they cost nothing). The light views and BVHs of stage 1 are shared.
+   (the pixel centres of a supersampled view, as a packed list:
+   ``raycast.camera_gbuffer_at(packed=True)``); ``PACKED_PRODUCERS`` run on
+   that packed G-buffer, the other methods on the supersampled image with
+   only those pixels set (``raycast.unpack_gbuffer``). The light views and
+   BVHs of stage 1 are shared.
 
 The resolve (``pixel_filter.resolve``) filters the sub-pixel passes into the
 refined pixels: an average pass by the filter weights, an irradiance pass by
@@ -34,12 +35,19 @@ from .frame import REFERENCE_FOR, FrameResult, render_frame
 from .methods.base import IRRADIANCE
 from .methods.embree_ref import unshadowed_irradiance
 from .metrics import errors, reach_mask
-from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footprint_samples,
-                           refine_mask, resolve_pass)
+from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, V_TESTS, PixelFilter, coverage, footprint_samples,
+                           refine_mask, resolve_samples)
 from .scene import GBuffer, Scene
 from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
+
+
+#: producers that run on a packed G-buffer of the sub-pixel receivers (their
+#: kernels work per receiver point: embree, penumbra_casting; pcf per pixel
+#: with the camera footprint at each receiver's own sub-pixel, ``GBuffer.pixel``);
+#: the others run on the supersampled image (its other pixels empty)
+PACKED_PRODUCERS = frozenset({"embree", "pcf", "penumbra_casting"})
 
 
 def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
@@ -66,54 +74,67 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                 for lr in base.lights}
     computed = {k: v for k, v in computed.items() if v}
     refine = np.zeros((H, W), bool)
-    if taps.size:
+    if taps.size and flt.threshold < 0:
+        refine[:] = True                  # every pixel: the full supersampled pass (bench, tests)
+    elif taps.size:
         values = [lr.passes[pid] for lr in base.lights for pid in computed.get(lr.name, ())]
         stack = np.ascontiguousarray(np.stack(values) if values else np.zeros((0, H, W), np.float32),
                                      np.float32)
+        if flt.v_test not in V_TESTS:
+            raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
         refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
-                    DEPTH_JUMP, NORMAL_COS, refine)
-    active = footprint_samples(refine, s, int(m0), int(taps.shape[0]))
-    rows, cols = np.nonzero(active)
+                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine)
+    rows, cols = footprint_samples(refine, s, int(m0), int(taps.shape[0]))
     sub_scene = dataclasses.replace(scene, resolution=(s * W, s * H))
     tg = time.perf_counter()
-    sub_g = raycast.camera_gbuffer_at(sub_scene, s * W, s * H, cols, rows, buffers.camera_scene)
+    sub_g = raycast.camera_gbuffer_at(sub_scene, s * W, s * H, cols, rows, buffers.camera_scene, packed=True)
     tg = time.perf_counter() - tg
-    sub = None
+    subs = []
     if computed and len(rows):
         sub_passes = list(dict.fromkeys(pid for v in computed.values() for pid in v))
-        sub = render_frame(sub_scene, sub_passes, list(computed), options.get("overrides"),
-                           options.get("method_overrides"),
-                           buffers=buffers.supersampled(sub_scene, s * W, s * H, sub_g, tg))
+        packed = [p for p in sub_passes if method_registry.producer_of(p).id in PACKED_PRODUCERS]
+        dense = [p for p in sub_passes if p not in packed]
+        for group, gb in ((packed, sub_g), (dense, None)):
+            if group:
+                gb = gb or raycast.unpack_gbuffer(sub_g, s * W, s * H)
+                subs.append(render_frame(sub_scene, group, list(computed), options.get("overrides"),
+                                         options.get("method_overrides"),
+                                         buffers=buffers.supersampled(sub_scene, s * W, s * H, gb, tg)))
     stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
              "subpixel_receivers": int(sub_g.hit.sum())}
     setup_s = time.perf_counter() - t0
     for lr in base.lights:
-        _resolve_light(scene, flt, lr, computed.get(lr.name, ()), sub, sub_g, g, refine, stats, setup_s,
-                       buffers.scale)
-    base.coverage = coverage(flt, refine, g.hit, sub_g.hit)
+        _resolve_light(scene, flt, lr, computed.get(lr.name, ()), subs, sub_g, buffers, refine, rows, cols,
+                       stats, setup_s)
+    base.coverage = coverage(flt, refine, g.hit, rows, cols, sub_g.hit)
     base.pixel_filter = flt.to_json()
     base.total_s += time.perf_counter() - t0
     return base
 
 
-def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, sub: Optional[FrameResult], sub_g: GBuffer,
-                   g: GBuffer, refine: np.ndarray, stats: Dict[str, int], setup_s: float,
-                   scale: float) -> None:
-    """Filter light ``lr``'s computed passes ``pids`` in place; record the
-    filter, the sub-pixel sample counts and the sub-pixel stage's time."""
-    sub_lr = next((x for x in sub.lights if x.name == lr.name), None) if sub is not None else None
+def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, subs: Sequence[FrameResult], sub_g: GBuffer,
+                   buffers: FrameBuffers, refine: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                   stats: Dict[str, int], setup_s: float) -> None:
+    """Filter light ``lr``'s computed passes ``pids`` in place from the
+    sub-pixel stages ``subs`` (packed passes, or supersampled images read at
+    the sub-samples (rows, cols)); record the filter, the sub-pixel sample
+    counts and the sub-pixel stage's time."""
+    sub_lrs = [x for sub in subs for x in sub.lights if x.name == lr.name]
     light = scene.light(lr.name)
     e0 = None
     for pid in pids:
         rec = lr.record[pid]
         t = time.perf_counter()
-        if sub_lr is not None and pid in sub_lr.passes:
+        sub_lr = next((x for x in sub_lrs if pid in x.passes), None)
+        if sub_lr is not None:
             weight = None
             if rec["visibility"] == IRRADIANCE:
                 if e0 is None:
-                    e0 = _unshadowed(sub_g, light, rec.get("params", {}).get("seed", 0), scale)
+                    e0 = _unshadowed(sub_g, light, rec.get("params", {}).get("seed", 0), buffers.scale)
                 weight = e0
-            lr.passes[pid] = np.clip(resolve_pass(flt, refine, lr.passes[pid], sub_lr.passes[pid], weight),
+            v = sub_lr.passes[pid]
+            v = v.reshape(-1) if v.shape == sub_g.shape else v[rows, cols]
+            lr.passes[pid] = np.clip(resolve_samples(flt, refine, lr.passes[pid], rows, cols, v, weight),
                                      0.0, 1.0).astype(np.float32)
             sub_time = sub_lr.record[pid]["time_s"]["total"]
         else:
@@ -124,7 +145,7 @@ def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, sub: Optional[Frame
         phases["total"] = round(sum(phases.values()), 6)
         rec["time_s"] = phases
         rec["pixel_filter"] = {**flt.to_json(), **stats}
-    mask = reach_mask(g, light)
+    mask = buffers.reach(light)           # the pixel-centre stage's, as its errors used
     for pid in lr.record:
         ref = REFERENCE_FOR[lr.record[pid]["visibility"]]
         if "error" in lr.record[pid] and ref in lr.passes:
@@ -132,14 +153,13 @@ def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, sub: Optional[Frame
 
 
 def _unshadowed(sub_g: GBuffer, light, seed, scale: float) -> np.ndarray:
-    """E0 at every sub-pixel receiver the light reaches (0 elsewhere)."""
-    SH, SW = sub_g.shape
+    """E0 at every sub-pixel receiver the light reaches (0 elsewhere), packed."""
     reach = reach_mask(sub_g, light).reshape(-1)
     idx = np.flatnonzero(reach).astype(np.int64)
-    out = np.zeros(SH * SW, np.float64)
+    out = np.zeros(reach.size, np.float64)
     if len(idx):
         P = sub_g.position.reshape(-1, 3)[idx]
         N = sub_g.normal.reshape(-1, 3)[idx].astype(np.float64)
         out[idx] = unshadowed_irradiance(P, N, idx, light, 1 if light.is_zero_size else E0_SAMPLES,
                                          int(seed or 0), scale)
-    return out.reshape(SH, SW)
+    return out

@@ -129,7 +129,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         lr = LightResult(lp.name, lp.layer)
         if lp.action == "skip":
             for pid in lp.passes:
-                lr.passes[pid] = np.ones((H, W), np.float32)
+                lr.passes[pid] = np.ones(buffers.shape, np.float32)
                 lr.record[pid] = {"time_s": {"total": 0.0}, "visibility": method_registry.visibility_of(pid),
                                   "params": {}, "skipped": lp.reason}
             results.append(lr)

@@ -33,11 +33,13 @@ filtered renders. Samples outside the image are left out (the weights are
 renormalised over the ones inside: the border ring differs from Cycles',
 which traces rays beyond the frame).
 
-Adaptive cost: only pixels whose footprint holds a discontinuity between
-pixel centres (hit, object id, depth, normal) or a change of V larger than
-``threshold`` are resolved from sub-pixel samples (``refine_mask``); the
-others keep their pixel-centre value, which equals the filtered value of a
-locally linear V (the filters are symmetric).
+Adaptive cost: only pixels whose neighbours within ``reach`` differ from them
+in hit, object id, depth or normal, or where V is not locally linear (a
+second difference beyond ``threshold``) are resolved from sub-pixel samples
+(``refine_mask``); the others keep their pixel-centre value, which equals
+the filtered value of a locally linear V (the filters are symmetric). The
+sub-samples are a packed list (``footprint_samples``, ``resolve``): no
+supersampled image is made.
 """
 from __future__ import annotations
 
@@ -55,7 +57,10 @@ SCENE = "scene"
 EEVEE_SIGMA = 0.284            # eevee_film: Gaussian sigma per unit of filter radius
 DEFAULT_GRID = 4               # sub-pixel samples per axis where a pixel is refined
 MAX_GRID = 16
-DEFAULT_THRESHOLD = 0.02       # a change of V between pixel centres that marks a shadow edge
+DEFAULT_THRESHOLD = 0.1        # V's second difference between pixel centres that marks a shadow edge
+V_TESTS = ("curvature", "variation")   # refine_mask's test of V (PixelFilter.v_test)
+EDGE_TAIL = 0.01               # PixelFilter.reach: an edge it misses moves a pixel by <= 1 % of the jump
+TAIL_STEPS = 4096
 DEPTH_JUMP = 0.05              # relative depth difference that marks a silhouette
 NORMAL_COS = 0.9               # normals closer than this (cosine) mark a crease
 
@@ -72,7 +77,9 @@ class PixelFilter:
     kind: str = NONE
     width: float = 1.5
     grid: int = DEFAULT_GRID
-    threshold: float = DEFAULT_THRESHOLD
+    threshold: float = DEFAULT_THRESHOLD   # refine_mask's V threshold; < 0: refine every pixel
+    v_test: str = V_TESTS[0]     # refine_mask's test of V: "curvature" | "variation" (the first version)
+    edge_tail: float = EDGE_TAIL  # ``reach``: the filter's share an edge it misses may carry
 
     @property
     def is_none(self) -> bool:
@@ -128,9 +135,30 @@ class PixelFilter:
 
     @property
     def reach(self) -> int:
-        """Neighbouring pixels (per axis) whose centres bracket every point of
-        the footprint: an edge anywhere in it lies between two of them."""
-        return max(1, int(math.ceil(self.radius + 0.5 - 1e-9)))
+        """Neighbouring pixels (per axis) ``refine_mask`` compares a pixel
+        with: an edge nearer than ``reach`` pixels to its centre lies between
+        it and one of them; the smallest n >= 1 whose 1-D tail (the
+        filter's share beyond n px, ``tail``) is at most ``edge_tail``, so
+        an edge it misses moves the pixel's filtered value by at most that
+        share of the jump (``edge_tail`` 0: the whole footprint, the first
+        version's ceil(radius + 1/2) but for integer radii)."""
+        n = 1
+        while n < self.radius and self.tail(n) > self.edge_tail:
+            n += 1
+        return n
+
+    def tail(self, offset: float) -> float:
+        """The share of the filter's 1-D profile (EEVEE: its Gaussian)
+        beyond ``offset`` pixels on one side (midpoint rule)."""
+        r = self.radius
+        if offset >= r:
+            return 0.0
+        v = (np.arange(TAIL_STEPS) + 0.5) * (r / TAIL_STEPS)
+        if self.kind == "eevee":
+            f = np.exp(-0.5 * (v / (EEVEE_SIGMA * self.width)) ** 2)
+        else:
+            f = self.profile(v)
+        return float(f[v > offset].sum() / (2.0 * f.sum()))
 
     def to_json(self) -> dict:
         if self.is_none:
@@ -197,11 +225,18 @@ def from_render_settings(engine: str, cycles_type: Optional[str], cycles_width: 
 # which pixels need sub-pixel samples
 
 @njit(cache=True, parallel=True)
-def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, out):
+def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out):
     """out[r, c] = True where pixel (r, c)'s neighbours within ``reach``
-    differ from it in hit, object id, depth (relative ``depth_jump``),
-    normal (cosine below ``normal_cos``) or any of ``values[k]`` (by more
-    than ``threshold``)."""
+    differ from it in hit, object id, depth (relative ``depth_jump``) or
+    normal (cosine below ``normal_cos``), or where one of ``values[k]``
+    (the pixel-centre passes) is not locally linear: ``curvature``: a
+    second difference V[p + d] + V[p - d] - 2 V[p] over a pair of opposite
+    neighbours beyond ``threshold`` (a linear ramp across the footprint is
+    integrated exactly by the centre sample of a symmetric normalised
+    filter, so only V's deviation from linear needs sub-pixel samples; a
+    jump between two centres shows as a second difference of its height);
+    else (``variation``, the first version) a difference to a neighbour
+    beyond ``threshold``."""
     H, W = hit.shape
     for r in prange(H):
         for c in range(W):
@@ -224,7 +259,17 @@ def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, n
                         elif (normal[r, c, 0] * normal[rr, cc, 0] + normal[r, c, 1] * normal[rr, cc, 1]
                               + normal[r, c, 2] * normal[rr, cc, 2]) < normal_cos:
                             flag = True
-                    if not flag:
+                    if flag:
+                        continue
+                    if curvature:
+                        ro, co = r - dr, c - dc           # the opposite neighbour
+                        if ro < 0 or ro >= H or co < 0 or co >= W:
+                            continue
+                        for k in range(values.shape[0]):
+                            if abs(values[k, rr, cc] + values[k, ro, co] - 2.0 * values[k, r, c]) > threshold:
+                                flag = True
+                                break
+                    else:
                         for k in range(values.shape[0]):
                             if abs(values[k, r, c] - values[k, rr, cc]) > threshold:
                                 flag = True
@@ -232,68 +277,113 @@ def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, n
             out[r, c] = flag
 
 
-def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int) -> np.ndarray:
-    """bool[grid H, grid W]: the sub-samples some refined pixel's footprint
-    (taps ``m0``, size ``k``) reads; the footprint is separable, so one axis
-    after the other."""
+@njit(cache=True)
+def _footprint_rows(refine, grid, m0, k, count, rows, cols):
+    """``footprint_samples``' kernel: per sub-row I the sub-columns some
+    refined pixel's footprint reads (a refined pixel (r, c) reads sub-rows
+    grid r + m0 ... + k - 1, the same for columns); ``count`` only counts
+    them (rows, cols unused), else they are written in row-major order."""
     H, W = refine.shape
-    cols = np.zeros((H, grid * W), bool)
-    for b in range(k):
-        J = grid * np.arange(W) + m0 + b
-        ok = (J >= 0) & (J < grid * W)
-        cols[:, J[ok]] |= refine[:, ok]
-    out = np.zeros((grid * H, grid * W), bool)
-    for a in range(k):
-        I = grid * np.arange(H) + m0 + a
-        ok = (I >= 0) & (I < grid * H)
-        out[I[ok], :] |= cols[ok, :]
-    return out
+    SH, SW = grid * H, grid * W
+    reads = np.zeros((H, SW), np.bool_)        # pixel row r reads sub-column J
+    for r in range(H):
+        for c in range(W):
+            if refine[r, c]:
+                for b in range(k):
+                    J = grid * c + m0 + b
+                    if 0 <= J < SW:
+                        reads[r, J] = True
+    line = np.zeros(SW, np.bool_)
+    n = 0
+    for I in range(SH):
+        r0, r1 = max(0, -((k - 1 - (I - m0)) // grid)), min(H - 1, (I - m0) // grid)
+        if r1 < r0:
+            continue
+        line[:] = reads[r0]
+        for r in range(r0 + 1, r1 + 1):
+            line |= reads[r]
+        for J in range(SW):
+            if line[J]:
+                if not count:
+                    rows[n] = I
+                    cols[n] = J
+                n += 1
+    return n
 
 
-@njit(cache=True, parallel=True)
-def resolve(refine, centre, sub, weight_sub, taps, grid, m0, out):
+def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int):
+    """(rows int64[N], cols int64[N]): the sub-samples (supersampled pixel
+    (rows[n], cols[n])) some refined pixel's footprint (taps ``m0``, size
+    ``k``) reads, row-major; no supersampled image is made."""
+    refine = np.ascontiguousarray(refine, np.bool_)
+    empty = np.zeros(0, np.int64)
+    n = _footprint_rows(refine, grid, m0, k, True, empty, empty)
+    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
+    _footprint_rows(refine, grid, m0, k, False, rows, cols)
+    return rows, cols
+
+
+@njit(cache=True)
+def resolve(refine, centre, rows, cols, sub, weight_sub, taps, grid, m0, out):
     """Filtered pixels: where ``refine``, sum taps w_k weight_sub_k sub_k /
-    sum taps w_k weight_sub_k over the in-image sub-samples of the footprint
-    (1 where that sum is 0); elsewhere the pixel-centre value ``centre``."""
+    sum taps w_k weight_sub_k over the listed sub-samples of the footprint
+    (sample n at supersampled pixel (rows[n], cols[n]); 1 where that sum is
+    0); elsewhere the pixel-centre value ``centre``. Each sample is added
+    to the refined pixels whose footprint holds it (a scatter: the list is
+    packed, no supersampled image is needed)."""
     H, W = centre.shape
-    SH, SW = sub.shape
     k = taps.shape[0]
-    for r in prange(H):
+    num = np.zeros((H, W))
+    den = np.zeros((H, W))
+    for n in range(rows.shape[0]):
+        ws = weight_sub[n]
+        if ws == 0.0:
+            continue
+        I, J = rows[n] - m0, cols[n] - m0
+        r0, r1 = max(0, -((k - 1 - I) // grid)), min(H - 1, I // grid)
+        c0, c1 = max(0, -((k - 1 - J) // grid)), min(W - 1, J // grid)
+        for r in range(r0, r1 + 1):
+            a = I - grid * r
+            for c in range(c0, c1 + 1):
+                if refine[r, c]:
+                    w = taps[a, J - grid * c] * ws
+                    num[r, c] += w * sub[n]
+                    den[r, c] += w
+    for r in range(H):
         for c in range(W):
             if not refine[r, c]:
                 out[r, c] = centre[r, c]
-                continue
-            num = 0.0
-            den = 0.0
-            for a in range(k):
-                I = grid * r + m0 + a
-                if I < 0 or I >= SH:
-                    continue
-                for b in range(k):
-                    J = grid * c + m0 + b
-                    if J < 0 or J >= SW:
-                        continue
-                    w = taps[a, b] * weight_sub[I, J]
-                    num += w * sub[I, J]
-                    den += w
-            out[r, c] = num / den if den > 0.0 else 1.0
+            else:
+                out[r, c] = num[r, c] / den[r, c] if den[r, c] > 0.0 else 1.0
 
 
-def resolve_pass(flt: PixelFilter, refine: np.ndarray, centre: np.ndarray, sub: np.ndarray,
-                 weight_sub: Optional[np.ndarray] = None) -> np.ndarray:
-    """float32[H, W]: ``resolve`` with this filter's taps; ``weight_sub``
-    (None: 1) is E0 for an irradiance pass, the hit mask for coverage."""
+def resolve_samples(flt: PixelFilter, refine: np.ndarray, centre: np.ndarray, rows: np.ndarray,
+                    cols: np.ndarray, sub: np.ndarray, weight_sub: Optional[np.ndarray] = None) -> np.ndarray:
+    """float32[H, W]: ``resolve`` with this filter's taps over the listed
+    sub-samples (``sub[n]`` at supersampled pixel (rows[n], cols[n]));
+    ``weight_sub`` (None: 1) is E0 for an irradiance pass, the hit mask
+    for coverage."""
     m0, taps = flt.taps()
     centre = np.ascontiguousarray(centre, np.float64)
     if taps.size == 0:
         return centre.astype(np.float32)
-    sub = np.ascontiguousarray(sub, np.float64)
-    ws = np.ones_like(sub) if weight_sub is None else np.ascontiguousarray(weight_sub, np.float64)
+    sub = np.ascontiguousarray(np.reshape(sub, -1), np.float64)
+    ws = np.ones_like(sub) if weight_sub is None else np.ascontiguousarray(np.reshape(weight_sub, -1), np.float64)
     out = np.empty(centre.shape, np.float64)
-    resolve(np.ascontiguousarray(refine), centre, sub, ws, taps, int(flt.grid), int(m0), out)
+    resolve(np.ascontiguousarray(refine), centre, np.ascontiguousarray(rows, np.int64),
+            np.ascontiguousarray(cols, np.int64), sub, ws, taps, int(flt.grid), int(m0), out)
     return out.astype(np.float32)
 
 
-def coverage(flt: PixelFilter, refine: np.ndarray, hit: np.ndarray, sub_hit: np.ndarray) -> np.ndarray:
-    """Alpha: the filter-weighted fraction of the footprint that sees a surface."""
-    return resolve_pass(flt, refine, hit.astype(np.float64), sub_hit.astype(np.float64))
+def resolve_pass(flt: PixelFilter, refine: np.ndarray, centre: np.ndarray, sub: np.ndarray,
+                 weight_sub: Optional[np.ndarray] = None) -> np.ndarray:
+    """``resolve_samples`` over every sub-sample of the supersampled image ``sub``."""
+    rows, cols = np.indices(np.shape(sub)).reshape(2, -1)
+    return resolve_samples(flt, refine, centre, rows, cols, sub, weight_sub)
+
+
+def coverage(flt: PixelFilter, refine: np.ndarray, hit: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+             sub_hit: np.ndarray) -> np.ndarray:
+    """Alpha: the filter-weighted fraction of the footprint that sees a surface
+    (``sub_hit[n]``: sub-sample (rows[n], cols[n]) sees one)."""
+    return resolve_samples(flt, refine, hit.astype(np.float64), rows, cols, sub_hit.astype(np.float64))

@@ -245,12 +245,15 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
 
 
 def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, rows: np.ndarray,
-                      tri_scene: Optional[TriangleScene] = None, threads: Optional[int] = None) -> GBuffer:
+                      tri_scene: Optional[TriangleScene] = None, threads: Optional[int] = None,
+                      packed: bool = False) -> GBuffer:
     """The camera G-buffer of a ``width`` x ``height`` view at the listed
     pixels (cols[i], rows[i]) only (``pixel_filter``'s sub-pixel samples are
     the pixel centres of a supersampled view); every other pixel is empty
     (hit False). Each listed pixel gets the same bits ``camera_gbuffer``
-    gives it (``pixel_rays.gbuffer_list``)."""
+    gives it (``pixel_rays.gbuffer_list``). ``packed``: only the listed
+    pixels, as a packed G-buffer (shape (1, N), ``GBuffer.pixel``; dense:
+    ``unpack_gbuffer``)."""
     cam: Camera = scene.camera
     if tri_scene is None:
         tri_scene = TriangleScene.from_scene(scene, scene.tri_visible_camera)
@@ -284,13 +287,23 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
                     max(1, int(threads or numba.get_num_threads())))
     if tri_scene.alpha is not None:          # issue 18: the camera sees through clear texels
         _see_through_mattes(tri_scene, cam, tri_object, pos, nrm, depth, obj, tri)
-    flat = rows * width + cols
+    g = GBuffer(position=pos.reshape(1, m, 3), normal=nrm.reshape(1, m, 3), depth=depth.reshape(1, m),
+                object_id=obj.reshape(1, m), triangle_id=tri.reshape(1, m), hit=(tri >= 0).reshape(1, m),
+                pixel=rows * width + cols)
+    return g if packed else unpack_gbuffer(g, width, height)
+
+
+def unpack_gbuffer(g: GBuffer, width: int, height: int) -> GBuffer:
+    """The dense ``width`` x ``height`` G-buffer of packed ``g``: its pixels
+    where ``g.pixel`` puts them, every other pixel empty (hit False)."""
+    flat = g.pixel
     g_pos = np.zeros((height * width, 3), np.float64)
     g_nrm = np.zeros((height * width, 3), np.float32)
     g_depth = np.full(height * width, np.inf, np.float32)
     g_obj = np.full(height * width, -1, np.int32)
     g_tri = np.full(height * width, -1, np.int32)
-    g_pos[flat], g_nrm[flat], g_depth[flat], g_obj[flat], g_tri[flat] = pos, nrm, depth, obj, tri
+    g_pos[flat], g_nrm[flat] = g.position.reshape(-1, 3), g.normal.reshape(-1, 3)
+    g_depth[flat], g_obj[flat], g_tri[flat] = g.depth.reshape(-1), g.object_id.reshape(-1), g.triangle_id.reshape(-1)
     return GBuffer(position=g_pos.reshape(height, width, 3), normal=g_nrm.reshape(height, width, 3),
                    depth=g_depth.reshape(height, width), object_id=g_obj.reshape(height, width),
                    triangle_id=g_tri.reshape(height, width), hit=(g_tri >= 0).reshape(height, width))

@@ -288,6 +288,10 @@ class GBuffer:
     convention), +inf where nothing is hit. ``normal`` is the geometric normal
     flipped to face the camera (the side that is seen). ``position`` is
     computed from barycentrics on the float32 triangle, float64.
+
+    A packed G-buffer (``pixel`` given; ``pixel_filter``'s sub-pixel
+    receivers) holds a list of N pixels of a larger view as shape (1, N):
+    ``pixel[k]`` is entry k's flat index (row * width + col) in that view.
     """
 
     position: np.ndarray      # float64[H,W,3]
@@ -296,6 +300,7 @@ class GBuffer:
     object_id: np.ndarray     # int32[H,W], -1 where empty
     triangle_id: np.ndarray   # int32[H,W], -1 where empty
     hit: np.ndarray           # bool[H,W]
+    pixel: Optional[np.ndarray] = None   # int64[N]: a packed G-buffer's pixels (None: dense)
 
     @property
     def shape(self) -> Tuple[int, int]:

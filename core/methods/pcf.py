@@ -349,9 +349,11 @@ PIXEL_CHUNK = 4096   # pixels per scheduling chunk in pcf_kernel
 CANCEL_CHUNK = 1 << 18   # pixels per pcf_kernel call: the job's cancel token is checked between calls
 
 # argument groups of ``pcf_kernel``
-CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays")
-"""G-buffer positions, normals and hit flags (row-major, ``width`` wide) and
-the camera's per-pixel ray terms (``pixel_ray_terms``)."""
+CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays pixel")
+"""G-buffer positions, normals and hit flags (row-major, ``width`` wide), the
+camera's per-pixel ray terms (``pixel_ray_terms``) and, for a packed G-buffer
+(``GBuffer.pixel``), each entry's camera pixel (int64[N]; empty: entry i is
+pixel i)."""
 ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi lsize zmin")
 """Packed light-view faces, their depth maps, finite-depth boxes, the
 per-tile depth min / max as sparse tables (``tile_tables``), per face the light's reach
@@ -488,8 +490,9 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
 
 @njit(cache=True, parallel=True)
 def pcf_kernel(cam, smap, flt, out, start, stop):
-    """Every camera pixel i in [start, stop) (row-major, ``cam.width`` wide)
-    where ``cam.hit[i]``: out[i] = V; other pixels are left as they are.
+    """Every camera pixel i in [start, stop) (row-major, ``cam.width`` wide;
+    or entry i of a packed G-buffer, pixel ``cam.pixel[i]``) where
+    ``cam.hit[i]``: out[i] = V; other pixels are left as they are.
     Pixels are handed to the threads in chunks of a few rows (dynamic), not
     in one contiguous half each: sky and ground rows differ widely in cost
     (the caller sets the chunk size with ``kernels.parallel_chunks``).
@@ -508,6 +511,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
     use_plane, use_tiles = flt.use_plane, flt.use_tiles
     if not hit[i]:
         return
+    j = cam.pixel[i] if cam.pixel.shape[0] else i    # the camera pixel: footprint and seed
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
     f = pick_face(faces, px, py, pz)
     if f < 0:
@@ -515,7 +519,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
         return
     s, t, z = face_project(faces[f], px, py, pz)
     if ResFactor > 0.0:
-        hs, ht = pixel_footprint(rays, faces[f], float(i % width), float(i // width), px, py, pz,
+        hs, ht = pixel_footprint(rays, faces[f], float(j % width), float(j // width), px, py, pz,
                                  Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], s, t, MaxSize)
     else:
         hs, ht = 0.0, 0.0
@@ -544,7 +548,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
             return
     if light:
         zb = blocker_depth(depth[f], bbox[f], s, t, z, ws, wt, flt.BlockerSamples, Bias0, Bias1,
-                           seed + 1, i, plane)
+                           seed + 1, j, plane)
         if not (zb > 0.0):
             out[i] = 1.0
             return
@@ -553,7 +557,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
         tres = min(max(pt, tres), MaxSize)
         NumSamples = flt.PenumbraSamples
     out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
-                                 MinSamples, Bias0, Bias1, seed, i, plane)
+                                 MinSamples, Bias0, Bias1, seed, j, plane)
 
 
 @njit(cache=True, parallel=True)
@@ -597,10 +601,11 @@ class PercentageCloserFiltering(Method):
     def run(self, buffers, light, params: PCFParams) -> MethodResult:
         timer = PhaseTimer()
         g = buffers.gbuffer
-        H, W = g.shape
+        W, H = buffers.width, buffers.height          # the camera's view (g may be packed)
+        n = g.hit.size
         lv = buffers.light_view(light, params.map_size)
         with timer("filter"):
-            out = np.ones(H * W, np.float32)
+            out = np.ones(n, np.float32)
             if len(lv.faces) and g.hit.any():
                 b0, b1 = resolved_bias(params, buffers.light_extent(light))
                 res, minsize, minsamp = float(params.ResFactor), float(params.MinSize), int(params.MinSamples)
@@ -615,16 +620,17 @@ class PercentageCloserFiltering(Method):
                     lsize[:] = 0.0
                 zmin = np.array([float(np.min(lo, initial=np.inf)) for lo in tlo], np.float64)
                 with parallel_chunks(PIXEL_CHUNK):
+                    pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
                     cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
-                                       pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)))
+                                       pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
                     smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, lsize,
                                      zmin)
                     flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                                  b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                                  params.region == "light", max(1, int(params.BlockerSamples)),
                                  max(1, int(params.PenumbraSamples)))
-                    for a in range(0, H * W, CANCEL_CHUNK):   # each pixel's V is its own
+                    for a in range(0, n, CANCEL_CHUNK):   # each pixel's V is its own
                         cancel.check()
-                        pcf_kernel(cam, smap, flt, out, a, min(H * W, a + CANCEL_CHUNK))
-        return MethodResult(passes={"pcf": out.reshape(H, W)}, time_s=timer.result(),
+                        pcf_kernel(cam, smap, flt, out, a, min(n, a + CANCEL_CHUNK))
+        return MethodResult(passes={"pcf": out.reshape(g.shape)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
