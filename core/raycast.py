@@ -162,8 +162,9 @@ def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, heigh
     (``pixel_rays.pack_rays``) in bands of rows, ``threads`` bands at a time
     (default: Numba's thread count): each band's rays are generated straight
     into float32, traced by embreex (``bounded``: they stop at the far plane)
-    and handed to ``finish(hits, row0, row1)`` (hits: embreex's dict of
-    primID, u, v, tfar, ...; None when the BVH is empty: every ray misses).
+    and handed to ``finish(hits, row0, row1, dirs)`` (hits: embreex's dict of
+    primID, u, v, tfar, ...; None when the BVH is empty: every ray misses;
+    dirs: the band's float32 ray directions).
     The bands write disjoint rows, so the result does not depend on
     ``threads``."""
     rows = max(1, BAND_RAYS // max(1, width))
@@ -171,16 +172,16 @@ def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, heigh
 
     def band(rng):
         row0, row1 = rng
-        if tri_scene._scene is None:
-            finish(None, row0, row1)
-            return
         m = (row1 - row0) * width
         org = np.empty((m, 3), np.float32)
         dirs = np.empty((m, 3), np.float32)
         tfar = np.empty(m, np.float32)
         pixel_rays.make_rays(params, width, height, row0, row1, org, dirs, tfar)
+        if tri_scene._scene is None:
+            finish(None, row0, row1, dirs)
+            return
         kw = {"dists": tfar} if bounded else {}
-        finish(tri_scene._scene.run(org, dirs, output=1, **kw), row0, row1)
+        finish(tri_scene._scene.run(org, dirs, output=1, **kw), row0, row1, dirs)
 
     each_in_threads(band, bands, max(1, int(threads or numba.get_num_threads())))
 
@@ -224,13 +225,13 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
     tri_object = np.ascontiguousarray(scene.tri_object, np.int32)
     fwd = cam.forward
 
-    def finish(r, row0, row1):
+    def finish(r, row0, row1, dirs):
         a, b = row0 * width, row1 * width
         if r is None:
             r = {"primID": np.full(b - a, -1, np.int32), "u": np.zeros(b - a, np.float32),
                  "v": np.zeros(b - a, np.float32)}
         pixel_rays.gbuffer_pixels(params, width, height, row0, row1, r["primID"], r["u"], r["v"],
-                                  tri_scene.tri_index, triangles, tri_object, fwd,
+                                  tri_scene.tri_index, triangles, tri_object, fwd, dirs,
                                   pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
 
     trace_pixels(tri_scene, params, width, height, True, finish, threads)
@@ -279,8 +280,8 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
         tfar = np.empty(b - a, np.float32)
         pixel_rays.make_rays_list(params, width, height, cols[a:b], rows[a:b], org, dirs, tfar)
         r = tri_scene._scene.run(org, dirs, output=1, dists=tfar)
-        pixel_rays.gbuffer_list(params, width, height, cols[a:b], rows[a:b], r["primID"], r["u"], r["v"],
-                                tri_scene.tri_index, triangles, tri_object, fwd,
+        pixel_rays.gbuffer_list(params, r["primID"], r["u"], r["v"],
+                                tri_scene.tri_index, triangles, tri_object, fwd, dirs,
                                 pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
 
     each_in_threads(chunk, [(a, min(m, a + BAND_RAYS)) for a in range(0, m, BAND_RAYS)],
@@ -371,7 +372,7 @@ def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray
     params = face_params(face)
     tri_object = np.ascontiguousarray(tri_object, np.int32)
 
-    def finish(r, row0, row1):
+    def finish(r, row0, row1, dirs):
         if r is not None:
             a, b = row0 * w, row1 * w
             if tri_scene.alpha is not None:
