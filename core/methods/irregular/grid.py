@@ -36,10 +36,11 @@ from __future__ import annotations
 import math
 from collections import namedtuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
-from ...kernels import face_project, pick_face
+from ...kernels import borrowed, each_in_threads, face_project, pick_face
 from .geom import blocks_centre, penumbra_term
 
 # penumbra quad of a (record, face): ``edge_quads``' flag
@@ -609,10 +610,29 @@ def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, f
     return cnt, items
 
 
-@njit(cache=True, parallel=True)
-def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals):
-    """Soft shadow kernel (sections 2.3, 2.5): per bin, every quad listed in
-    it is rasterized over the bin's columns; the wedge test (second
+def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals,
+                  threads=None):
+    """Soft shadow kernel (sections 2.3, 2.5): ``_penumbra_bins`` over every
+    bin of ``bins.perm`` on Numba's thread count (bins dealt into chunks,
+    chunk c holding bins c, c + n, ...; ``kernels.each_in_threads``). A bin
+    writes only its own receivers, so the result does not depend on the
+    thread count."""
+    nb = bins.perm.shape[0]
+    workers = max(1, int(threads or numba.get_num_threads()))
+    n = max(1, min(nb, workers * BIN_CHUNKS_PER_WORKER))
+    chunks = [np.arange(c, nb, n, dtype=np.int64) for c in range(n)]
+    each_in_threads(lambda jbs: _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mode,
+                                               refine, wedge, pen, ls, evals), chunks, workers)
+
+
+#: chunks of bins per worker thread (``penumbra_bins``)
+BIN_CHUNKS_PER_WORKER = 8
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals):
+    """Per bin ``bins.perm[jb]``, jb in ``jbs`` (in turn): every quad listed
+    in it is rasterized over the bin's columns; the wedge test (second
     optimization) or the quad test selects the receivers, and each gets the
     signed analytic term of the edge.
 
@@ -620,7 +640,11 @@ def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, re
     fb: FaceBounds; rec: Receivers; records: Records; occ: Occluders; lit:
     KernelLight; mode: geom.SILHOUETTE_*; refine / wedge: the two overdraw
     reductions; ``pen`` per receiver, ls: LightSamples (updated), ``evals``
-    per bin."""
+    per bin. A serial ``nogil`` kernel (issue 15: a prange one's parfor
+    lowering was most of its compile time), its arguments
+    ``kernels.borrowed`` and ``error_model="numpy"`` as a prange body's."""
+    bins, blist, quads, grid, fb, rec, records, occ, lit, pen, ls, evals = borrowed(
+        (bins, blist, quads, grid, fb, rec, records, occ, lit, pen, ls, evals))
     perm, bin_face, bin_bx, bin_by, bin_size = bins.perm, bins.face, bins.bx, bins.by, bins.size
     binmax = bins.maxz
     bin_start, bin_items = blist.start, blist.items
@@ -632,7 +656,7 @@ def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, re
     rec_t, rec_k = records.t, records.k
     tv, nv, facing, orient = occ.tv, occ.nv, occ.facing, occ.orient
     cx, cy, cz, is_sun, rL, tan_a = lit.cx, lit.cy, lit.cz, lit.is_sun, lit.rL, lit.tan_a
-    for jb in prange(perm.shape[0]):
+    for jb in jbs:
         b = perm[jb]
         f = bin_face[b]
         fp = faces[f]
