@@ -63,6 +63,19 @@ def each_in_threads(fn, items, workers: int) -> None:
                 f.cancel()
 
 
+def each_dealt_chunk(fn, n: int, threads=None, per_worker: int = 8) -> None:
+    """``fn(idx)`` for chunks ``idx`` (int64 arrays) that together hold
+    0..n-1, on Numba's thread count (or ``threads``) through
+    ``each_in_threads``: ``per_worker`` chunks per thread, chunk c holding
+    c, c + m, c + 2m, ... (m chunks), so items of unequal cost that are
+    alike when neighbours (tiles, bins) spread over the chunks. For serial
+    ``nogil`` kernels replacing a ``prange`` loop whose iterations write
+    disjoint outputs: the result is the same for any thread count."""
+    workers = max(1, int(threads or numba.get_num_threads()))
+    m = max(1, min(int(n), workers * int(per_worker)))
+    each_in_threads(fn, [np.arange(c, n, m, dtype=np.int64) for c in range(m)], workers)
+
+
 def _borrow(context, builder, ty, value):
     if isinstance(ty, types.Array):
         a = cgutils.create_struct_proxy(ty)(context, builder, value=value)

@@ -113,7 +113,7 @@ import numpy as np
 from numba import njit, prange
 
 from ... import sampling, views
-from ...kernels import borrowed, each_in_threads, face_project, pick_face
+from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from ...sampling import strata
 from ..registry import register
 from .coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
@@ -266,23 +266,13 @@ def _tile_points(i0, i1, pts, noff, smp, blo, bhi, refs, sw, ts, ws, out_avg, ou
         out_irr[i] = r
 
 
-#: chunks of tiles per worker thread (``_trace_tiles``)
-TILE_CHUNKS_PER_WORKER = 8
-
-
 def _trace_tiles(tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr, rays, threads=None):
-    """``_depth_tiles`` over every tile on Numba's thread count: the tiles
-    dealt into ``TILE_CHUNKS_PER_WORKER`` chunks per thread (chunk c holds
-    tiles c, c + n, c + 2n, ...: tiles differ widely in cost, neighbours
-    alike), the chunks handed out in turn (``kernels.each_in_threads``).
-    Each tile has its own state and writes its own points, so the result is
-    the same for any thread count."""
-    nt = len(tile_ptr) - 1
-    workers = max(1, int(threads or numba.get_num_threads()))
-    n = max(1, min(nt, workers * TILE_CHUNKS_PER_WORKER))
-    chunks = [np.arange(c, nt, n, dtype=np.int64) for c in range(n)]
-    each_in_threads(lambda tiles: _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw,
-                                               out_avg, out_irr, rays), chunks, workers)
+    """``_depth_tiles`` over every tile on Numba's thread count, the tiles
+    dealt into chunks (``kernels.each_dealt_chunk``: tiles differ widely in
+    cost, neighbours alike). Each tile has its own state and writes its own
+    points, so the result is the same for any thread count."""
+    each_dealt_chunk(lambda tiles: _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw,
+                                                out_avg, out_irr, rays), len(tile_ptr) - 1, threads)
 
 
 @njit(cache=True, parallel=True)

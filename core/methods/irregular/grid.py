@@ -36,11 +36,10 @@ from __future__ import annotations
 import math
 from collections import namedtuple
 
-import numba
 import numpy as np
 from numba import njit, prange
 
-from ...kernels import borrowed, each_in_threads, face_project, pick_face
+from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from .geom import blocks_centre, penumbra_term
 
 # penumbra quad of a (record, face): ``edge_quads``' flag
@@ -389,23 +388,35 @@ def bin_entries_from_ranges(rng, bin_base, nbx, bin_size):
     return cnt, items
 
 
-@njit(cache=True, parallel=True)
-def umbra_bins(bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests):
-    """Hard irregular shadow mapping (section 2.4, figure 2b): per bin, every
-    triangle listed in it is tested against the receivers of the columns it
-    covers at or beyond its nearest depth; ``count`` = depth complexity
-    between each receiver and the light centre (counted triangles).
+def umbra_bins(bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests, threads=None):
+    """Hard irregular shadow mapping (section 2.4, figure 2b):
+    ``_umbra_bins`` over every bin of ``bins.perm`` on Numba's thread count
+    (``kernels.each_dealt_chunk``); a bin counts only its own receivers."""
+    each_dealt_chunk(lambda jbs: _umbra_bins(jbs, bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count,
+                                             tests), bins.perm.shape[0], threads)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _umbra_bins(jbs, bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests):
+    """Per bin ``bins.perm[jb]``, jb in ``jbs`` (in turn): every triangle
+    listed in it is tested against the receivers of the columns it covers at
+    or beyond its nearest depth; ``count`` = depth complexity between each
+    receiver and the light centre (counted triangles).
 
     bins: Bins; blist: BinList of entries j of ``tri_ids`` (ranges ``rng``,
     nearest depths ``zmin`` from ``triangle_ranges``); occ: Occluders; grid:
-    ReceiverGrid; Ps: receiver positions; lit: KernelLight; ``tests`` per bin."""
+    ReceiverGrid; Ps: receiver positions; lit: KernelLight; ``tests`` per bin.
+    Serial and ``nogil``, arguments ``kernels.borrowed`` (as
+    ``_penumbra_bins``)."""
+    bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests = borrowed(
+        (bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests))
     perm, bin_face, bin_bx, bin_by, bin_size = bins.perm, bins.face, bins.bx, bins.by, bins.size
     bin_start, bin_items = blist.start, blist.items
     tv, nv, side_light = occ.tv, occ.nv, occ.side_light
     faces, col_base, gd, zlo, zhi = grid.faces, grid.col_base, grid.gd, grid.zlo, grid.zhi
     logz, cell_start, colmax = grid.logz, grid.cell_start, grid.colmax
     cx, cy, cz, is_sun = lit.cx, lit.cy, lit.cz, lit.is_sun
-    for jb in prange(perm.shape[0]):
+    for jb in jbs:
         b = perm[jb]
         f = bin_face[b]
         fp = faces[f]
@@ -613,20 +624,12 @@ def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, f
 def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals,
                   threads=None):
     """Soft shadow kernel (sections 2.3, 2.5): ``_penumbra_bins`` over every
-    bin of ``bins.perm`` on Numba's thread count (bins dealt into chunks,
-    chunk c holding bins c, c + n, ...; ``kernels.each_in_threads``). A bin
+    bin of ``bins.perm`` on Numba's thread count (bins dealt into chunks:
+    ``kernels.each_dealt_chunk``). A bin
     writes only its own receivers, so the result does not depend on the
     thread count."""
-    nb = bins.perm.shape[0]
-    workers = max(1, int(threads or numba.get_num_threads()))
-    n = max(1, min(nb, workers * BIN_CHUNKS_PER_WORKER))
-    chunks = [np.arange(c, nb, n, dtype=np.int64) for c in range(n)]
-    each_in_threads(lambda jbs: _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mode,
-                                               refine, wedge, pen, ls, evals), chunks, workers)
-
-
-#: chunks of bins per worker thread (``penumbra_bins``)
-BIN_CHUNKS_PER_WORKER = 8
+    each_dealt_chunk(lambda jbs: _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mode,
+                                                refine, wedge, pen, ls, evals), bins.perm.shape[0], threads)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
