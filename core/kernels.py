@@ -2,7 +2,8 @@
 point into a packed ``ViewFace``, picking the face that holds it, the
 bounding box of a map's finite depths, the prange chunk size, and running
 chunks of work on worker threads (kernels with ``nogil=True``, embreex),
-cancellable between chunks (``core/cancel.py``)."""
+cancellable between chunks (``core/cancel.py``), and ``borrowed`` array
+arguments for the inner loops of such kernels."""
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
@@ -10,7 +11,9 @@ from contextlib import contextmanager
 
 import numba
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from . import cancel
 
@@ -58,6 +61,51 @@ def each_in_threads(fn, items, workers: int) -> None:
         finally:
             for f in futures:
                 f.cancel()
+
+
+def each_dealt_chunk(fn, n: int, threads=None, per_worker: int = 8) -> None:
+    """``fn(idx)`` for chunks ``idx`` (int64 arrays) that together hold
+    0..n-1, on Numba's thread count (or ``threads``) through
+    ``each_in_threads``: ``per_worker`` chunks per thread, chunk c holding
+    c, c + m, c + 2m, ... (m chunks), so items of unequal cost that are
+    alike when neighbours (tiles, bins) spread over the chunks. For serial
+    ``nogil`` kernels replacing a ``prange`` loop whose iterations write
+    disjoint outputs: the result is the same for any thread count."""
+    workers = max(1, int(threads or numba.get_num_threads()))
+    m = max(1, min(int(n), workers * int(per_worker)))
+    each_in_threads(fn, [np.arange(c, n, m, dtype=np.int64) for c in range(m)], workers)
+
+
+def _borrow(context, builder, ty, value):
+    if isinstance(ty, types.Array):
+        a = cgutils.create_struct_proxy(ty)(context, builder, value=value)
+        a.meminfo = cgutils.get_null_value(a.meminfo.type)
+        a.parent = cgutils.get_null_value(a.parent.type)
+        return a._getvalue()
+    if isinstance(ty, types.BaseTuple):
+        for i, t in enumerate(ty):
+            value = builder.insert_value(value, _borrow(context, builder, t, builder.extract_value(value, i)), i)
+    return value
+
+
+@intrinsic
+def borrowed(typingctx, value):
+    """``value`` (an array, or a (named) tuple of arrays and scalars) with the
+    arrays' reference counts dropped: the same data, shape and strides, no
+    owner, as Numba hands arrays to the body of a ``prange`` loop. Every
+    copy of an array variable a kernel makes (an inlined call's argument, a
+    tuple field) otherwise costs an atomic increment and decrement of its
+    count, which a serial ``nogil`` kernel replacing a ``parallel=True`` one
+    pays in its inner loops (issue 15: the depth-image tracer ran 1.8x the
+    CPU; 2 threads also contend for the shared counts). Only for a kernel's
+    own arguments, whose owner (the caller) outlives the call; never
+    returned or stored."""
+    if not isinstance(value, (types.Array, types.BaseTuple)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        return _borrow(context, builder, sig.args[0], args[0])
+    return value(value), codegen
 
 
 @njit(cache=True, inline="always")

@@ -539,6 +539,42 @@ def test_deterministic_and_thread_count_independent():
     assert not np.array_equal(a.passes["depth_raytrace"], d.passes["depth_raytrace"])
 
 
+def test_tile_workers_do_not_change_the_result(monkeypatch):
+    """The tracer's tiles run on worker threads (serial ``nogil`` kernels,
+    ``_trace_tiles``): 1 and 3 workers give the same bits."""
+    import penumbra.core.methods.depth_raytrace as dr
+    scene = half_plane_scene(area_light(1.0), res=40)
+    monkeypatch.setattr(dr.numba, "get_num_threads", lambda: 1)
+    a, fb = run(scene, samples=64)
+    monkeypatch.setattr(dr.numba, "get_num_threads", lambda: 3)
+    b, _ = run(scene, fb, samples=64)
+    for k in a.passes:
+        np.testing.assert_array_equal(a.passes[k], b.passes[k])
+
+
+def test_borrowed_arrays_share_the_data():
+    """``kernels.borrowed``: the same data, shape and strides (reads and
+    writes go to the caller's arrays), through (named) tuples too."""
+    from numba import njit
+    from penumbra.core.kernels import borrowed
+    from penumbra.core.methods.depth_raytrace.trace import TraceScratch
+
+    @njit
+    def use(a, t):
+        b = borrowed(a)
+        u = borrowed(t)
+        b[1, 2] = 7.0
+        u.U[0, 1] = b.sum()
+        return b.shape[0] * 10 + b.shape[1], u.line.strides[0]
+
+    a = np.zeros((3, 4))[:, ::-1]
+    t = TraceScratch(np.zeros((2, 5)), np.zeros(2, np.int64), np.zeros(2), np.zeros((4, 2)), np.zeros((4, 2)))
+    shape, stride = use(a, t)
+    assert (shape, stride) == (34, 40)
+    assert a[1, 2] == 7.0 and a.sum() == 7.0
+    assert t.U[0, 1] == 7.0
+
+
 def test_benchmark_table_rows():
     scene = half_plane_scene(area_light(1.0), res=24)
     fb = FrameBuffers(scene, 24, 24)

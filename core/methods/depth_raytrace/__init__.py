@@ -113,7 +113,7 @@ import numpy as np
 from numba import njit, prange
 
 from ... import sampling, views
-from ...kernels import face_project, parallel_chunks, pick_face
+from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from ...sampling import strata
 from ..registry import register
 from .coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
@@ -189,21 +189,23 @@ def _segment_end(ox, oy, oz, ex, ey, ez, lo, hi):
     return tmax
 
 
-@njit(cache=True, parallel=True)
-def _depth_tiles(tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr, rays):
-    """The depth-image driver: per tile (in parallel) every point of
-    ``tile_ptr[ti]:tile_ptr[ti + 1]``, its queued rays traced through the
-    reference images. pts: Points; noff: normal offset per point; smp:
-    Sampler; blo, bhi: the casters' box; refs: trace.ReferenceImages; sw:
-    trace.TraceSwitches; ``rays[ti]``: the tile's ``misc`` (M_*)."""
-    P = pts.P
-    nx, ny, S, coherent = smp.nx, smp.ny, smp.S, smp.coherent
-    fp = refs.fp
-    nt = tile_ptr.shape[0] - 1
+@njit(cache=True, nogil=True)
+def _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr, rays):
+    """The depth-image driver: for each tile ``ti`` of ``tiles`` (in turn;
+    ``_trace_tiles`` runs chunks of tiles on threads) a fresh state, every
+    point of ``tile_ptr[ti]:tile_ptr[ti + 1]`` (``_tile_points``), and
+    ``rays[ti]``: the tile's ``misc`` (M_*). pts: Points; noff: normal offset
+    per point; smp: Sampler; blo, bhi: the casters' box; refs:
+    trace.ReferenceImages; sw: trace.TraceSwitches.
+    A serial ``nogil`` kernel, not a ``prange`` one: the parfor lowering of
+    this fully inlined tracer was most of the method's compile time (issue
+    15)."""
+    nx, ny, S = smp.nx, smp.ny, smp.S
     C = nx * ny
-    F = fp.shape[0]
+    F = refs.fp.shape[0]
     cap = C * S * S + C
-    for ti in prange(nt):
+    for k in range(tiles.shape[0]):
+        ti = tiles[k]
         origin = np.empty(3)
         tgt = np.empty((C, 3))
         wts = np.empty(C)
@@ -224,24 +226,53 @@ def _depth_tiles(tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr,
         U2 = np.empty((MAXI, 2))
         ts = TileState(origin, tgt, wts, subi, back, blk, stamp, vis, cst, queue, pred, prevp, misc)
         ws = TraceScratch(ws_line, ws_order, ws_key, U, U2)
-        for i in range(tile_ptr[ti], tile_ptr[ti + 1]):
-            begin_point(smp, pts, i, noff[i], ts)
-            ox, oy, oz = origin[0], origin[1], origin[2]
-            while misc[M_QH] < misc[M_QT]:
-                c = queue[misc[M_QH]]
-                misc[M_QH] += 1
-                ex, ey, ez = tgt[c, 0], tgt[c, 1], tgt[c, 2]
-                t_end = _segment_end(ox, oy, oz, ex, ey, ez, blo, bhi)
-                blocked = False
-                th = 0.0
-                if F > 0 and t_end > 0.0:
-                    blocked, th = trace_ray(refs, ox, oy, oz, ex, ey, ez, t_end, sw, ws)
-                absorb(c, blocked, ox + th * (ex - ox), oy + th * (ey - oy), oz + th * (ez - oz),
-                       nx, ny, coherent, blk, vis, cst, queue, misc)
-            a, r = finish_point(P, i, nx, ny, wts, vis, prevp, misc)
-            out_avg[i] = a
-            out_irr[i] = r
+        _tile_points(tile_ptr[ti], tile_ptr[ti + 1], pts, noff, smp, blo, bhi, refs, sw, ts, ws,
+                     out_avg, out_irr)
         rays[ti, :] = misc[:]
+
+
+@njit(cache=True, error_model="numpy")
+def _tile_points(i0, i1, pts, noff, smp, blo, bhi, refs, sw, ts, ws, out_avg, out_irr):
+    """Points ``i0:i1`` of one tile (state ``ts``, trace scratch ``ws``):
+    their queued rays traced through the reference images, the points
+    shaded into ``out_avg`` / ``out_irr``. Every array argument is
+    ``kernels.borrowed`` (the caller owns them) and ``error_model="numpy"``,
+    as Numba compiled this loop when it was a ``prange`` body: the inlined
+    tracer copies array variables at every call, at an atomic reference
+    count each otherwise."""
+    pts, noff, smp, blo, bhi, refs, ts, ws = borrowed((pts, noff, smp, blo, bhi, refs, ts, ws))
+    out_avg, out_irr = borrowed((out_avg, out_irr))
+    P = pts.P
+    nx, ny, coherent = smp.nx, smp.ny, smp.coherent
+    F = refs.fp.shape[0]
+    origin, tgt, wts, blk, vis, cst, queue, prevp, misc = (ts.origin, ts.tgt, ts.wts, ts.blk, ts.vis, ts.cst,
+                                                           ts.queue, ts.prevp, ts.misc)
+    for i in range(i0, i1):
+        begin_point(smp, pts, i, noff[i], ts)
+        ox, oy, oz = origin[0], origin[1], origin[2]
+        while misc[M_QH] < misc[M_QT]:
+            c = queue[misc[M_QH]]
+            misc[M_QH] += 1
+            ex, ey, ez = tgt[c, 0], tgt[c, 1], tgt[c, 2]
+            t_end = _segment_end(ox, oy, oz, ex, ey, ez, blo, bhi)
+            blocked = False
+            th = 0.0
+            if F > 0 and t_end > 0.0:
+                blocked, th = trace_ray(refs, ox, oy, oz, ex, ey, ez, t_end, sw, ws)
+            absorb(c, blocked, ox + th * (ex - ox), oy + th * (ey - oy), oz + th * (ez - oz),
+                   nx, ny, coherent, blk, vis, cst, queue, misc)
+        a, r = finish_point(P, i, nx, ny, wts, vis, prevp, misc)
+        out_avg[i] = a
+        out_irr[i] = r
+
+
+def _trace_tiles(tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr, rays, threads=None):
+    """``_depth_tiles`` over every tile on Numba's thread count, the tiles
+    dealt into chunks (``kernels.each_dealt_chunk``: tiles differ widely in
+    cost, neighbours alike). Each tile has its own state and writes its own
+    points, so the result is the same for any thread count."""
+    each_dealt_chunk(lambda tiles: _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw,
+                                                out_avg, out_irr, rays), len(tile_ptr) - 1, threads)
 
 
 @njit(cache=True, parallel=True)
@@ -537,15 +568,14 @@ class DepthRaytrace(Method):
             va = np.ones(len(sel))
             vi = np.ones(len(sel))
             rays_t = np.zeros((len(tile_ptr) - 1, M_SIZE), np.int64)
-            # tiles differ widely in cost: hand them out one by one
-            with parallel_chunks(1), timer("trace"):
+            with timer("trace"):
                 noff = normal_offsets(P, Nrm, lp, maps.faces, float(params.normal_offset))
                 smp = Sampler(lp, int(params.seed), float(buffers.scale), nx, ny, S, coherent,
                               bool(params.subgrid_shortcut), big)
                 refs = ReferenceImages(maps.faces, maps.offs, maps.dims, maps.mn, maps.mx, maps.conn, maps.zp)
                 sw = TraceSwitches(hier, bool(params.minmax_clipping), bool(params.rank_images),
                                    bool(params.clear_miss), bool(params.occlusion_intervals))
-                _depth_tiles(tile_ptr, Points(P, Nrm, pix, tol), noff, smp, box[0], box[1], refs, sw, va, vi,
+                _trace_tiles(tile_ptr, Points(P, Nrm, pix, tol), noff, smp, box[0], box[1], refs, sw, va, vi,
                              rays_t)
             rays = int(rays_t[:, M_RAYS].sum())
             n_pts = max(1, len(sel))

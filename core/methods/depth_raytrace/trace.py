@@ -252,7 +252,7 @@ def face_line(fp, f, ox, oy, oz, ex, ey, ez, t_end, Lf):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True, error_model="numpy")
 def trace_face(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, sA, sB, hier, clip, ivs, niv, st0, st1):
     """Walk the epipolar segment s in [sA, sB] through face f.
 
@@ -457,7 +457,7 @@ def _band(k0, dk, klo, khi, a, b):
     return lo, hi, sb, sa
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True, error_model="numpy")
 def _trace_piece(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, a, b, hier, clip, out, n):
     """Trace the ray-parameter piece [a, b] in face f: parts outside the
     window are unknown; with ``clip`` the root range drops the parts in front
@@ -497,7 +497,7 @@ def _trace_piece(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, a, b, hier, clip, ou
     return False, 0.0, _push(out, n, hi, b)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True, error_model="numpy")
 def trace_ray(refs, ox, oy, oz, ex, ey, ez, t_end, sw, ws):
     """Is the segment o + t (E - o), t in [0, t_end], blocked in the
     reference images? Returns (blocked, t_hit).

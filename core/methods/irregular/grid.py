@@ -39,7 +39,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
-from ...kernels import face_project, pick_face
+from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from .geom import blocks_centre, penumbra_term
 
 # penumbra quad of a (record, face): ``edge_quads``' flag
@@ -388,23 +388,35 @@ def bin_entries_from_ranges(rng, bin_base, nbx, bin_size):
     return cnt, items
 
 
-@njit(cache=True, parallel=True)
-def umbra_bins(bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests):
-    """Hard irregular shadow mapping (section 2.4, figure 2b): per bin, every
-    triangle listed in it is tested against the receivers of the columns it
-    covers at or beyond its nearest depth; ``count`` = depth complexity
-    between each receiver and the light centre (counted triangles).
+def umbra_bins(bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests, threads=None):
+    """Hard irregular shadow mapping (section 2.4, figure 2b):
+    ``_umbra_bins`` over every bin of ``bins.perm`` on Numba's thread count
+    (``kernels.each_dealt_chunk``); a bin counts only its own receivers."""
+    each_dealt_chunk(lambda jbs: _umbra_bins(jbs, bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count,
+                                             tests), bins.perm.shape[0], threads)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _umbra_bins(jbs, bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests):
+    """Per bin ``bins.perm[jb]``, jb in ``jbs`` (in turn): every triangle
+    listed in it is tested against the receivers of the columns it covers at
+    or beyond its nearest depth; ``count`` = depth complexity between each
+    receiver and the light centre (counted triangles).
 
     bins: Bins; blist: BinList of entries j of ``tri_ids`` (ranges ``rng``,
     nearest depths ``zmin`` from ``triangle_ranges``); occ: Occluders; grid:
-    ReceiverGrid; Ps: receiver positions; lit: KernelLight; ``tests`` per bin."""
+    ReceiverGrid; Ps: receiver positions; lit: KernelLight; ``tests`` per bin.
+    Serial and ``nogil``, arguments ``kernels.borrowed`` (as
+    ``_penumbra_bins``)."""
+    bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests = borrowed(
+        (bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests))
     perm, bin_face, bin_bx, bin_by, bin_size = bins.perm, bins.face, bins.bx, bins.by, bins.size
     bin_start, bin_items = blist.start, blist.items
     tv, nv, side_light = occ.tv, occ.nv, occ.side_light
     faces, col_base, gd, zlo, zhi = grid.faces, grid.col_base, grid.gd, grid.zlo, grid.zhi
     logz, cell_start, colmax = grid.logz, grid.cell_start, grid.colmax
     cx, cy, cz, is_sun = lit.cx, lit.cy, lit.cz, lit.is_sun
-    for jb in prange(perm.shape[0]):
+    for jb in jbs:
         b = perm[jb]
         f = bin_face[b]
         fp = faces[f]
@@ -609,10 +621,21 @@ def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, f
     return cnt, items
 
 
-@njit(cache=True, parallel=True)
-def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals):
-    """Soft shadow kernel (sections 2.3, 2.5): per bin, every quad listed in
-    it is rasterized over the bin's columns; the wedge test (second
+def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals,
+                  threads=None):
+    """Soft shadow kernel (sections 2.3, 2.5): ``_penumbra_bins`` over every
+    bin of ``bins.perm`` on Numba's thread count (bins dealt into chunks:
+    ``kernels.each_dealt_chunk``). A bin
+    writes only its own receivers, so the result does not depend on the
+    thread count."""
+    each_dealt_chunk(lambda jbs: _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mode,
+                                                refine, wedge, pen, ls, evals), bins.perm.shape[0], threads)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals):
+    """Per bin ``bins.perm[jb]``, jb in ``jbs`` (in turn): every quad listed
+    in it is rasterized over the bin's columns; the wedge test (second
     optimization) or the quad test selects the receivers, and each gets the
     signed analytic term of the edge.
 
@@ -620,7 +643,11 @@ def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, re
     fb: FaceBounds; rec: Receivers; records: Records; occ: Occluders; lit:
     KernelLight; mode: geom.SILHOUETTE_*; refine / wedge: the two overdraw
     reductions; ``pen`` per receiver, ls: LightSamples (updated), ``evals``
-    per bin."""
+    per bin. A serial ``nogil`` kernel (issue 15: a prange one's parfor
+    lowering was most of its compile time), its arguments
+    ``kernels.borrowed`` and ``error_model="numpy"`` as a prange body's."""
+    bins, blist, quads, grid, fb, rec, records, occ, lit, pen, ls, evals = borrowed(
+        (bins, blist, quads, grid, fb, rec, records, occ, lit, pen, ls, evals))
     perm, bin_face, bin_bx, bin_by, bin_size = bins.perm, bins.face, bins.bx, bins.by, bins.size
     binmax = bins.maxz
     bin_start, bin_items = blist.start, blist.items
@@ -632,7 +659,7 @@ def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, re
     rec_t, rec_k = records.t, records.k
     tv, nv, facing, orient = occ.tv, occ.nv, occ.facing, occ.orient
     cx, cy, cz, is_sun, rL, tan_a = lit.cx, lit.cy, lit.cz, lit.is_sun, lit.rL, lit.tan_a
-    for jb in prange(perm.shape[0]):
+    for jb in jbs:
         b = perm[jb]
         f = bin_face[b]
         fp = faces[f]
