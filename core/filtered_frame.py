@@ -74,8 +74,10 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                 for lr in base.lights}
     computed = {k: v for k, v in computed.items() if v}
     refine = np.zeros((H, W), bool)
+    full = np.zeros((H, W), bool)         # refined on the full grid (geometry, hard shadow edges)
     if taps.size and flt.threshold < 0:
         refine[:] = True                  # every pixel: the full supersampled pass (bench, tests)
+        full[:] = True
     elif taps.size:
         values = [lr.passes[pid] for lr in base.lights for pid in computed.get(lr.name, ())]
         stack = np.ascontiguousarray(np.stack(values) if values else np.zeros((0, H, W), np.float32),
@@ -83,8 +85,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
         if flt.v_test not in V_TESTS:
             raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
         refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
-                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine)
-    rows, cols = footprint_samples(refine, s, int(m0), int(taps.shape[0]))
+                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full)
+    rows, cols = footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
     sub_scene = dataclasses.replace(scene, resolution=(s * W, s * H))
     tg = time.perf_counter()
     sub_g = raycast.camera_gbuffer_at(sub_scene, s * W, s * H, cols, rows, buffers.camera_scene, packed=True)

@@ -37,8 +37,10 @@ Adaptive cost: only pixels whose neighbours within ``reach`` differ from them
 in hit, object id, depth or normal, or where V is not locally linear (a
 second difference beyond ``threshold``) are resolved from sub-pixel samples
 (``refine_mask``); the others keep their pixel-centre value, which equals
-the filtered value of a locally linear V (the filters are symmetric). The
-sub-samples are a packed list (``footprint_samples``, ``resolve``): no
+the filtered value of a locally linear V (the filters are symmetric). A
+refined pixel reads the full grid where the geometry differs or V jumps
+beyond ``sharp``, a ``shade_grid`` lattice where only V's mild kinks (a soft
+penumbra's ends, a method's own noise) flag it. The sub-samples are a packed list (``footprint_samples``, ``resolve``): no
 supersampled image is made.
 """
 from __future__ import annotations
@@ -57,6 +59,8 @@ SCENE = "scene"
 EEVEE_SIGMA = 0.284            # eevee_film: Gaussian sigma per unit of filter radius
 DEFAULT_GRID = 4               # sub-pixel samples per axis where a pixel is refined
 MAX_GRID = 16
+DEFAULT_SHADE_GRID = 2         # sub-pixel samples per axis where only V is mildly not locally linear
+DEFAULT_SHARP = 0.2            # V's second difference beyond which a shadow edge gets the full grid
 DEFAULT_THRESHOLD = 0.1        # V's second difference between pixel centres that marks a shadow edge
 V_TESTS = ("curvature", "variation")   # refine_mask's test of V (PixelFilter.v_test)
 EDGE_TAIL = 0.01               # PixelFilter.reach: an edge it misses moves a pixel by <= 1 % of the jump
@@ -80,6 +84,15 @@ class PixelFilter:
     threshold: float = DEFAULT_THRESHOLD   # refine_mask's V threshold; < 0: refine every pixel
     v_test: str = V_TESTS[0]     # refine_mask's test of V: "curvature" | "variation" (the first version)
     edge_tail: float = EDGE_TAIL  # ``reach``: the filter's share an edge it misses may carry
+    shade_grid: int = DEFAULT_SHADE_GRID   # sub-samples per axis where only V's mild kinks need them;
+                                           # must divide ``grid``; = grid: the first version (full grid)
+    sharp: float = DEFAULT_SHARP  # V's test beyond which a shadow edge gets the full grid
+
+    @property
+    def shade_step(self) -> int:
+        """Sub-sample stride of the pixels refined for V alone (``shade_grid``)."""
+        g, v = int(self.grid), int(self.shade_grid)
+        return g // v if 0 < v < g and g % v == 0 else 1
 
     @property
     def is_none(self) -> bool:
@@ -225,74 +238,89 @@ def from_render_settings(engine: str, cycles_type: Optional[str], cycles_width: 
 # which pixels need sub-pixel samples
 
 @njit(cache=True, parallel=True)
-def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out):
+def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out,
+                sharp, full):
     """out[r, c] = True where pixel (r, c)'s neighbours within ``reach``
     differ from it in hit, object id, depth (relative ``depth_jump``) or
-    normal (cosine below ``normal_cos``), or where one of ``values[k]``
-    (the pixel-centre passes) is not locally linear: ``curvature``: a
-    second difference V[p + d] + V[p - d] - 2 V[p] over a pair of opposite
+    normal (cosine below ``normal_cos``), or where one of ``values[k]`` (the
+    pixel-centre passes) is not locally linear: ``curvature``: a second
+    difference V[p + d] + V[p - d] - 2 V[p] over a pair of opposite
     neighbours beyond ``threshold`` (a linear ramp across the footprint is
     integrated exactly by the centre sample of a symmetric normalised
     filter, so only V's deviation from linear needs sub-pixel samples; a
     jump between two centres shows as a second difference of its height);
     else (``variation``, the first version) a difference to a neighbour
-    beyond ``threshold``."""
+    beyond ``threshold``. ``full[r, c]``: the pixel needs the full sub-pixel
+    grid: an edge of the geometry, or V's test beyond ``sharp`` (a hard
+    shadow edge); the others only V's mild kinks and noise."""
     H, W = hit.shape
     for r in prange(H):
         for c in range(W):
-            flag = False
+            geo = False
+            vflag = False
             for dr in range(-reach, reach + 1):
                 rr = r + dr
-                if flag or rr < 0 or rr >= H:
+                if geo or rr < 0 or rr >= H:
                     continue
                 for dc in range(-reach, reach + 1):
                     cc = c + dc
-                    if flag or cc < 0 or cc >= W or (dr == 0 and dc == 0):
+                    if geo or cc < 0 or cc >= W or (dr == 0 and dc == 0):
                         continue
                     if hit[r, c] != hit[rr, cc]:
-                        flag = True
+                        geo = True
                     elif hit[r, c]:
                         if obj[r, c] != obj[rr, cc]:
-                            flag = True
+                            geo = True
                         elif abs(depth[r, c] - depth[rr, cc]) > depth_jump * min(depth[r, c], depth[rr, cc]):
-                            flag = True
+                            geo = True
                         elif (normal[r, c, 0] * normal[rr, cc, 0] + normal[r, c, 1] * normal[rr, cc, 1]
                               + normal[r, c, 2] * normal[rr, cc, 2]) < normal_cos:
-                            flag = True
-                    if flag:
+                            geo = True
+                    if geo:
                         continue
                     if curvature:
                         ro, co = r - dr, c - dc           # the opposite neighbour
                         if ro < 0 or ro >= H or co < 0 or co >= W:
                             continue
                         for k in range(values.shape[0]):
-                            if abs(values[k, rr, cc] + values[k, ro, co] - 2.0 * values[k, r, c]) > threshold:
-                                flag = True
+                            d = abs(values[k, rr, cc] + values[k, ro, co] - 2.0 * values[k, r, c])
+                            if d > threshold:
+                                vflag = True
+                                geo = d > sharp
                                 break
                     else:
                         for k in range(values.shape[0]):
-                            if abs(values[k, r, c] - values[k, rr, cc]) > threshold:
-                                flag = True
+                            d = abs(values[k, r, c] - values[k, rr, cc])
+                            if d > threshold:
+                                vflag = True
+                                geo = d > sharp
                                 break
-            out[r, c] = flag
+            out[r, c] = geo or vflag
+            full[r, c] = geo
 
 
 @njit(cache=True)
-def _footprint_rows(refine, grid, m0, k, count, rows, cols):
+def _footprint_rows(refine, full, grid, m0, k, step, count, rows, cols):
     """``footprint_samples``' kernel: per sub-row I the sub-columns some
     refined pixel's footprint reads (a refined pixel (r, c) reads sub-rows
-    grid r + m0 ... + k - 1, the same for columns); ``count`` only counts
-    them (rows, cols unused), else they are written in row-major order."""
+    grid r + m0 ... + k - 1, the same for columns; one that is not ``full``
+    only every ``step``-th of them, those with I and J divisible by
+    ``step``); ``count`` only counts them (rows, cols unused), else they are
+    written in row-major order."""
     H, W = refine.shape
     SH, SW = grid * H, grid * W
-    reads = np.zeros((H, SW), np.bool_)        # pixel row r reads sub-column J
+    reads = np.zeros((H, SW), np.bool_)        # pixel row r reads sub-column J on every sub-row
+    sparse = np.zeros((H, SW), np.bool_)       # ... on the sub-rows divisible by step
     for r in range(H):
         for c in range(W):
             if refine[r, c]:
                 for b in range(k):
                     J = grid * c + m0 + b
                     if 0 <= J < SW:
-                        reads[r, J] = True
+                        if full[r, c]:
+                            reads[r, J] = True
+                        elif J % step == 0:
+                            sparse[r, J] = True
     line = np.zeros(SW, np.bool_)
     n = 0
     for I in range(SH):
@@ -302,6 +330,9 @@ def _footprint_rows(refine, grid, m0, k, count, rows, cols):
         line[:] = reads[r0]
         for r in range(r0 + 1, r1 + 1):
             line |= reads[r]
+        if I % step == 0:
+            for r in range(r0, r1 + 1):
+                line |= sparse[r]
         for J in range(SW):
             if line[J]:
                 if not count:
@@ -311,15 +342,20 @@ def _footprint_rows(refine, grid, m0, k, count, rows, cols):
     return n
 
 
-def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int):
+def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int, full: Optional[np.ndarray] = None,
+                      step: int = 1):
     """(rows int64[N], cols int64[N]): the sub-samples (supersampled pixel
     (rows[n], cols[n])) some refined pixel's footprint (taps ``m0``, size
-    ``k``) reads, row-major; no supersampled image is made."""
+    ``k``) reads, row-major; a refined pixel that is not ``full`` (None:
+    all are) reads only the sub-samples whose row and column are divisible
+    by ``step`` (a ``grid / step`` lattice). No supersampled image is made."""
     refine = np.ascontiguousarray(refine, np.bool_)
+    full = refine if full is None else np.ascontiguousarray(full, np.bool_)
+    step = max(1, int(step))
     empty = np.zeros(0, np.int64)
-    n = _footprint_rows(refine, grid, m0, k, True, empty, empty)
+    n = _footprint_rows(refine, full, grid, m0, k, step, True, empty, empty)
     rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
-    _footprint_rows(refine, grid, m0, k, False, rows, cols)
+    _footprint_rows(refine, full, grid, m0, k, step, False, rows, cols)
     return rows, cols
 
 

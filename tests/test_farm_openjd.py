@@ -90,8 +90,10 @@ def test_a_timed_out_chunk_is_stopped_cleanly(tmp_path):
     p, chunks, messages = openjd_run(template, out, "1-1000", 1000)
     assert p.returncode != 0 and "Session ended with errors" in p.stdout
     assert chunks == ["1-1000"]
-    assert any(m.startswith("TIMEOUT - Runtime limit reached") for m in messages), p.stdout[-3000:]
-    assert any(m.startswith('INTERRUPT: Sending signal "term"') for m in messages)
+    # openjd logs a task's output line by line as it arrives: a line penumbra had not
+    # ended yet when the timeout came gets openjd's own message glued after it
+    assert any("TIMEOUT - Runtime limit reached" in m for m in messages), p.stdout[-3000:]
+    assert any('INTERRUPT: Sending signal "term"' in m for m in messages)
     assert "penumbra: interrupted" in messages
     assert any(m.startswith("Process pid") and "exited with code: 130" in m for m in messages)
     frames = written_frames(out)

@@ -210,6 +210,20 @@ def test_footprint_samples_are_the_union_of_the_refined_footprints():
         rows, cols = footprint_samples(refine, s, m0, k)
         wr, wc = np.nonzero(want)
         assert np.array_equal(rows, wr) and np.array_equal(cols, wc), flt
+        # pixels refined for V alone read every step-th sub-row and sub-column of their footprint
+        full = refine & (rng.random((H, W)) > 0.5)
+        for step in (2, s):
+            want = np.zeros((s * H, s * W), bool)
+            for r, c in zip(*np.nonzero(refine)):
+                I = np.arange(s * r + m0, s * r + m0 + k)
+                J = np.arange(s * c + m0, s * c + m0 + k)
+                if not full[r, c]:
+                    I, J = I[I % step == 0], J[J % step == 0]
+                I, J = I[(I >= 0) & (I < s * H)], J[(J >= 0) & (J < s * W)]
+                want[np.ix_(I, J)] = True
+            rows, cols = footprint_samples(refine, s, m0, k, full, step)
+            wr, wc = np.nonzero(want)
+            assert np.array_equal(rows, wr) and np.array_equal(cols, wc), (flt, step)
 
 
 def test_reach_is_where_the_filter_tail_ends():
@@ -229,10 +243,11 @@ def test_reach_is_where_the_filter_tail_ends():
 
 def _refined(values, curvature, threshold=0.02, reach=1):
     H, W = values.shape
-    out = np.zeros((H, W), bool)
+    out, full = np.zeros((H, W), bool), np.ones((H, W), bool)
     refine_mask(np.ones((H, W), bool), np.zeros((H, W), np.int32), np.ones((H, W), np.float32),
                 np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)), values[None].astype(np.float32), reach,
-                threshold, DEPTH_JUMP, NORMAL_COS, curvature, out)
+                threshold, DEPTH_JUMP, NORMAL_COS, curvature, out, np.inf, full)
+    assert not full.any()                                  # one surface, no sharp edge: the shade grid
     return out
 
 
@@ -284,3 +299,25 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
     dense = render_filtered(sc, ["pcf"], pixel_filter=flt)
     assert np.array_equal(packed.lights[0].passes["pcf"], dense.lights[0].passes["pcf"])
     assert np.array_equal(packed.coverage, dense.coverage)
+
+
+def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
+    """refine_mask's ``full``: pixels beside another object, or at a jump of V
+    beyond ``sharp``, get the full sub-pixel grid; pixels flagged only for
+    V's mild kinks (a soft penumbra's ends, noise) get the ``shade_grid``
+    lattice."""
+    H, W = 5, 24
+    obj = np.zeros((H, W), np.int32)
+    obj[:, 20:] = 1
+    x = np.arange(W, dtype=np.float32)
+    v = np.clip(0.15 * (x - 4), 0.0, 0.6)                  # kinks of 0.15 at columns 4 and 8
+    v[12:] = 0.0                                           # a hard edge: a jump of 0.6
+    values = np.tile(v, (H, 1))[None].astype(np.float32)
+    out, full = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    refine_mask(np.ones((H, W), bool), obj, np.ones((H, W), np.float32),
+                np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)), values, 1, 0.1, DEPTH_JUMP, NORMAL_COS,
+                True, out, 0.3, full)
+    assert np.array_equal(np.nonzero(out[2])[0], [4, 8, 11, 12, 19, 20])
+    assert np.array_equal(np.nonzero(full[2])[0], [11, 12, 19, 20])
+    assert PixelFilter("blackman-harris", 1.5).shade_step == 2
+    assert PixelFilter("blackman-harris", 1.5, shade_grid=4).shade_step == 1    # the first version
