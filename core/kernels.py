@@ -63,17 +63,27 @@ def each_in_threads(fn, items, workers: int) -> None:
                 f.cancel()
 
 
-def each_dealt_chunk(fn, n: int, threads=None, per_worker: int = 8) -> None:
+def each_dealt_chunk(fn, n: int, threads=None, per_worker: int = 8, block: int = 1) -> None:
     """``fn(idx)`` for chunks ``idx`` (int64 arrays) that together hold
     0..n-1, on Numba's thread count (or ``threads``) through
     ``each_in_threads``: ``per_worker`` chunks per thread, chunk c holding
-    c, c + m, c + 2m, ... (m chunks), so items of unequal cost that are
-    alike when neighbours (tiles, bins) spread over the chunks. For serial
-    ``nogil`` kernels replacing a ``prange`` loop whose iterations write
-    disjoint outputs: the result is the same for any thread count."""
+    blocks c, c + m, c + 2m, ... (m chunks) of ``block`` consecutive items,
+    so items of unequal cost that are alike when neighbours (tiles, bins)
+    spread over the chunks; ``block`` > 1 keeps neighbours (pixels reading
+    the same map texels) together. For serial ``nogil`` kernels replacing a
+    ``prange`` loop whose iterations write disjoint outputs: the result is
+    the same for any thread count."""
     workers = max(1, int(threads or numba.get_num_threads()))
-    m = max(1, min(int(n), workers * int(per_worker)))
-    each_in_threads(fn, [np.arange(c, n, m, dtype=np.int64) for c in range(m)], workers)
+    block = max(1, int(block))
+    nb = -(-int(n) // block)
+    m = max(1, min(nb, workers * int(per_worker)))
+    if block == 1:
+        chunks = [np.arange(c, n, m, dtype=np.int64) for c in range(m)]
+    else:
+        idx = np.arange(n, dtype=np.int64)
+        chunks = [np.concatenate([idx[s:s + block] for s in range(c * block, n, m * block)] or [idx[:0]])
+                  for c in range(m)]
+    each_in_threads(fn, chunks, workers)
 
 
 def _borrow(context, builder, ty, value):

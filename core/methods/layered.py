@@ -174,10 +174,10 @@ from typing import Dict, List, Optional
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .. import sampling, views
-from ..kernels import face_project, pick_face
+from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from ..sampling import concentric_disk, light_sample, rand01
 from ..scene import Light, ViewFace
 from .surfaces import mesh_pieces
@@ -653,11 +653,16 @@ def _lookup(ldi_depth, ldi_span, ldi_count, ldi_n, pix, z, sp, eps, invN):
     return ldi_count[pix, L] * invN
 
 
-@njit(cache=True, parallel=True)
-def display_kernel(P, Nrm, cfaces, h, w, ldi_depth, ldi_span, ldi_count, ldi_n, invN, eps,
+@njit(cache=True, nogil=True, error_model="numpy")
+def display_kernel(idx, P, Nrm, cfaces, h, w, ldi_depth, ldi_span, ldi_count, ldi_n, invN, eps,
                    bilinear, plane, cos_min, max_slope, out):
-    """Procedure Display, lines 2-5, for points P with normals Nrm."""
-    for i in prange(P.shape[0]):
+    """Procedure Display, lines 2-5, for the points ``idx`` of P (normals
+    Nrm). A serial ``nogil`` kernel run on worker threads by ``display``
+    (issue 15: a prange one's parfor lowering was most of its compile time),
+    its arguments ``kernels.borrowed``."""
+    P, Nrm, cfaces, ldi_depth, ldi_span, ldi_count, ldi_n, out = borrowed(
+        (P, Nrm, cfaces, ldi_depth, ldi_span, ldi_count, ldi_n, out))
+    for i in idx:
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         f = pick_face(cfaces, px, py, pz)
         if f < 0:
@@ -1006,14 +1011,16 @@ def precompute(buffers, light: Light, params: LayeredParams,
                np.asarray(ctr, np.float64), float(reach), render_s, insert_s)
 
 
-@njit(cache=True, parallel=True)
-def horizon_kernel(P, Nrm, pts, directional, centre, reach, out):
+@njit(cache=True, nogil=True, error_model="numpy")
+def horizon_kernel(idx, P, Nrm, pts, directional, centre, reach, out):
     """Fraction of the light samples above each point's tangent plane (on the
     side of its normal): the light its own surface does not hide. Points whose
     plane clears the samples' bounding sphere (``centre``, ``reach``; for a
-    sun, the cone of directions) skip the loop."""
+    sun, the cone of directions) skip the loop. For the points ``idx`` (as
+    ``display_kernel``)."""
+    P, Nrm, pts, centre, out = borrowed((P, Nrm, pts, centre, out))
     n_s = pts.shape[0]
-    for i in prange(P.shape[0]):
+    for i in idx:
         n0, n1, n2 = Nrm[i, 0], Nrm[i, 1], Nrm[i, 2]
         if directional:
             h = n0 * centre[0] + n1 * centre[1] + n2 * centre[2]
@@ -1043,15 +1050,16 @@ def display(ldi: LDI, P: np.ndarray, Nrm: np.ndarray, params: LayeredParams) -> 
     if len(P) == 0:
         return out
     cfaces = np.ascontiguousarray(np.stack([f.packed() for f in ldi.faces]))
-    display_kernel(np.ascontiguousarray(P, np.float64), np.ascontiguousarray(Nrm, np.float64),
-                   cfaces, h, w, ldi.depth, ldi.span, ldi.count, ldi.n_layers, 1.0 / ldi.samples,
-                   ldi.epsilon, bool(params.bilinear), bool(params.plane_depth),
-                   1.0 / math.sqrt(1.0 + MAX_SLOPE * MAX_SLOPE),
-                   MAX_SLOPE if params.plane_depth else 0.0, out)
+    P = np.ascontiguousarray(P, np.float64)
+    Nrm = np.ascontiguousarray(Nrm, np.float64)
+    args = (P, Nrm, cfaces, h, w, ldi.depth, ldi.span, ldi.count, ldi.n_layers, 1.0 / ldi.samples,
+            ldi.epsilon, bool(params.bilinear), bool(params.plane_depth),
+            1.0 / math.sqrt(1.0 + MAX_SLOPE * MAX_SLOPE), MAX_SLOPE if params.plane_depth else 0.0, out)
+    each_dealt_chunk(lambda idx: display_kernel(idx, *args), len(P))
     if params.horizon:
         hz = np.empty(len(P), np.float64)
-        horizon_kernel(np.ascontiguousarray(P, np.float64), np.ascontiguousarray(Nrm, np.float64),
-                       ldi.points, ldi.directional, ldi.centre, ldi.reach, hz)
+        each_dealt_chunk(lambda idx: horizon_kernel(idx, P, Nrm, ldi.points, ldi.directional, ldi.centre,
+                                                    ldi.reach, hz), len(P))
         np.minimum(out, hz, out=out)
     return np.clip(out, 0.0, 1.0)
 

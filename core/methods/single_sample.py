@@ -130,9 +130,9 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from ..kernels import face_project, pick_face
+from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from ..sampling import rand01
 from .registry import register
 from .surfaces import mesh_pieces
@@ -693,10 +693,24 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
     return meet + (1.0 - meet) * q, rtex, nvis
 
 
-@njit(cache=True, parallel=True)
-def shade_all(P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis):
-    """Search the selected pixels (all of them with adaptive sampling off)."""
-    for k in prange(sel.shape[0]):
+_BLOCK = 256     # consecutive pixels per dealt block: neighbours read the same map texels
+
+
+def shade_all(P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis, threads=None):
+    """Search the selected pixels (all of them with adaptive sampling off):
+    ``_shade_all`` on Numba's thread count (``kernels.each_dealt_chunk``)."""
+    each_dealt_chunk(lambda ks: _shade_all(ks, P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm,
+                                           out, rad, vis), sel.shape[0], threads, block=_BLOCK)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _shade_all(ks, P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis):
+    """``shade_all`` for entries ``ks`` of ``sel``: a serial ``nogil`` kernel
+    with ``kernels.borrowed`` arguments (issue 15: a prange one's parfor
+    lowering was most of its compile time)."""
+    P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis = borrowed(
+        (P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis))
+    for k in ks:
         i = sel[k]
         val, rt, nv = _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm)
         out[i] = val
@@ -704,12 +718,20 @@ def shade_all(P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm
         vis[i] = nv
 
 
-@njit(cache=True, parallel=True)
-def hard_all(P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
+def hard_all(P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr, threads=None):
     """Section 4.3's first step on every pixel: the hard test and the id it
-    carries (the blocker's where inner, the receiver's where lit)."""
-    n = P.shape[0]
-    for i in prange(n):
+    carries (the blocker's where inner, the receiver's where lit).
+    ``_hard_all`` on Numba's thread count (``kernels.each_dealt_chunk``)."""
+    each_dealt_chunk(lambda idx: _hard_all(idx, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr),
+                     P.shape[0], threads, block=_BLOCK)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _hard_all(idx, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
+    """``hard_all`` for pixels ``idx`` (as ``_shade_all``)."""
+    P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr = borrowed(
+        (P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr))
+    for i in idx:
         if not hit[i]:
             hface[i] = -2
             hinner[i] = 0

@@ -83,12 +83,20 @@ KernelLight = namedtuple("KernelLight", "cx cy cz is_sun shape rL tan_a")
 
 # --------------------------------------------------------------------------
 # grid construction
-@njit(cache=True, parallel=True)
-def assign_faces(P, faces, fu, fv, fz):
-    """Face, face-pixel coordinates and depth of every receiver (-1: none)."""
-    n = P.shape[0]
-    face = np.empty(n, np.int64)
-    for i in prange(n):
+def assign_faces(P, faces, fu, fv, fz, threads=None):
+    """Face, face-pixel coordinates and depth of every receiver (-1: none):
+    ``_assign_faces`` on Numba's thread count (``kernels.each_dealt_chunk``)."""
+    face = np.empty(P.shape[0], np.int64)
+    each_dealt_chunk(lambda idx: _assign_faces(idx, P, faces, fu, fv, fz, face), P.shape[0], threads)
+    return face
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _assign_faces(idx, P, faces, fu, fv, fz, face):
+    """``assign_faces`` for receivers ``idx``: a serial ``nogil`` kernel with
+    ``kernels.borrowed`` arguments (as ``_penumbra_bins``; issue 15)."""
+    P, faces, fu, fv, fz, face = borrowed((P, faces, fu, fv, fz, face))
+    for i in idx:
         f = pick_face(faces, P[i, 0], P[i, 1], P[i, 2])
         face[i] = f
         if f >= 0:
@@ -100,7 +108,6 @@ def assign_faces(P, faces, fu, fv, fz):
             fu[i] = 0.0
             fv[i] = 0.0
             fz[i] = 0.0
-    return face
 
 
 @njit(cache=True, inline="always")
@@ -291,15 +298,24 @@ def seg_x_in_band(ax, ay, bx, by, y0, y1):
 
 # --------------------------------------------------------------------------
 # umbra: triangles -> face columns
-@njit(cache=True, parallel=True)
-def triangle_ranges(tv, tri_ids, faces, near):
+def triangle_ranges(tv, tri_ids, faces, near, threads=None):
     """Column/row ranges and nearest depth of each triangle's light-view
-    image per face (perspective faces: the triangle clipped to depth >= near[f])."""
-    nt = tri_ids.shape[0]
-    F = faces.shape[0]
+    image per face (perspective faces: the triangle clipped to depth >= near[f]):
+    ``_triangle_ranges`` on Numba's thread count (``kernels.each_dealt_chunk``)."""
+    nt, F = tri_ids.shape[0], faces.shape[0]
     rng = np.empty((nt, F, 4), np.int64)
     zmin = np.empty((nt, F))
-    for j in prange(nt):
+    each_dealt_chunk(lambda js: _triangle_ranges(js, tv, tri_ids, faces, near, rng, zmin), nt, threads)
+    return rng, zmin
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _triangle_ranges(js, tv, tri_ids, faces, near, rng, zmin):
+    """``triangle_ranges`` for entries ``js`` of ``tri_ids``: a serial
+    ``nogil`` kernel with ``kernels.borrowed`` arguments (issue 15)."""
+    tv, tri_ids, faces, near, rng, zmin = borrowed((tv, tri_ids, faces, near, rng, zmin))
+    F = faces.shape[0]
+    for j in js:
         t = tri_ids[j]
         for f in range(F):
             fp = faces[f]
@@ -355,7 +371,6 @@ def triangle_ranges(tv, tri_ids, faces, near):
             rng[j, f, 2] = r0
             rng[j, f, 3] = r1
             zmin[j, f] = zm
-    return rng, zmin
 
 
 @njit(cache=True)
@@ -471,18 +486,30 @@ def _quad_width(persp, rL, k, rho, tan_a, Z, z):
     return rL * k * (Z - z) / (z * (Z - rho)) * (1.0 + 1e-9)
 
 
-@njit(cache=True, parallel=True)
 def edge_quads(tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, face_rnear,
-               rL, tan_a):
+               rL, tan_a, threads=None):
     """Per (record, face): projected endpoints of the edge (clipped to depth
     >= near for perspective faces), whole-face flag, and the global quad's
-    column/row range (quad width from the face's largest receiver depth)."""
-    R = rec_t.shape[0]
-    F = faces.shape[0]
+    column/row range (quad width from the face's largest receiver depth):
+    ``_edge_quads`` on Numba's thread count (``kernels.each_dealt_chunk``)."""
+    R, F = rec_t.shape[0], faces.shape[0]
     ep = np.zeros((R, F, 6))
     flag = np.zeros((R, F), np.int8)      # QUAD_*
     rng = np.empty((R, F, 4), np.int64)
-    for r in prange(R):
+    each_dealt_chunk(lambda rs: _edge_quads(rs, tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near,
+                                            face_rnear, rL, tan_a, ep, flag, rng), R, threads)
+    return ep, flag, rng
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_quads(rs, tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, face_rnear, rL, tan_a,
+                ep, flag, rng):
+    """``edge_quads`` for records ``rs``: a serial ``nogil`` kernel with
+    ``kernels.borrowed`` arguments (issue 15)."""
+    tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, face_rnear, ep, flag, rng = borrowed(
+        (tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, face_rnear, ep, flag, rng))
+    F = faces.shape[0]
+    for r in rs:
         t = rec_t[r]
         k = rec_k[r]
         k1 = (k + 1) % 3
@@ -555,7 +582,6 @@ def edge_quads(tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, fac
             rng[r, f, 1] = c1
             rng[r, f, 2] = r0
             rng[r, f, 3] = r1
-    return ep, flag, rng
 
 
 @njit(cache=True, inline="always")

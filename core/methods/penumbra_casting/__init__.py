@@ -109,10 +109,10 @@ from typing import Dict, List, Optional
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ... import sampling
-from ...kernels import each_in_threads
+from ...kernels import borrowed, each_dealt_chunk, each_in_threads
 from ..registry import register
 from .alpha_blockers import (MatteBlockers, corner_order, fetch_visibility, matte_pairs, matte_triangles,
                              split_blockers, transmitted_visibility)
@@ -165,11 +165,22 @@ _VL_BATCH = 1 << 16
 
 # --------------------------------------------------------------------------
 # small kernels
-@njit(cache=True, parallel=True)
-def _light_volumes(tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
+def _light_volumes(tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep, threads=None):
     """V_L of every candidate blocker and the test against the receivers'
-    bounding box: ``keep`` = T may shadow some receiver."""
-    for t in prange(tris.shape[0]):
+    bounding box: ``keep`` = T may shadow some receiver. ``_light_volumes_of``
+    on Numba's thread count (``kernels.each_dealt_chunk``)."""
+    each_dealt_chunk(lambda ts: _light_volumes_of(ts, tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL,
+                                                  keep), tris.shape[0], threads)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _light_volumes_of(ts, tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
+    """``_light_volumes`` for blockers ``ts``: a serial ``nogil`` kernel with
+    ``kernels.borrowed`` arguments (issue 15: a prange one's parfor lowering
+    was most of its compile time)."""
+    tris, nverts, DV, nv, DE, ne, root_bb, VL, nVL, keep = borrowed(
+        (tris, nverts, DV, nv, DE, ne, root_bb, VL, nVL, keep))
+    for t in ts:
         k = penumbra_volume(tris[t], nverts[t], DV, nv, DE, ne, eps, VL[t])
         nVL[t] = k
         if k < 0:
