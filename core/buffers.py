@@ -15,10 +15,12 @@ the JSON's ``buffers_time_s``.
 """
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass
 from typing import Dict, FrozenSet, Iterable, Optional, Set, Tuple
 
+import numba
 import numpy as np
 
 from . import raycast, views
@@ -148,8 +150,6 @@ class FrameBuffers:
         map size and Numba's thread count (DESIGN.md: the same inputs, seed
         and thread count give the same bits); the camera and geometry are
         the buffers' own."""
-        import json
-        import numba
         return (light.name, light_key(light), method_id, json.dumps(params, sort_keys=True, default=str),
                 self.map_size, numba.get_num_threads())
 

@@ -77,12 +77,11 @@ def each_dealt_chunk(fn, n: int, threads=None, per_worker: int = 8, block: int =
     block = max(1, int(block))
     nb = -(-int(n) // block)
     m = max(1, min(nb, workers * int(per_worker)))
-    if block == 1:
-        chunks = [np.arange(c, n, m, dtype=np.int64) for c in range(m)]
-    else:
-        idx = np.arange(n, dtype=np.int64)
-        chunks = [np.concatenate([idx[s:s + block] for s in range(c * block, n, m * block)] or [idx[:0]])
-                  for c in range(m)]
+    within = np.arange(block, dtype=np.int64)
+    chunks = []
+    for c in range(m):                     # chunk c: blocks c, c + m, ..., each block's items in order
+        items = (np.arange(c, nb, m, dtype=np.int64)[:, None] * block + within).reshape(-1)
+        chunks.append(items[items < n])
     each_in_threads(fn, chunks, workers)
 
 
