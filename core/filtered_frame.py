@@ -54,7 +54,9 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                     pixel_filter: Optional[PixelFilter] = None, **options) -> FrameResult:
     """``frame.render_frame(scene, passes, light_names, **options)`` with the
     passes filtered by ``pixel_filter`` (None or ``none``: exactly
-    ``render_frame``)."""
+    ``render_frame``). Each light gets its own sub-pixel samples: the
+    footprints its passes need refined (``refine_mask`` on its passes and the
+    geometry); the G-buffer is traced once at their union."""
     flt = pixel_filter or PixelFilter()
     if flt.is_none:
         return render_frame(scene, passes, light_names, **options)
@@ -73,45 +75,76 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                           if not method_registry.is_external(pid) and "skipped" not in rec]
                 for lr in base.lights}
     computed = {k: v for k, v in computed.items() if v}
-    refine = np.zeros((H, W), bool)
-    full = np.zeros((H, W), bool)         # refined on the full grid (geometry, hard shadow edges)
-    if taps.size and flt.threshold < 0:
-        refine[:] = True                  # every pixel: the full supersampled pass (bench, tests)
-        full[:] = True
-    elif taps.size:
-        values = [lr.passes[pid] for lr in base.lights for pid in computed.get(lr.name, ())]
-        stack = np.ascontiguousarray(np.stack(values) if values else np.zeros((0, H, W), np.float32),
-                                     np.float32)
-        if flt.v_test not in V_TESTS:
-            raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
-        refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
-                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full)
-    rows, cols = footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
-    sub_scene = dataclasses.replace(scene, resolution=(s * W, s * H))
+    if flt.v_test not in V_TESTS:
+        raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
+    # the geometry's own footprints (coverage), then each light's (geometry and its passes' V)
+    geo = _refined(flt, g, np.zeros((0, H, W), np.float32), taps.size > 0)
+    own = {name: _refined(flt, g, [lr.passes[pid] for pid in computed[name]], taps.size > 0)
+           for lr in base.lights for name in [lr.name] if name in computed}
+    SW, SH = s * W, s * H
+    samples = {name: footprint_samples(ref, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
+               for name, (ref, full) in [("", geo)] + list(own.items())}
+    flat = {name: rows * SW + cols for name, (rows, cols) in samples.items()}
+    union = np.unique(np.concatenate(list(flat.values()))) if flat else np.zeros(0, np.int64)
+    sub_scene = dataclasses.replace(scene, resolution=(SW, SH))
     tg = time.perf_counter()
-    sub_g = raycast.camera_gbuffer_at(sub_scene, s * W, s * H, cols, rows, buffers.camera_scene, packed=True)
+    sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
+                                      packed=True)
     tg = time.perf_counter() - tg
-    subs = []
-    if computed and len(rows):
-        sub_passes = list(dict.fromkeys(pid for v in computed.values() for pid in v))
-        packed = [p for p in sub_passes if method_registry.producer_of(p).id in PACKED_PRODUCERS]
-        dense = [p for p in sub_passes if p not in packed]
-        for group, gb in ((packed, sub_g), (dense, None)):
-            if group:
-                gb = gb or raycast.unpack_gbuffer(sub_g, s * W, s * H)
-                subs.append(render_frame(sub_scene, group, list(computed), options.get("overrides"),
-                                         options.get("method_overrides"),
-                                         buffers=buffers.supersampled(sub_scene, s * W, s * H, gb, tg)))
-    stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
-             "subpixel_receivers": int(sub_g.hit.sum())}
-    setup_s = time.perf_counter() - t0
+    setup_s = time.perf_counter() - t0 - tg
     for lr in base.lights:
-        _resolve_light(scene, flt, lr, computed.get(lr.name, ()), subs, sub_g, buffers, refine, rows, cols,
-                       stats, setup_s)
-    base.coverage = coverage(flt, refine, g.hit, rows, cols, sub_g.hit)
+        if lr.name not in computed:
+            continue
+        t1 = time.perf_counter()
+        refine, full = own[lr.name]
+        rows, cols = samples[lr.name]
+        at = np.searchsorted(union, flat[lr.name])          # the light's samples in the traced union
+        g_l = _take(sub_g, at)
+        subs = []
+        packed = [p for p in computed[lr.name] if method_registry.producer_of(p).id in PACKED_PRODUCERS]
+        dense = [p for p in computed[lr.name] if p not in packed]
+        share = tg * len(at) / max(1, len(union))          # the light's share of the sub-pixel G-buffer
+        for group, gb in ((packed, g_l), (dense, None)):
+            if group and len(at):
+                gb = gb or raycast.unpack_gbuffer(g_l, SW, SH)
+                subs.append(render_frame(sub_scene, group, [lr.name], options.get("overrides"),
+                                         options.get("method_overrides"),
+                                         buffers=buffers.supersampled(sub_scene, SW, SH, gb, share)))
+        stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
+                 "subpixel_receivers": int(g_l.hit.sum())}
+        overhead = setup_s / max(1, len(computed)) + time.perf_counter() - t1
+        _resolve_light(scene, flt, lr, computed[lr.name], subs, g_l, buffers, refine, rows, cols, stats,
+                       overhead)
+    rows, cols = samples[""]
+    base.coverage = coverage(flt, geo[0], g.hit, rows, cols, _take(sub_g, np.searchsorted(union, flat[""])).hit)
     base.pixel_filter = flt.to_json()
     base.total_s += time.perf_counter() - t0
     return base
+
+
+def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool):
+    """(refine, full) bool[H, W] of ``refine_mask`` for the pixel-centre
+    passes ``values`` (none: the geometry alone); nothing refined when the
+    filter is narrower than the sub-sample spacing; everything (full grid)
+    for ``threshold`` < 0 (the full supersampled pass: bench, tests)."""
+    H, W = g.shape
+    refine = np.zeros((H, W), bool)
+    full = np.zeros((H, W), bool)
+    if any_taps and flt.threshold < 0:
+        refine[:] = True
+        full[:] = True
+    elif any_taps:
+        stack = np.ascontiguousarray(np.stack(values) if len(values) else np.zeros((0, H, W)), np.float32)
+        refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
+                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full)
+    return refine, full
+
+
+def _take(g: GBuffer, at: np.ndarray) -> GBuffer:
+    """Entries ``at`` of the packed G-buffer ``g`` (a packed G-buffer)."""
+    return GBuffer(position=g.position[:, at], normal=g.normal[:, at], depth=g.depth[:, at],
+                   object_id=g.object_id[:, at], triangle_id=g.triangle_id[:, at], hit=g.hit[:, at],
+                   pixel=g.pixel[at])
 
 
 def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, subs: Sequence[FrameResult], sub_g: GBuffer,
@@ -162,6 +195,6 @@ def _unshadowed(sub_g: GBuffer, light, seed, scale: float) -> np.ndarray:
     if len(idx):
         P = sub_g.position.reshape(-1, 3)[idx]
         N = sub_g.normal.reshape(-1, 3)[idx].astype(np.float64)
-        out[idx] = unshadowed_irradiance(P, N, idx, light, 1 if light.is_zero_size else E0_SAMPLES,
+        out[idx] = unshadowed_irradiance(P, N, sub_g.seed_ids(idx), light, 1 if light.is_zero_size else E0_SAMPLES,
                                          int(seed or 0), scale)
     return out

@@ -321,3 +321,32 @@ def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
     assert np.array_equal(np.nonzero(full[2])[0], [11, 12, 19, 20])
     assert PixelFilter("blackman-harris", 1.5).shade_step == 2
     assert PixelFilter("blackman-harris", 1.5, shade_grid=4).shade_step == 1    # the first version
+
+
+def test_each_light_gets_its_own_sub_pixel_samples():
+    """Two lights whose penumbrae fall on different sides of a box: each
+    light is refined where its own passes (and the geometry) need it, so a
+    light's filtered pass is the one it gets when filtered alone, bit for bit
+    (the sub-pixel receivers draw their samples by their own sub-pixel), and
+    the JSON's counts are the light's own."""
+    from synthetic import light_matrix
+    west = dataclasses.replace(area_light(1.2, z=3.0, name="West"), world_from_light=light_matrix((-2.0, 0, 3.0)))
+    east = dataclasses.replace(area_light(0.4, z=3.0, name="East"), world_from_light=light_matrix((2.0, 0, 3.0)))
+    tris = quad(-3, 3, -3, 3, 0.0) + box(-0.5, 0.5, -0.5, 0.5, 0.4, 0.9)
+    sc = make_scene(tris, [0, 0] + [1] * 12, [west, east], res=40,
+                    camera=persp_camera((0.0, -3.0, 4.0), (0.0, 0.0, 0.3)))
+    flt = PixelFilter("blackman-harris", 1.5)
+    passes = ["pcf", "embree", "embree_irr"]
+    both = render_filtered(sc, passes, overrides={"samples": 16}, pixel_filter=flt)
+    stats = {}
+    for lr in both.lights:
+        alone = render_filtered(sc, passes, [lr.name], overrides={"samples": 16}, pixel_filter=flt).lights[0]
+        for pid in passes:
+            assert np.array_equal(lr.passes[pid], alone.passes[pid]), (lr.name, pid)
+            assert lr.record[pid]["pixel_filter"] == alone.record[pid]["pixel_filter"], (lr.name, pid)
+        stats[lr.name] = lr.record["pcf"]["pixel_filter"]
+    w, e = stats["West"], stats["East"]
+    assert w["refined_pixels"] != e["refined_pixels"] and w["subpixel_samples"] != e["subpixel_samples"]
+    geometry_only = render_filtered(sc, ["pcf"], ["West"], overrides={"samples": 16},
+                                    pixel_filter=dataclasses.replace(flt, threshold=2.0)).lights[0]
+    assert min(w["refined_pixels"], e["refined_pixels"]) > geometry_only.record["pcf"]["pixel_filter"]["refined_pixels"]
