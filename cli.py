@@ -118,9 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--samples", type=_positive("--samples", 1, 65536), default=None,
                    help="light samples per pixel for sampling methods")
     r.add_argument("--seed", type=_positive("--seed", 0, 2**31 - 1), default=0)
-    r.add_argument("--pixel-filter", type=_pixel_filter, default="none",
-                   help="none (one receiver per pixel centre, the default), scene (the scene's "
-                        "render filter), box:W, gaussian:W or blackman-harris:W (W in pixels)")
+    r.add_argument("--pixel-filter", type=_pixel_filter, default="scene",
+                   help="scene (the default: filtered like the scene's render, Cycles' pixel filter "
+                        "or EEVEE's filter size), none (one receiver per pixel centre), box:W, "
+                        "gaussian:W or blackman-harris:W (W in pixels)")
     r.add_argument("--map-size", type=_positive("--map-size", 8, MAX_SIDE), default=None,
                    help="light depth-map resolution (larger side)")
     r.add_argument("--threads", type=_positive("--threads", 1, 1024), default=None)

@@ -18,13 +18,13 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass
-from typing import Dict, FrozenSet, Iterable, Optional, Set, Tuple
+from typing import Callable, Dict, FrozenSet, Iterable, Optional, Set, Tuple
 
 import numba
 import numpy as np
 
 from . import raycast, views
-from .methods.base import GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES
+from .methods.base import GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES, params_dict
 from .scene import GBuffer, Light, LightView, Scene
 from .sampling import scene_scale
 
@@ -56,7 +56,7 @@ NEED_PHASE: Dict[str, str] = {
     LIGHT_SAMPLE_VIEWS: "bvh",      # sample views are the method's own work, on the shared BVH
 }
 #: the frame's inputs (not buffers): every method sees them
-FRAME_INPUTS = ("scene", "width", "height", "map_size", "scale")
+FRAME_INPUTS = ("scene", "width", "height", "map_size", "scale", "frame_memo")
 
 
 class UndeclaredBufferError(RuntimeError):
@@ -93,6 +93,7 @@ class FrameBuffers:
         self._bvh_key: Dict[str, str] = {}        # light -> key of the BVH its shadow rays use
         self.culling: Dict[str, Dict[str, int]] = {}
         self._results: Dict[tuple, object] = {}   # ``result_key`` -> a method's MethodResult
+        self._memo: Dict[tuple, object] = {}      # ``frame_memo``: shared with the sub-pixel stage
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
@@ -111,7 +112,19 @@ class FrameBuffers:
         sub._shadow, sub._camera_scene = self._shadow, self._camera_scene
         sub._shadow_triangles = self._shadow_triangles
         sub._views = dict(self._views)
+        sub._memo = self._memo
         return sub
+
+    def frame_memo(self, tag: str, light: Light, params, build: Callable[[], object]):
+        """A method's own light-space precompute (layered's LDI,
+        depth_raytrace's reference maps) for ``light`` and ``params``: built
+        once per frame, from the pixel-centre stage's receivers, and shared
+        with its sub-pixel stage (``supersampled``), which shades other
+        receivers with the same maps: billed where it was built."""
+        key = (tag,) + self.result_key(light, tag, params_dict(params))
+        if key not in self._memo:
+            self._memo[key] = build()
+        return self._memo[key]
 
     def adopt(self, prev: "FrameBuffers") -> None:
         """Take over what ``prev`` built for the same camera and geometry:

@@ -43,23 +43,30 @@ from .warmup import ensure_filter_compiled
 E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
 
 
-#: producers that run on a packed G-buffer of the sub-pixel receivers (their
-#: kernels work per receiver point: embree, penumbra_casting; pcf per pixel
-#: with the camera footprint at each receiver's own sub-pixel, ``GBuffer.pixel``);
-#: the others run on the supersampled image (its other pixels empty)
-PACKED_PRODUCERS = frozenset({"embree", "pcf", "penumbra_casting"})
+#: producers that run on a packed G-buffer of the sub-pixel receivers: every
+#: core method shades each receiver point on its own (pcf with the camera
+#: footprint at the receiver's own sub-pixel, ``GBuffer.pixel``; single_sample
+#: without its adaptive image walk; layered and depth_raytrace on the maps the
+#: pixel-centre stage built, ``FrameBuffers.frame_memo``); a producer left out
+#: runs on the supersampled image (its other pixels empty)
+PACKED_PRODUCERS = frozenset({"embree", "pcf", "penumbra_casting", "single_sample", "layered", "irregular",
+                              "depth_raytrace"})
 
 
 def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
                     pixel_filter: Optional[PixelFilter] = None, **options) -> FrameResult:
     """``frame.render_frame(scene, passes, light_names, **options)`` with the
     passes filtered by ``pixel_filter`` (None or ``none``: exactly
-    ``render_frame``). Each light gets its own sub-pixel samples: the
-    footprints its passes need refined (``refine_mask`` on its passes and the
-    geometry); the G-buffer is traced once at their union."""
+    ``render_frame``). Each light's producer (a method with its passes) gets
+    its own sub-pixel samples, the footprints that the geometry or its own
+    pixel-centre passes need refined (``refine_mask``), so a method's
+    filtered pass does not depend on what else the frame computes; the
+    G-buffer is traced once at the union of them all."""
     flt = pixel_filter or PixelFilter()
     if flt.is_none:
         return render_frame(scene, passes, light_names, **options)
+    if flt.v_test not in V_TESTS:
+        raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
     W, H = scene.resolution
     progress = options.get("progress")
     compile_s = ensure_filter_compiled(scene, flt, render_filtered,
@@ -70,53 +77,52 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     t0 = time.perf_counter()
     g = buffers.gbuffer
     s = int(flt.grid)
-    m0, taps = flt.taps()
-    computed = {lr.name: [pid for pid, rec in lr.record.items()
-                          if not method_registry.is_external(pid) and "skipped" not in rec]
-                for lr in base.lights}
-    computed = {k: v for k, v in computed.items() if v}
-    if flt.v_test not in V_TESTS:
-        raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
-    # the geometry's own footprints (coverage), then each light's (geometry and its passes' V)
-    geo = _refined(flt, g, np.zeros((0, H, W), np.float32), taps.size > 0)
-    own = {name: _refined(flt, g, [lr.passes[pid] for pid in computed[name]], taps.size > 0)
-           for lr in base.lights for name in [lr.name] if name in computed}
     SW, SH = s * W, s * H
-    samples = {name: footprint_samples(ref, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
-               for name, (ref, full) in [("", geo)] + list(own.items())}
-    flat = {name: rows * SW + cols for name, (rows, cols) in samples.items()}
-    union = np.unique(np.concatenate(list(flat.values()))) if flat else np.zeros(0, np.int64)
+    m0, taps = flt.taps()
+    units = []                            # (light result, producer id, its computed passes)
+    for lr in base.lights:
+        by_producer: Dict[str, list] = {}
+        for pid, rec in lr.record.items():
+            if not method_registry.is_external(pid) and "skipped" not in rec:
+                by_producer.setdefault(method_registry.producer_of(pid).id, []).append(pid)
+        units += [(lr, prod, pids) for prod, pids in by_producer.items()]
+    # the geometry's own footprints (coverage), then each unit's (geometry and its passes' V)
+    masks = [_refined(flt, g, [], taps.size > 0)]
+    masks += [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
+    samples = [footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
+               for refine, full in masks]
+    flat = [rows * SW + cols for rows, cols in samples]
+    union = np.unique(np.concatenate(flat))
     sub_scene = dataclasses.replace(scene, resolution=(SW, SH))
     tg = time.perf_counter()
     sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
                                       packed=True)
     tg = time.perf_counter() - tg
-    setup_s = time.perf_counter() - t0 - tg
-    for lr in base.lights:
-        if lr.name not in computed:
-            continue
+    setup_s = time.perf_counter() - t0 - tg       # refine masks, footprints, union
+    overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
+    for i, (lr, prod, pids) in enumerate(units, start=1):
         t1 = time.perf_counter()
-        refine, full = own[lr.name]
-        rows, cols = samples[lr.name]
-        at = np.searchsorted(union, flat[lr.name])          # the light's samples in the traced union
-        g_l = _take(sub_g, at)
-        subs = []
-        packed = [p for p in computed[lr.name] if method_registry.producer_of(p).id in PACKED_PRODUCERS]
-        dense = [p for p in computed[lr.name] if p not in packed]
-        share = tg * len(at) / max(1, len(union))          # the light's share of the sub-pixel G-buffer
-        for group, gb in ((packed, g_l), (dense, None)):
-            if group and len(at):
-                gb = gb or raycast.unpack_gbuffer(g_l, SW, SH)
-                subs.append(render_frame(sub_scene, group, [lr.name], options.get("overrides"),
-                                         options.get("method_overrides"),
-                                         buffers=buffers.supersampled(sub_scene, SW, SH, gb, share)))
+        at = np.searchsorted(union, flat[i])      # the unit's samples in the traced union
+        g_u = _take(sub_g, at)
+        sub_lr, sub_s = None, 0.0
+        if len(at):
+            gb = g_u if prod in PACKED_PRODUCERS else raycast.unpack_gbuffer(g_u, SW, SH)
+            t2 = time.perf_counter()
+            sub = render_frame(sub_scene, pids, [lr.name], overrides, method_overrides,
+                               buffers=buffers.supersampled(sub_scene, SW, SH, gb, tg * len(at) / len(union)))
+            sub_s = time.perf_counter() - t2
+            sub_lr = sub.lights[0] if sub.lights else None
+        refine = masks[i][0]
+        rows, cols = samples[i]
         stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
-                 "subpixel_receivers": int(g_l.hit.sum())}
-        overhead = setup_s / max(1, len(computed)) + time.perf_counter() - t1
-        _resolve_light(scene, flt, lr, computed[lr.name], subs, g_l, buffers, refine, rows, cols, stats,
-                       overhead)
-    rows, cols = samples[""]
-    base.coverage = coverage(flt, geo[0], g.hit, rows, cols, _take(sub_g, np.searchsorted(union, flat[""])).hit)
+                 "subpixel_receivers": int(g_u.hit.sum())}
+        own_s = setup_s / len(units) + time.perf_counter() - t1 - sub_s
+        _resolve_unit(scene, flt, lr, pids, sub_lr, g_u, buffers, refine, rows, cols, stats, own_s)
+    for lr in base.lights:
+        _errors(lr, buffers.reach(scene.light(lr.name)))   # the pixel-centre stage's mask, as its errors used
+    rows, cols = samples[0]
+    base.coverage = coverage(flt, masks[0][0], g.hit, rows, cols,
+                             _take(sub_g, np.searchsorted(union, flat[0])).hit)
     base.pixel_filter = flt.to_json()
     base.total_s += time.perf_counter() - t0
     return base
@@ -147,21 +153,22 @@ def _take(g: GBuffer, at: np.ndarray) -> GBuffer:
                    pixel=g.pixel[at])
 
 
-def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, subs: Sequence[FrameResult], sub_g: GBuffer,
-                   buffers: FrameBuffers, refine: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                   stats: Dict[str, int], setup_s: float) -> None:
-    """Filter light ``lr``'s computed passes ``pids`` in place from the
-    sub-pixel stages ``subs`` (packed passes, or supersampled images read at
-    the sub-samples (rows, cols)); record the filter, the sub-pixel sample
-    counts and the sub-pixel stage's time."""
-    sub_lrs = [x for sub in subs for x in sub.lights if x.name == lr.name]
+def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_lr, sub_g: GBuffer, buffers: FrameBuffers,
+                  refine: np.ndarray, rows: np.ndarray, cols: np.ndarray, stats: Dict[str, int],
+                  own_s: float) -> None:
+    """Filter light ``lr``'s passes ``pids`` (one producer's) in place from
+    the sub-pixel stage ``sub_lr`` (packed passes at ``sub_g``, or
+    supersampled images read at the sub-samples (rows, cols); None: nothing
+    to refine); record the filter, the sub-pixel sample counts and the
+    sub-pixel stage's time (``own_s``: the producer's share of the refine
+    masks, footprints and G-buffer lists)."""
     light = scene.light(lr.name)
     e0 = None
     for pid in pids:
         rec = lr.record[pid]
         t = time.perf_counter()
-        sub_lr = next((x for x in sub_lrs if pid in x.passes), None)
-        if sub_lr is not None:
+        sub_time = 0.0
+        if sub_lr is not None and pid in sub_lr.passes:
             weight = None
             if rec["visibility"] == IRRADIANCE:
                 if e0 is None:
@@ -172,15 +179,16 @@ def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, subs: Sequence[Fram
             lr.passes[pid] = np.clip(resolve_samples(flt, refine, lr.passes[pid], rows, cols, v, weight),
                                      0.0, 1.0).astype(np.float32)
             sub_time = sub_lr.record[pid]["time_s"]["total"]
-        else:
-            sub_time = 0.0
         phases = {k: v for k, v in rec["time_s"].items() if k != "total"}
-        phases["subpixel"] = round(sub_time + setup_s / max(1, len(pids)), 6)
+        phases["subpixel"] = round(sub_time + own_s / len(pids), 6)
         phases["resolve"] = round(time.perf_counter() - t, 6)
         phases["total"] = round(sum(phases.values()), 6)
         rec["time_s"] = phases
         rec["pixel_filter"] = {**flt.to_json(), **stats}
-    mask = buffers.reach(light)           # the pixel-centre stage's, as its errors used
+
+
+def _errors(lr, mask: np.ndarray) -> None:
+    """Light ``lr``'s errors again, on its filtered passes and references."""
     for pid in lr.record:
         ref = REFERENCE_FOR[lr.record[pid]["visibility"]]
         if "error" in lr.record[pid] and ref in lr.passes:

@@ -289,15 +289,25 @@ def test_adaptive_pass_is_the_full_supersampled_pass():
     assert np.array_equal(adaptive.coverage[~cov], full.coverage[~cov])
 
 
+PACKED = ["pcf", "embree", "penumbra_casting", "irregular", "layered", "depth_raytrace", "single_sample"]
+
+
 def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
-    """pcf on the packed sub-pixel receivers (its footprint and seed at each
-    receiver's own sub-pixel) is pcf on the supersampled image, bit for bit."""
+    """Every method on the packed sub-pixel receivers (pcf's footprint and
+    every seed at each receiver's own sub-pixel; layered's LDI and
+    depth_raytrace's reference maps those of the pixel-centre stage) is the
+    method on the supersampled image, bit for bit (single_sample without its
+    adaptive image walk, which a packed list cannot take)."""
     sc = _box_scene(24)
     flt = PixelFilter("blackman-harris", 1.5)
-    packed = render_filtered(sc, ["pcf"], pixel_filter=flt)
+    assert set(PACKED) == set(filtered_frame.PACKED_PRODUCERS)
+    opts = dict(overrides={"samples": 16}, method_overrides={"single_sample": {"adaptive": False}})
+    packed = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
     monkeypatch.setattr(filtered_frame, "PACKED_PRODUCERS", frozenset())
-    dense = render_filtered(sc, ["pcf"], pixel_filter=flt)
-    assert np.array_equal(packed.lights[0].passes["pcf"], dense.lights[0].passes["pcf"])
+    dense = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
+    for pid in PACKED:
+        assert np.array_equal(packed.lights[0].passes[pid], dense.lights[0].passes[pid]), pid
+        assert packed.lights[0].record[pid]["pixel_filter"]["subpixel_samples"] > 0, pid
     assert np.array_equal(packed.coverage, dense.coverage)
 
 
@@ -323,12 +333,12 @@ def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
     assert PixelFilter("blackman-harris", 1.5, shade_grid=4).shade_step == 1    # the first version
 
 
-def test_each_light_gets_its_own_sub_pixel_samples():
+def test_each_light_and_method_gets_its_own_sub_pixel_samples():
     """Two lights whose penumbrae fall on different sides of a box: each
-    light is refined where its own passes (and the geometry) need it, so a
-    light's filtered pass is the one it gets when filtered alone, bit for bit
-    (the sub-pixel receivers draw their samples by their own sub-pixel), and
-    the JSON's counts are the light's own."""
+    light's method is refined where the geometry and its own passes need it,
+    so its filtered pass is the one it gets when it is filtered alone (one
+    light, one method), bit for bit (the sub-pixel receivers draw their
+    samples by their own sub-pixel), and the JSON's counts are its own."""
     from synthetic import light_matrix
     west = dataclasses.replace(area_light(1.2, z=3.0, name="West"), world_from_light=light_matrix((-2.0, 0, 3.0)))
     east = dataclasses.replace(area_light(0.4, z=3.0, name="East"), world_from_light=light_matrix((2.0, 0, 3.0)))
@@ -340,11 +350,13 @@ def test_each_light_gets_its_own_sub_pixel_samples():
     both = render_filtered(sc, passes, overrides={"samples": 16}, pixel_filter=flt)
     stats = {}
     for lr in both.lights:
-        alone = render_filtered(sc, passes, [lr.name], overrides={"samples": 16}, pixel_filter=flt).lights[0]
-        for pid in passes:
-            assert np.array_equal(lr.passes[pid], alone.passes[pid]), (lr.name, pid)
-            assert lr.record[pid]["pixel_filter"] == alone.record[pid]["pixel_filter"], (lr.name, pid)
+        for group in (["pcf"], ["embree", "embree_irr"]):
+            alone = render_filtered(sc, group, [lr.name], overrides={"samples": 16}, pixel_filter=flt).lights[0]
+            for pid in group:
+                assert np.array_equal(lr.passes[pid], alone.passes[pid]), (lr.name, pid)
+                assert lr.record[pid]["pixel_filter"] == alone.record[pid]["pixel_filter"], (lr.name, pid)
         stats[lr.name] = lr.record["pcf"]["pixel_filter"]
+        assert stats[lr.name] != lr.record["embree"]["pixel_filter"]      # refined by its own V
     w, e = stats["West"], stats["East"]
     assert w["refined_pixels"] != e["refined_pixels"] and w["subpixel_samples"] != e["subpixel_samples"]
     geometry_only = render_filtered(sc, ["pcf"], ["West"], overrides={"samples": 16},
