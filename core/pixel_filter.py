@@ -182,6 +182,13 @@ class PixelFilter:
     def spec(self) -> str:
         return NONE if self.is_none else f"{self.kind}:{self.width:g}:{self.grid}"
 
+    def describe(self) -> str:
+        """One line for ``penumbra plan`` and ``render``'s table."""
+        if self.is_none:
+            return "none (one receiver at each pixel centre)"
+        return (f"{self.kind} {self.width:g} px ({self.grid} x {self.grid} sub-pixel receivers where a "
+                f"pixel's footprint holds an edge or a shadow edge; each pass gets an Alpha, the coverage)")
+
 
 def parse(spec: str, scene_filter: Optional[PixelFilter] = None) -> PixelFilter:
     """``none | scene | box:W | gaussian:W | blackman-harris:W`` (and

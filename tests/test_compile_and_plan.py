@@ -107,7 +107,8 @@ def test_plan_and_render_agree(tmp_path, capsys, scene):
     res = "48x40"
     capsys.readouterr()
     assert main(["plan", blend, "--resolution", res]) == 0             # default: auto
-    planned = _plan_lights(capsys.readouterr().out)
+    said = capsys.readouterr().out
+    planned = _plan_lights(said)
     assert main(["render", blend, "--out", str(tmp_path / "o"), "--resolution", res, "--samples", "4",
                  "--no-previews", "--quiet"]) == 0
     stem = os.path.splitext(os.path.basename(blend))[0]
@@ -115,6 +116,8 @@ def test_plan_and_render_agree(tmp_path, capsys, scene):
     rec = json.loads((tmp_path / "o" / frame).read_text())
     assert rec["plan"]["passes"] == ["auto"]
     assert planned == _render_lights(rec) and planned, stem
+    flt = rec["pixel_filter"]                                           # default: the scene's filter
+    assert f"pixel filter: {flt['type']} {flt['width_px']:g} px (" in said
     if scene == "unreached":
         assert planned["Away"] == ("skip", [])
         (lp,) = [lp for lp in rec["plan"]["lights"] if lp["name"] == "Away"]
