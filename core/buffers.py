@@ -104,7 +104,12 @@ class FrameBuffers:
         (built in ``seconds``; a packed one: the passes are packed too,
         ``shape``), sharing this frame's BVHs, shadow triangles and
         light views (fitted to the pixel-centre receivers; their build time is
-        billed to the pixel-centre stage) and its map size."""
+        billed to the pixel-centre stage), its map size and its receivers:
+        what is fitted to them (views, depth tolerances: ``light_extent``) is
+        the pixel-centre stage's, so a sub-pixel receiver is shaded as a pixel
+        centre there would be; their box grows to hold the sub-pixel
+        receivers (occluder culling keeps what can shadow them; the culled
+        BVHs are shared when it did not grow)."""
         sub = FrameBuffers(scene, width, height, self.map_size)
         sub._gbuffer = gbuffer
         sub.build_times["gbuffer"] = float(seconds)
@@ -113,6 +118,14 @@ class FrameBuffers:
         sub._shadow_triangles = self._shadow_triangles
         sub._views = dict(self._views)
         sub._memo = self._memo
+        pts, lo, hi = self._receiver_points()
+        P = gbuffer.position[gbuffer.hit]
+        if lo is not None and len(P):
+            slo, shi = np.minimum(lo, P.min(0)), np.maximum(hi, P.max(0))
+            sub._receivers = (pts, slo, shi)
+            if np.array_equal(slo, lo) and np.array_equal(shi, hi):
+                sub._culled, sub._bvh_key = dict(self._culled), dict(self._bvh_key)
+                sub.culling = dict(self.culling)
         return sub
 
     def frame_memo(self, tag: str, light: Light, params, build: Callable[[], object]):

@@ -86,13 +86,20 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
             if not method_registry.is_external(pid) and "skipped" not in rec:
                 by_producer.setdefault(method_registry.producer_of(pid).id, []).append(pid)
         units += [(lr, prod, pids) for prod, pids in by_producer.items()]
-    # the geometry's own footprints (coverage), then each unit's (geometry and its passes' V)
-    masks = [_refined(flt, g, [], taps.size > 0)]
-    masks += [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
+    # each unit's footprints (the geometry's and its passes' V); the coverage's are those
+    # of the pixels beside a change of hit, which every unit refines on the full grid (the
+    # geometry's own when there is no unit)
+    masks = [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
+    if not units:
+        masks = [_refined(flt, g, [], taps.size > 0)]
     samples = [footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
                for refine, full in masks]
     flat = [rows * SW + cols for rows, cols in samples]
-    union = np.unique(np.concatenate(flat))
+    traced = np.zeros(SH * SW, bool)      # the union of every list: one flag per sub-pixel
+    for f in flat:
+        traced[f] = True
+    union = np.flatnonzero(traced)
+    del traced
     sub_scene = dataclasses.replace(scene, resolution=(SW, SH))
     tg = time.perf_counter()
     sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
@@ -100,10 +107,10 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     tg = time.perf_counter() - tg
     setup_s = time.perf_counter() - t0 - tg       # refine masks, footprints, union
     overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
-    for i, (lr, prod, pids) in enumerate(units, start=1):
+    for i, (lr, prod, pids) in enumerate(units):
         t1 = time.perf_counter()
         at = np.searchsorted(union, flat[i])      # the unit's samples in the traced union
-        g_u = _take(sub_g, at)
+        g_u = sub_g if len(at) == len(union) else _take(sub_g, at)    # the whole union: itself
         sub_lr, sub_s = None, 0.0
         if len(at):
             gb = g_u if prod in PACKED_PRODUCERS else raycast.unpack_gbuffer(g_u, SW, SH)
@@ -121,8 +128,9 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     for lr in base.lights:
         _errors(lr, buffers.reach(scene.light(lr.name)))   # the pixel-centre stage's mask, as its errors used
     rows, cols = samples[0]
-    base.coverage = coverage(flt, masks[0][0], g.hit, rows, cols,
-                             _take(sub_g, np.searchsorted(union, flat[0])).hit)
+    edges = hit_edges(g.hit, flt.reach) if taps.size else np.zeros((H, W), bool)
+    first_hit = sub_g.hit[0] if len(samples) == 1 else _take(sub_g, np.searchsorted(union, flat[0])).hit
+    base.coverage = coverage(flt, edges, g.hit, rows, cols, first_hit)
     base.pixel_filter = flt.to_json()
     base.total_s += time.perf_counter() - t0
     return base
@@ -144,6 +152,20 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool):
         refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
                     DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full)
     return refine, full
+
+
+def hit_edges(hit: np.ndarray, reach: int) -> np.ndarray:
+    """bool[H, W]: pixels with a neighbour within ``reach`` (in the frame)
+    whose centre sees a surface where theirs sees the world, or the other way
+    round: ``refine_mask``'s first geometry test, which puts them on the full
+    grid in every producer's list."""
+    H, W = hit.shape
+    pad = np.pad(hit, reach, mode="edge")       # beyond the frame: the border pixel again, no edge
+    out = np.zeros((H, W), bool)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            out |= pad[reach + dy:reach + dy + H, reach + dx:reach + dx + W] != hit
+    return out
 
 
 def _take(g: GBuffer, at: np.ndarray) -> GBuffer:

@@ -362,3 +362,30 @@ def test_each_light_and_method_gets_its_own_sub_pixel_samples():
     geometry_only = render_filtered(sc, ["pcf"], ["West"], overrides={"samples": 16},
                                     pixel_filter=dataclasses.replace(flt, threshold=2.0)).lights[0]
     assert min(w["refined_pixels"], e["refined_pixels"]) > geometry_only.record["pcf"]["pixel_filter"]["refined_pixels"]
+
+
+def test_hit_edges_are_the_full_grid_pixels_of_a_change_of_hit():
+    """The coverage reads the pixels beside a change of hit: exactly those
+    ``refine_mask`` puts on the full grid for one flat surface, whatever the
+    producer's V (so every producer's list holds their whole footprints)."""
+    rng = np.random.default_rng(3)
+    for reach in (1, 2):
+        H, W = 9, 13
+        hit = rng.random((H, W)) > 0.4
+        out, full = np.zeros((H, W), bool), np.zeros((H, W), bool)
+        refine_mask(hit, np.zeros((H, W), np.int32), np.ones((H, W), np.float32),
+                    np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)),
+                    rng.random((1, H, W)).astype(np.float32), reach, 0.1, DEPTH_JUMP, NORMAL_COS, True, out,
+                    0.2, full)
+        edges = filtered_frame.hit_edges(hit, reach)
+        assert np.array_equal(edges, full & _hit_change(hit, reach)) and np.array_equal(edges, _hit_change(hit, reach))
+
+
+def _hit_change(hit, reach):
+    H, W = hit.shape
+    out = np.zeros_like(hit)
+    for r in range(H):
+        for c in range(W):
+            win = hit[max(0, r - reach):r + reach + 1, max(0, c - reach):c + reach + 1]
+            out[r, c] = (win != hit[r, c]).any()
+    return out
