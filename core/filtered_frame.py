@@ -92,7 +92,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     masks = [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
     if not units:
         masks = [_refined(flt, g, [], taps.size > 0)]
-    samples = [footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
+    samples = [footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
                for refine, full in masks]
     flat = [rows * SW + cols for rows, cols in samples]
     traced = np.zeros(SH * SW, bool)      # the union of every list: one flag per sub-pixel

@@ -89,10 +89,21 @@ class PixelFilter:
     sharp: float = DEFAULT_SHARP  # V's test beyond which a shadow edge gets the full grid
 
     @property
-    def shade_step(self) -> int:
-        """Sub-sample stride of the pixels refined for V alone (``shade_grid``)."""
+    def shade_lattice(self) -> np.ndarray:
+        """bool[grid]: the sub-rows (and sub-columns) of each pixel that the
+        pixels refined for V alone read: ``shade_grid`` of the ``grid``,
+        placed symmetrically about the pixel centre (each pixel's samples'
+        centroid is its centre, so a linear V is integrated exactly: the
+        first version's every ``grid / shade_grid``-th sub-row was not);
+        all of them when ``shade_grid`` does not divide ``grid`` or equals it."""
         g, v = int(self.grid), int(self.shade_grid)
-        return g // v if 0 < v < g and g % v == 0 else 1
+        keep = np.ones(g, np.bool_)
+        if 0 < v < g and g % v == 0:
+            keep[:] = False
+            for k in range((v + 1) // 2):
+                j = int(g * (k + 0.5) / v)
+                keep[j] = keep[g - 1 - j] = True
+        return keep
 
     @property
     def is_none(self) -> bool:
@@ -307,17 +318,17 @@ def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, n
 
 
 @njit(cache=True)
-def _footprint_rows(refine, full, grid, m0, k, step, count, rows, cols):
+def _footprint_rows(refine, full, grid, m0, k, lattice, count, rows, cols):
     """``footprint_samples``' kernel: per sub-row I the sub-columns some
     refined pixel's footprint reads (a refined pixel (r, c) reads sub-rows
     grid r + m0 ... + k - 1, the same for columns; one that is not ``full``
-    only every ``step``-th of them, those with I and J divisible by
-    ``step``); ``count`` only counts them (rows, cols unused), else they are
-    written in row-major order."""
+    only those of them with ``lattice[I % grid]`` and ``lattice[J % grid]``);
+    ``count`` only counts them (rows, cols unused), else they are written in
+    row-major order."""
     H, W = refine.shape
     SH, SW = grid * H, grid * W
     reads = np.zeros((H, SW), np.bool_)        # pixel row r reads sub-column J on every sub-row
-    sparse = np.zeros((H, SW), np.bool_)       # ... on the sub-rows divisible by step
+    sparse = np.zeros((H, SW), np.bool_)       # ... on the lattice's sub-rows
     for r in range(H):
         for c in range(W):
             if refine[r, c]:
@@ -326,7 +337,7 @@ def _footprint_rows(refine, full, grid, m0, k, step, count, rows, cols):
                     if 0 <= J < SW:
                         if full[r, c]:
                             reads[r, J] = True
-                        elif J % step == 0:
+                        elif lattice[J % grid]:
                             sparse[r, J] = True
     line = np.zeros(SW, np.bool_)
     n = 0
@@ -337,7 +348,7 @@ def _footprint_rows(refine, full, grid, m0, k, step, count, rows, cols):
         line[:] = reads[r0]
         for r in range(r0 + 1, r1 + 1):
             line |= reads[r]
-        if I % step == 0:
+        if lattice[I % grid]:
             for r in range(r0, r1 + 1):
                 line |= sparse[r]
         for J in range(SW):
@@ -350,19 +361,20 @@ def _footprint_rows(refine, full, grid, m0, k, step, count, rows, cols):
 
 
 def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int, full: Optional[np.ndarray] = None,
-                      step: int = 1):
+                      lattice: Optional[np.ndarray] = None):
     """(rows int64[N], cols int64[N]): the sub-samples (supersampled pixel
     (rows[n], cols[n])) some refined pixel's footprint (taps ``m0``, size
     ``k``) reads, row-major; a refined pixel that is not ``full`` (None:
-    all are) reads only the sub-samples whose row and column are divisible
-    by ``step`` (a ``grid / step`` lattice). No supersampled image is made."""
+    all are) reads only the sub-samples whose sub-row and sub-column within
+    their pixel the bool[grid] ``lattice`` keeps (``PixelFilter.shade_lattice``;
+    None: all). No supersampled image is made."""
     refine = np.ascontiguousarray(refine, np.bool_)
     full = refine if full is None else np.ascontiguousarray(full, np.bool_)
-    step = max(1, int(step))
+    lattice = np.ones(grid, np.bool_) if lattice is None else np.ascontiguousarray(lattice, np.bool_)
     empty = np.zeros(0, np.int64)
-    n = _footprint_rows(refine, full, grid, m0, k, step, True, empty, empty)
+    n = _footprint_rows(refine, full, grid, m0, k, lattice, True, empty, empty)
     rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
-    _footprint_rows(refine, full, grid, m0, k, step, False, rows, cols)
+    _footprint_rows(refine, full, grid, m0, k, lattice, False, rows, cols)
     return rows, cols
 
 

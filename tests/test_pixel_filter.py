@@ -210,20 +210,21 @@ def test_footprint_samples_are_the_union_of_the_refined_footprints():
         rows, cols = footprint_samples(refine, s, m0, k)
         wr, wc = np.nonzero(want)
         assert np.array_equal(rows, wr) and np.array_equal(cols, wc), flt
-        # pixels refined for V alone read every step-th sub-row and sub-column of their footprint
+        # pixels refined for V alone read the lattice's sub-rows and sub-columns of their footprint
         full = refine & (rng.random((H, W)) > 0.5)
-        for step in (2, s):
+        for shade in (1, 2, s):
+            lattice = dataclasses.replace(flt, shade_grid=shade).shade_lattice
             want = np.zeros((s * H, s * W), bool)
             for r, c in zip(*np.nonzero(refine)):
                 I = np.arange(s * r + m0, s * r + m0 + k)
                 J = np.arange(s * c + m0, s * c + m0 + k)
-                if not full[r, c]:
-                    I, J = I[I % step == 0], J[J % step == 0]
                 I, J = I[(I >= 0) & (I < s * H)], J[(J >= 0) & (J < s * W)]
+                if not full[r, c]:
+                    I, J = I[lattice[I % s]], J[lattice[J % s]]
                 want[np.ix_(I, J)] = True
-            rows, cols = footprint_samples(refine, s, m0, k, full, step)
+            rows, cols = footprint_samples(refine, s, m0, k, full, lattice)
             wr, wc = np.nonzero(want)
-            assert np.array_equal(rows, wr) and np.array_equal(cols, wc), (flt, step)
+            assert np.array_equal(rows, wr) and np.array_equal(cols, wc), (flt, shade)
 
 
 def test_reach_is_where_the_filter_tail_ends():
@@ -329,8 +330,14 @@ def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
                 True, out, 0.3, full)
     assert np.array_equal(np.nonzero(out[2])[0], [4, 8, 11, 12, 19, 20])
     assert np.array_equal(np.nonzero(full[2])[0], [11, 12, 19, 20])
-    assert PixelFilter("blackman-harris", 1.5).shade_step == 2
-    assert PixelFilter("blackman-harris", 1.5, shade_grid=4).shade_step == 1    # the first version
+    # the lattice: shade_grid sub-rows of the grid, symmetric about the pixel centre (its
+    # samples' centroid is the centre: a linear V is integrated exactly)
+    for grid, shade, want in ((4, 2, [1, 2]), (8, 2, [2, 5]), (8, 4, [1, 3, 4, 6]), (9, 3, [1, 4, 7]),
+                              (4, 4, [0, 1, 2, 3]), (4, 3, [0, 1, 2, 3])):
+        lat = PixelFilter("blackman-harris", 1.5, grid=grid, shade_grid=shade).shade_lattice
+        assert np.flatnonzero(lat).tolist() == want, (grid, shade)
+        offsets = (np.flatnonzero(lat) + 0.5) / grid - 0.5
+        assert abs(offsets.sum()) < 1e-12
 
 
 def test_each_light_and_method_gets_its_own_sub_pixel_samples():
