@@ -35,7 +35,7 @@ from .frame import REFERENCE_FOR, FrameResult, render_frame
 from .methods.base import IRRADIANCE
 from .methods.embree_ref import unshadowed_irradiance
 from .metrics import errors, reach_mask
-from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, V_TESTS, PixelFilter, coverage, footprint_samples,
+from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, V_TESTS, PixelFilter, coverage, footprint_flat,
                            refine_mask, resolve_samples)
 from .scene import GBuffer, Scene
 from .warmup import ensure_filter_compiled
@@ -92,9 +92,9 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     masks = [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
     if not units:
         masks = [_refined(flt, g, [], taps.size > 0)]
-    samples = [footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
-               for refine, full in masks]
-    flat = [rows * SW + cols for rows, cols in samples]
+    flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
+            for refine, full in masks]
+    samples = [(f // SW, f % SW) for f in flat]
     traced = np.zeros(SH * SW, bool)      # the union of every list: one flag per sub-pixel
     for f in flat:
         traced[f] = True
