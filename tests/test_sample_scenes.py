@@ -123,5 +123,8 @@ def test_embree_shows_a_real_shadow_through_the_cli(name, tmp_path):
     v = passes["embree"]
     assert v.shape == (64, 64) and np.isfinite(v).all()
     assert v.min() >= 0.0 and v.max() <= 1.0
-    assert (v < 0.5).mean() > 0.01                   # a real shadow, not a few stray pixels
+    # a real shadow, not a few stray pixels: its mass (which the default pixel filter
+    # keeps: the weights are normalised) and its extent (thin pillars' shadows are a
+    # pixel or two wide, so filtered they do not reach V < 0.5 everywhere)
+    assert (1.0 - v).mean() > 0.005 and (v < 0.9).mean() > 0.01
     assert (v > 0.99).mean() > 0.1                   # and lit ground around it

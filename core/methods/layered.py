@@ -1082,7 +1082,8 @@ class LayeredAttenuationMaps(Method):
         out = np.ones(H * W, np.float32)
         idx = np.flatnonzero(g.hit.reshape(-1))
         with timer("precompute"):
-            ldi = precompute(buffers, light, params) if len(idx) else None
+            ldi = buffers.frame_memo("layered.ldi", light, params,
+                                     lambda: precompute(buffers, light, params)) if len(idx) else None
         stats: Dict[str, object] = {"ldi": [0, 0, 0]}
         if ldi is not None:
             with timer("display"):

@@ -942,7 +942,8 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
     g = buffers.gbuffer
     H, W = g.shape
     out = np.ones(H * W, np.float64)
-    adaptive = resolved_adaptive(params)
+    adaptive = resolved_adaptive(params) and g.pixel is None   # the walk needs an image: a packed
+                                                               # G-buffer (sub-pixel receivers) is searched
     stats = {"searched": 0, "pixels": int(g.hit.sum()), "adaptive": adaptive,
              "searched_fraction": 0.0, "mean_search_radius_texels": 0.0, "clipped": 0,
              "texels_read": 0, "faces": 0, "map": [0, 0, 0], "hard_only": False}

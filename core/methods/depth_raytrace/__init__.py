@@ -539,11 +539,12 @@ class DepthRaytrace(Method):
             return MethodResult({"depth_raytrace": out_a.reshape(H, W),
                                  "depth_raytrace_irr": out_i.reshape(H, W)}, timer.result(), stats)
         with timer("order"):
-            order, tile_ptr = coherent_order(idx, W, params.tile)
+            gid = g.seed_ids(idx)             # pixels of the view (a packed G-buffer's sub-pixels)
+            order, tile_ptr = coherent_order(gid, buffers.width, params.tile)
             sel = idx[order]
             P = np.ascontiguousarray(g.position.reshape(-1, 3)[sel], np.float64)
             Nrm = np.ascontiguousarray(g.normal.reshape(-1, 3)[sel], np.float64)
-            pix = np.ascontiguousarray(sel, np.int64)
+            pix = np.ascontiguousarray(gid[order], np.int64)
             if params.reset_distance is not None:
                 tol = np.full(len(sel), float(params.reset_distance))
             else:
@@ -560,7 +561,8 @@ class DepthRaytrace(Method):
         elif params.tracer == "depth":
             if maps is None:
                 with timer("reference_maps"):
-                    maps = self.build_maps(buffers, light, params)
+                    maps = buffers.frame_memo("depth_raytrace.maps", light, params,
+                                              lambda: self.build_maps(buffers, light, params))
             stats["reference_faces"] = maps.face_count
             stats["reference_eyes"] = int(len(maps.eyes))
             stats["map_texels"] = maps.map_texels

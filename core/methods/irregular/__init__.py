@@ -478,7 +478,7 @@ class SoftIrregularShadowMapping(Method):
                                         bounds=buffers.scene.bounds())
         if mattes is not None:
             with timer("mattes"):
-                V = V * matte_visibility(mattes, P, Nrm, idx, light, buffers.scale)
+                V = V * matte_visibility(mattes, P, Nrm, g.seed_ids(idx), light, buffers.scale)
         out = np.ones(H * W, np.float32)
         out[idx] = V
         return MethodResult(passes={"irregular": out.reshape(H, W)}, time_s=timer.result(), stats=stats)

@@ -390,7 +390,7 @@ def prepare(buffers, light, params: PenumbraCastingParams) -> Setup:
         M, _ = min_rotations(Pg, L.centre, L.w0)
     else:
         M = np.zeros((1, 9))
-    set_id = assign_sets(idx, L.nsets, seed) if L.nsets > 1 else np.zeros(len(idx), np.int64)
+    set_id = assign_sets(g.seed_ids(idx), L.nsets, seed) if L.nsets > 1 else np.zeros(len(idx), np.int64)
     return Setup(idx, Pg, pts, set_id, M, L, seed, tol, eps)
 
 
