@@ -60,11 +60,13 @@ SWEEPS: Dict[str, List] = {
                       ("paper radius knobs", {"auto_radius": False}),
                       # the paper's one blocker per pixel on object ids (adaptive, section 4.3)
                       ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object"})],
-    # the default: splat "auto" (the paper's 4-neighbour splat; the footprint splat where a
-    # shadow caster has an alpha matte), ids = connected mesh pieces
+    # the default (issue 17): the footprint splat (4 neighbours on surfaces steeper than
+    # footprint_slope), ids = connected mesh pieces
     "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
                 ("bilinear", {"samples": 64, "bilinear": True}),
-                ("footprint splat", {"samples": 64, "splat": "footprint"}),
+                ("footprint splat everywhere", {"samples": 64, "footprint_slope": float("inf")}),
+                # the default from issue 18 to 17: footprint only where a caster has a matte
+                ("auto splat (footprint where mattes)", {"samples": 64, "splat": "auto"}),
                 ("paper: 4-neighbour splat, object ids", {"samples": 64, "splat": "neighbours", "surfaces": "object"})],
     "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
                        ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False}),
