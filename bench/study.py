@@ -53,13 +53,16 @@ SWEEPS: Dict[str, List] = {
             ("paper: figure-4 region, receiver_plane off", {"region": "figure4", "receiver_plane": False})],
     "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
     # the defaults (issue 17): every blocker texel's light summed, ids = connected mesh
-    # pieces, no adaptive sampling (section 4.3's interpolation is made for a ramp)
+    # pieces, no adaptive sampling (section 4.3's interpolation is made for a ramp), V x the
+    # light above the receiver's tangent plane (horizon)
     "single_sample": [("sum of blockers, mesh pieces", {}),
+                      ("sum of blockers, mesh pieces, no horizon", {"horizon": False}),
                       ("sum of blockers, mesh pieces, adaptive", {"adaptive": True}),
                       ("map 2x", {"map_scale": 2.0}),
                       ("paper radius knobs", {"auto_radius": False}),
                       # the paper's one blocker per pixel on object ids (adaptive, section 4.3)
-                      ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object"})],
+                      ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object",
+                                                                         "horizon": False})],
     # the default (issue 17): the footprint splat (4 neighbours on surfaces steeper than
     # footprint_slope), ids = connected mesh pieces
     "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
