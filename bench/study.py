@@ -74,7 +74,9 @@ SWEEPS: Dict[str, List] = {
     "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
                        ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False}),
                        # issue 17: the sun's reference windows fitted to the receivers (the first version)
-                       ("sun windows fitted to receivers", {"samples": 64, "fit_window": "receivers"}, ("sun",))],
+                       ("sun windows fitted to receivers", {"samples": 64, "fit_window": "receivers"}, ("sun",)),
+                       # issue 17: a sun's maps from map_scale alone (no 1024^2 minimum)
+                       ("sun maps from map_scale alone", {"samples": 64, "sun_min_map": 0}, ("sun",))],
     "penumbra_casting": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
                          ("samples=256", {"samples": 256}),
                          # the paper's per-triangle blockers (no coplanar polygons, no interior slices)
