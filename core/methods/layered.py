@@ -1026,36 +1026,15 @@ def precompute(buffers, light: Light, params: LayeredParams,
                 t = time.perf_counter()
                 consume(s, lv)
                 insert_s += time.perf_counter() - t
-    ctr, reach = _bounding(light, pts)
+    if light.kind == "sun":
+        axis = -light.direction
+        ctr, reach = axis, math.sin(light.sun_half_angle) + 1e-12
+    else:
+        ctr = light.position
+        reach = float(np.linalg.norm(pts - ctr, axis=1).max(initial=0.0)) * (1 + 1e-9) + 1e-300
     return LDI(centre, ldi_depth, ldi_span, ldi_count, ldi_n, N, eps, mode, by_n,
                np.ascontiguousarray(pts, np.float64), light.kind == "sun",
                np.asarray(ctr, np.float64), float(reach), render_s, insert_s)
-
-
-def _bounding(light: Light, pts: np.ndarray):
-    """(centre, reach) of the light points ``pts`` for ``horizon_kernel``:
-    their bounding sphere (sun: the mean direction and the sine of the cone's
-    half-angle)."""
-    if light.kind == "sun":
-        return -light.direction, math.sin(light.sun_half_angle) + 1e-12
-    ctr = light.position
-    return ctr, float(np.linalg.norm(pts - ctr, axis=1).max(initial=0.0)) * (1 + 1e-9) + 1e-300
-
-
-def horizon_fraction(light: Light, P: np.ndarray, Nrm: np.ndarray, samples: int, seed: int = 0) -> np.ndarray:
-    """float64[n]: the fraction of ``samples`` light points (this method's
-    light samples, ``sample_points``) above each point's tangent plane:
-    ``horizon_kernel`` for points P with normals Nrm, on worker threads."""
-    lp = sampling.pack_light(light)
-    pts = np.ascontiguousarray(sample_points(lp, sampling.light_sample_set(lp, samples, seed), seed))
-    ctr, reach = _bounding(light, pts)
-    ctr = np.asarray(ctr, np.float64)
-    P = np.ascontiguousarray(P, np.float64)
-    Nrm = np.ascontiguousarray(Nrm, np.float64)
-    out = np.empty(len(P), np.float64)
-    each_dealt_chunk(lambda idx: horizon_kernel(idx, P, Nrm, pts, light.kind == "sun", ctr, float(reach), out),
-                     len(P))
-    return out
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
