@@ -83,7 +83,9 @@ SWEEPS: Dict[str, List] = {
                          ("paper: triangles", {"samples": 64, "coplanar_blockers": False,
                                                "interior_blockers": False})],
     "irregular": [("silhouettes from centre", {}), ("overlap C=0 (paper)", {"overlap": "zero"}),
-                  ("silhouettes from light", {"silhouette_from": "light"})],
+                  ("silhouettes from light", {"silhouette_from": "light"}),
+                  # issue 17: V at most the light above the receiver's tangent plane (not the default)
+                  ("silhouettes from centre, horizon", {"horizon": True})],
 }
 
 

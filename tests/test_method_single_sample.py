@@ -580,7 +580,7 @@ def test_horizon_share_against_counted_light_points(make):
     """``horizon_share`` (closed forms) against the share of 40,000 points
     drawn uniformly over the light's domain (DESIGN.md: the area, the disk
     facing the point, the cone's solid angle) above random tangent planes."""
-    from penumbra.core.methods.single_sample import horizon_share
+    from penumbra.core.methods.horizon import horizon_share
     light = make()
     rng = np.random.default_rng(3)
     n = 40
