@@ -799,14 +799,9 @@ def test_horizon_switch_bounds_v_by_the_light_above_the_plane():
     0.789 (the reference agrees: its rays into the plane hit it). With the
     switch V is at most that share (here exactly it: nothing else casts);
     the default is the paper's and unchanged by it."""
+    from synthetic import lone_tilted_plane
     t = math.radians(60.0)
-    c, s = math.cos(t), math.sin(t)
-    tris = np.array(quad(-3.0, 3.0, -3.0, 3.0, 0.0), np.float64)
-    y, z = tris[..., 1].copy(), tris[..., 2].copy()
-    tris[..., 1], tris[..., 2] = c * y - s * z, s * y + c * z
-    cam = Camera(light_matrix((0.0, 0.0, 3.0)), kind="ORTHO", ortho_scale=1.0, clip_start=1e-3, clip_end=100.0)
-    scene = Scene(tris.astype(np.float32), np.zeros(2, np.int32), [ObjectInfo("tilted", 0)], cam,
-                  [area_light(size=8.0, z=4.0)], (24, 24))
+    scene = lone_tilted_plane(60.0, area_light(size=8.0, z=4.0), res=24)
     exact = (4.0 + 4.0 / math.tan(t)) / 8.0
     on, fb = run(scene, horizon=True)
     off, _ = run(scene)

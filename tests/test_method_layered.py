@@ -11,8 +11,8 @@ from penumbra.core.methods import layered as L
 from penumbra.core.methods.embree_ref import EmbreeReference
 from penumbra.core.metrics import errors, reach_mask
 from penumbra.core.scene import Light, ObjectInfo, Scene
-from synthetic import (area_light, half_plane_scene, light_matrix, pixel_world_y, quad, sphere_light,
-                       sun_light, top_ortho_camera)
+from synthetic import (area_light, half_plane_scene, light_matrix, lone_tilted_plane, pixel_world_y, quad,
+                       sphere_light, sun_light, top_ortho_camera)
 
 HL, HO = 4.0, 2.0     # light and occluder heights of half_plane_scene
 METHOD = L.LayeredAttenuationMaps()
@@ -206,22 +206,6 @@ def test_zero_size_light_is_the_hard_shadow(make, splat):
 
 # --------------------------------------------------------------------------
 # no self-shadowing
-def tilted_plane_scene(tilt_deg, light, res=64, size=3.0, view=0.5):
-    """A 2 size x 2 size plane through the origin tilted by ``tilt_deg``
-    about x, alone under the light, seen from above by an orthographic camera
-    over [-view, view]^2 (by default its middle only, edges out of view:
-    where an open surface ends, seen from the light, the paper's splat leaves
-    its border texels partly covered)."""
-    t = math.radians(tilt_deg)
-    c, s = math.cos(t), math.sin(t)
-    tris = np.array(quad(-size, size, -size, size, 0.0), np.float64)
-    y, z = tris[..., 1].copy(), tris[..., 2].copy()
-    tris[..., 1], tris[..., 2] = c * y - s * z, s * y + c * z
-    cam = top_ortho_camera(half=view, height=3.0)
-    return Scene(tris.astype(np.float32), np.zeros(2, np.int32), [ObjectInfo("tilted", 0)], cam, [light],
-                 (res, res))
-
-
 @pytest.mark.parametrize("tilt", [30.0, 60.0, 75.0])
 @pytest.mark.parametrize("make", [lambda: area_light(1.0, z=HL), lambda: sphere_light(0.5, z=HL),
                                   lambda: sun_light(0.1)])
@@ -232,7 +216,7 @@ def test_no_self_shadowing_on_tilted_receiver(tilt, make, splat):
     depth tolerance with depths compared at pixel centres keeps the plane in
     one layer."""
     light = make()
-    scene = tilted_plane_scene(tilt, light)
+    scene = lone_tilted_plane(tilt, light)
     r, fb = run_layered(scene, samples=64, splat=splat)
     v = r.passes["layered"]
     g = fb.gbuffer
@@ -255,7 +239,7 @@ def test_footprint_splat_covers_silhouettes(tilt, make):
     partly covered (V down to ~0.6 there); the footprint splat reaches 1.5
     steps past a silhouette, so every point of the plane is lit."""
     light = make()
-    scene = tilted_plane_scene(tilt, light, size=1.0, view=1.2)
+    scene = lone_tilted_plane(tilt, light, size=1.0, view=1.2)
     r, fb = run_layered(scene, samples=64, splat="footprint")
     v, g = r.passes["layered"], fb.gbuffer
     assert (~g.hit).any() and in_range(v)

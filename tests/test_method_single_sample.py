@@ -554,14 +554,9 @@ def test_horizon_closed_form_on_a_lone_tilted_plane(tilt):
     reference agrees (rays into the plane hit it). horizon=False (the paper:
     the id test, no self-shadowing) gives 1; horizon counts 64 stratified
     light points above the plane: within 1/16 of the closed form."""
+    from synthetic import lone_tilted_plane
     t = math.radians(tilt)
-    c, s = math.cos(t), math.sin(t)
-    tris = np.array(quad(-3.0, 3.0, -3.0, 3.0, 0.0), np.float64)
-    y, z = tris[..., 1].copy(), tris[..., 2].copy()
-    tris[..., 1], tris[..., 2] = c * y - s * z, s * y + c * z
-    cam = Camera(light_matrix((0.0, 0.0, 3.0)), kind="ORTHO", ortho_scale=1.0, clip_start=1e-3, clip_end=100.0)
-    scene = Scene(tris.astype(np.float32), np.zeros(2, np.int32), [ObjectInfo("tilted", 0)], cam,
-                  [area_light(size=8.0, z=4.0)], (32, 32))
+    scene = lone_tilted_plane(tilt, area_light(size=8.0, z=4.0), res=32)
     exact = (4.0 + 4.0 / math.tan(t)) / 8.0
     v, _, fb = run_ss(scene)
     off, _, _ = run_ss(scene, fb, horizon=False)
