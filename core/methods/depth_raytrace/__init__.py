@@ -80,7 +80,8 @@ Departures / choices, each documented where it is made:
     (penumbra 0.067 -> 0.020); ``fit_window="receivers"`` is the first
     version, bit for bit;
   * the maps of a sun with those windows are at least ``sun_min_map``
-    (1024, the paper's size, section 6) on a side (issue 17): the texel then
+    (1024, the paper's size, section 6) on a side, up to 4 x the map_scale
+    side (issue 17; the warm-up's 8-pixel run keeps 64-texel maps): the texel then
     follows the blockers' extent, not the output's pixels, and map_scale x a
     small output quantised the pillars' silhouettes into their penumbrae.
     ``sun_pillars`` 256 x 256, 256 samples, against 1024-sample ``embree``,
@@ -137,6 +138,9 @@ from .maps import ReferenceMaps, build_reference_maps
 from .trace import LN, MAXI, ReferenceImages, TraceScratch, TraceSwitches, trace_ray
 from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, SHADOW_TRIANGLES,
                    Method, MethodResult, PhaseTimer)
+
+
+SUN_MIN_MAP_REACH = 4     # sun_min_map raises a map side at most this many times
 
 
 @dataclass
@@ -520,14 +524,17 @@ def casters_box(casters, scale):
 def resolve_map_size(params: DepthRaytraceParams, W: int, H: int, light: Optional[Light] = None) -> int:
     """The reference maps' side: ``map_size``, else ``map_scale`` x the
     output's larger side -- for a sun whose windows hold only the blockers
-    (``fit_window="blockers"``) at least ``sun_min_map``: there the texel
-    follows the blockers' extent, not the output's pixels, and a small
-    output's maps quantised the pillars' silhouettes into the penumbra."""
+    (``fit_window="blockers"``) at least ``sun_min_map`` (up to
+    ``SUN_MIN_MAP_REACH`` times that side): there the texel follows the
+    blockers' extent, not the output's pixels, and a small output's maps
+    quantised the pillars' silhouettes into the penumbra."""
     if params.map_size:
         return int(params.map_size)
     side = max(8, int(round(float(params.map_scale) * max(W, H))))
     if light is not None and light.kind == "sun" and params.fit_window == "blockers":
-        side = max(side, int(params.sun_min_map))
+        # at most SUN_MIN_MAP_REACH x the map_scale side: a tiny output (the warm-up's
+        # 8 px) keeps tiny maps
+        side = max(side, min(int(params.sun_min_map), SUN_MIN_MAP_REACH * side))
     return side
 
 
