@@ -60,9 +60,10 @@ Beyond the paper (each switchable; the defaults marked):
     own pixels: 0.146 -> 0.047, the sphere's 0.145 -> 0.063.
   * ``splat="footprint"`` (default since issue 17; the paper's is
     ``"neighbours"``; ``"auto"``, the default before, takes footprint only
-    where a shadow caster has an alpha matte, see below): each sample pixel covers the LDI pixel
-    centres inside its warped footprint, the parallelogram spanned by half the
-    steps to its neighbours -- one pixel under an identity or pure-shift warp,
+    where a shadow caster has an alpha matte, see below): each sample pixel
+    covers the LDI pixel centres inside its warped footprint, the
+    parallelogram spanned by half the steps to its neighbours -- one pixel
+    under an identity or pure-shift warp,
     several where the warp magnifies -- and 1.5 steps past its object's
     silhouette (towards empty space or a surface behind it; never past an
     occluder in front), so the last texels of an open surface stay covered.
@@ -99,8 +100,8 @@ Beyond the paper (each switchable; the defaults marked):
     ground, RMSE 0.273 (bilinear display everywhere: 0.181), against 0.168
     with the paper's splat and display; now 0.164. On the six sample
     scenes it changes RMSE by under 0.001.
-  * ``splat="auto"`` (the default from issue 18 to 17): footprint when the shadow casters
-    carry alpha mattes (``TriangleScene.alpha``), neighbours otherwise (so
+  * ``splat="auto"`` (the default from issue 18 to 17): footprint when the
+    shadow casters carry alpha mattes (``TriangleScene.alpha``), neighbours otherwise (so
     scenes without mattes are as before). Mattes make one-texel gaps and
     occluders everywhere -- a chain-link fence's wires and holes, a leaf's
     tip, and the ordered dither (``alpha_rays.DITHER``) that keeps a surface
@@ -111,9 +112,10 @@ Beyond the paper (each switchable; the defaults marked):
     against 1024-sample embree): neighbours 0.081 RMSE (+0.014, too light),
     footprint 0.045 (0.032 with ``diagonals``); the same scene made opaque:
     0.047 / 0.023.
-  * ``diagonals`` (default: on where a shadow caster has an alpha matte): the surface gradient of a sample pixel with
-    no neighbour on its surface along an axis takes the diagonal neighbour
-    (the smaller depth step) instead. A line one texel wide running
+  * ``diagonals`` (default: on where a shadow caster has an alpha matte):
+    the surface gradient of a sample pixel with no neighbour on its surface
+    along an axis takes the diagonal neighbour (the smaller depth step)
+    instead. A line one texel wide running
     diagonally in the sample map (a chain-link wire, a thin stem) has no
     axis neighbour on it, got no gradient and no span, so its raw depths at
     the LDI pixel centres split into two or three layers on a surface
@@ -709,9 +711,10 @@ def display_kernel(idx, P, Nrm, cfaces, h, w, ldi_depth, ldi_span, ldi_count, ld
                    bilinear, plane, cos_min, max_slope, out, bi_slope):
     """Procedure Display, lines 2-5, for the points ``idx`` of P (normals
     Nrm); ``bilinear`` only on receivers no steeper than ``bi_slope``
-    (``_point_slope``; the nearest LDI pixel beyond). A serial ``nogil`` kernel run on worker threads by ``display``
-    (issue 15: a prange one's parfor lowering was most of its compile time),
-    its arguments ``kernels.borrowed``."""
+    (``_point_slope``; the nearest LDI pixel beyond). A serial ``nogil``
+    kernel run on worker threads by ``display`` (issue 15: a prange one's
+    parfor lowering was most of its compile time), its arguments
+    ``kernels.borrowed``."""
     P, Nrm, cfaces, ldi_depth, ldi_span, ldi_count, ldi_n, out = borrowed(
         (P, Nrm, cfaces, ldi_depth, ldi_span, ldi_count, ldi_n, out))
     for i in idx:
