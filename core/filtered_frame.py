@@ -92,7 +92,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     masks = [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
     if not units:
         masks = [_refined(flt, g, [], taps.size > 0)]
-    flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
+    flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice,
+                           flt.shade_footprint)
             for refine, full in masks]
     samples = [(f // SW, f % SW) for f in flat]
     traced = np.zeros(SH * SW, bool)      # the union of every list: one flag per sub-pixel
