@@ -172,3 +172,50 @@ def test_merge_on_the_solids_mesh_equals_the_merge_from_scratch():
     b = coplanar_blockers(tris[sel], mesh=sub_mesh(s.mesh, sel))
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
+
+
+_CLOSED_SOLID_COMPILES = r"""
+import json, sys
+from numba.core import event
+from penumbra.bench.scaling import smooth_sphere_scene
+from penumbra.core import warmup
+from penumbra.core.frame import render_frame
+
+inside, outside = [], []
+
+def in_warm_up():
+    owned = getattr(warmup._lock, "_is_owned", None)
+    if owned is not None and owned():
+        return True
+    if warmup._lock.acquire(blocking=False):
+        warmup._lock.release()
+        return False
+    return True
+
+class Compiles(event.Listener):
+    def on_start(self, ev):
+        (inside if in_warm_up() else outside).append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Compiles())
+render_frame(smooth_sphere_scene(2000, (16, 16)), ["penumbra_casting"], overrides={"samples": 4})
+print(json.dumps({"inside": inside, "outside": outside}))
+"""
+
+
+def test_a_closed_solid_compiles_nothing_outside_the_warm_up(tmp_path):
+    """Issue 15: the warm-up's scene (two quads) has no closed solid; on a
+    fresh Numba cache the slicing kernels (``cores``) a real scene's closed
+    mesh needs still compile inside the warm-up, not in the method's time."""
+    import json
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=str(tmp_path / "cache"))
+    env.pop("NUMBA_CACHE_DIR", None)
+    p = subprocess.run([sys.executable, "-c", _CLOSED_SOLID_COMPILES], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    seen = json.loads(p.stdout.strip().splitlines()[-1])
+    assert "_components" in seen["inside"] and "_slice_loop" in seen["inside"], seen["inside"]
+    assert seen["outside"] == [], seen["outside"]
