@@ -1,5 +1,8 @@
 """The per-triangle traversal of hierarchical penumbra casting (Laine & Aila
-2005, figures 2 and 3) as one Numba kernel with an explicit stack.
+2005, figures 2 and 3) as one Numba kernel with an explicit stack, built once
+per way of testing line 70 (``cast_chunk_for``: sample words, the paper's
+V_li planes, the reference's own samples), so that a cold start compiles
+only the helpers of its own.
 
 ``cast_chunk`` processes blocker triangles ``tri_sel[t0:]`` against one
 receiver hierarchy and returns where it stopped: at the end, or where
