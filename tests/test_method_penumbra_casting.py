@@ -459,7 +459,7 @@ def test_sah_key_order_is_numpys_stable_argsort(c):
     rng = np.random.default_rng(c)
     for keys in (rng.integers(0, 4, 1024).astype(float), rng.normal(0, 1, 1024), np.zeros(1024)):
         order, tmp = np.empty(1024, np.int64), np.empty(1024, np.int64)
-        _stable_order(keys, c, order, tmp)
+        _stable_order(keys, c, order, tmp, np.empty(1024), np.empty(1024))
         assert np.array_equal(order[:c], np.argsort(keys[:c], kind="mergesort"))
 
 

@@ -44,16 +44,33 @@ def _grow_boxes(a, cap):
     return b
 
 
+_RUN = 16          # ``_stable_order``: runs insertion-sorted before the merges
+
+
 @njit(cache=True)
-def _stable_order(keys, c, order, tmp):
+def _stable_order(keys, c, order, tmp, kb, kt):
     """``order[:c]`` = the stable ascending order of ``keys[:c]`` (what
     ``np.argsort(keys[:c], kind="mergesort")`` gives: ties keep their index
-    order), by a bottom-up merge sort into ``tmp``. Its own few lines compile
-    in a fraction of Numba's argsort (issue 15)."""
+    order): insertion-sorted runs of ``_RUN``, then bottom-up merges, the
+    keys carried along in ``kb`` / ``kt`` (buffers of at least ``c``). Its own
+    few lines compile in a fraction of Numba's argsort (issue 15)."""
     for k in range(c):
         order[k] = k
-    width = 1
-    src, dst = order, tmp
+        kb[k] = keys[k]
+    for lo in range(0, c, _RUN):
+        hi = min(lo + _RUN, c)
+        for i in range(lo + 1, hi):
+            kv = kb[i]
+            ov = order[i]
+            j = i - 1
+            while j >= lo and kb[j] > kv:           # strictly greater: ties stay in order
+                kb[j + 1] = kb[j]
+                order[j + 1] = order[j]
+                j -= 1
+            kb[j + 1] = kv
+            order[j + 1] = ov
+    width = _RUN
+    src, dst, ks, kd = order, tmp, kb, kt
     in_tmp = False
     while width < c:
         lo = 0
@@ -62,23 +79,28 @@ def _stable_order(keys, c, order, tmp):
             hi = min(lo + 2 * width, c)
             i, j, o = lo, mid, lo
             while i < mid and j < hi:
-                if keys[src[j]] < keys[src[i]]:     # strictly less: the left run wins ties (stable)
+                if ks[j] < ks[i]:                  # strictly less: the left run wins ties
                     dst[o] = src[j]
+                    kd[o] = ks[j]
                     j += 1
                 else:
                     dst[o] = src[i]
+                    kd[o] = ks[i]
                     i += 1
                 o += 1
             while i < mid:
                 dst[o] = src[i]
+                kd[o] = ks[i]
                 i += 1
                 o += 1
             while j < hi:
                 dst[o] = src[j]
+                kd[o] = ks[j]
                 j += 1
                 o += 1
             lo = hi
         src, dst = dst, src
+        ks, kd = kd, ks
         in_tmp = not in_tmp
         width *= 2
     if in_tmp:
@@ -112,6 +134,10 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
     keys = np.empty(max(1, min(n, midpoint_limit)))
     order = np.empty(keys.shape[0], np.int64)
     otmp = np.empty(keys.shape[0], np.int64)
+    kb = np.empty(keys.shape[0])
+    kt = np.empty(keys.shape[0])
+    best_order = np.empty(keys.shape[0], np.int64)
+    suf = np.empty(keys.shape[0] + 1)
     while sp > 0:
         sp -= 1
         node = st_node[sp]
@@ -175,9 +201,8 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
             for ax in range(3):
                 for k in range(c):
                     keys[k] = pts[perm[s + k], ax]
-                _stable_order(keys, c, order, otmp)
+                _stable_order(keys, c, order, otmp, kb, kt)
                 # suffix areas
-                suf = np.empty(c + 1)
                 sx0 = sy0 = sz0 = np.inf
                 sx1 = sy1 = sz1 = -np.inf
                 suf[c] = 0.0
@@ -206,11 +231,11 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
                         best = cost
                         best_ax = ax
                         best_k = k + 1
+                if best_ax == ax:                   # this axis's order is the split's (no fourth sort)
+                    for k in range(c):
+                        best_order[k] = order[k]
             for k in range(c):
-                keys[k] = pts[perm[s + k], best_ax]
-            _stable_order(keys, c, order, otmp)
-            for k in range(c):
-                otmp[k] = perm[s + order[k]]
+                otmp[k] = perm[s + best_order[k]]
             for k in range(c):
                 perm[s + k] = otmp[k]
             split = s + best_k
