@@ -151,7 +151,8 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool):
     elif any_taps:
         stack = np.ascontiguousarray(np.stack(values) if len(values) else np.zeros((0, H, W)), np.float32)
         refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
-                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full)
+                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full,
+                    float(flt.geo_v))
     return refine, full
 
 

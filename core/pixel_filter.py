@@ -61,6 +61,7 @@ DEFAULT_GRID = 4               # sub-pixel samples per axis where a pixel is ref
 MAX_GRID = 16
 DEFAULT_SHADE_GRID = 2         # sub-pixel samples per axis where only V is mildly not locally linear
 DEFAULT_SHARP = 0.2            # V's second difference beyond which a shadow edge gets the full grid
+DEFAULT_GEO_V = 0.02           # V's difference across a discontinuity of the geometry that refines it
 DEFAULT_THRESHOLD = 0.07       # V's second difference between pixel centres that marks a shadow edge
 V_TESTS = ("curvature", "variation")   # refine_mask's test of V (PixelFilter.v_test)
 EDGE_TAIL = 0.01               # PixelFilter.reach: an edge it misses moves a pixel by <= 1 % of the jump
@@ -87,6 +88,8 @@ class PixelFilter:
     shade_grid: int = DEFAULT_SHADE_GRID   # sub-samples per axis where only V's mild kinks need them;
                                            # must divide ``grid``; = grid: the first version (full grid)
     sharp: float = DEFAULT_SHARP  # V's test beyond which a shadow edge gets the full grid
+    geo_v: float = DEFAULT_GEO_V  # a discontinuity is refined where V differs across it by more
+                                  # than this (< 0: every discontinuity, the first version)
     shade_footprint: bool = False  # a pixel refined for V alone reads the lattice of its own pixel
                                    # (and of refined neighbours'); True: of its whole footprint
                                    # (the first version)
@@ -260,11 +263,14 @@ def from_render_settings(engine: str, cycles_type: Optional[str], cycles_width: 
 
 @njit(cache=True, parallel=True)
 def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out,
-                sharp, full):
+                sharp, full, geo_v):
     """out[r, c] = True where pixel (r, c)'s neighbours within ``reach``
-    differ from it in hit, object id, depth (relative ``depth_jump``) or
-    normal (cosine below ``normal_cos``), or where one of ``values[k]`` (the
-    pixel-centre passes) is not locally linear: ``curvature``: a second
+    differ from it in hit, or in object id, depth (relative ``depth_jump``)
+    or normal (cosine below ``normal_cos``) with one of ``values[k]`` (the
+    pixel-centre passes) differing by more than ``geo_v`` between the two
+    (a discontinuity V does not see changes no filtered pass; ``geo_v`` < 0:
+    every discontinuity, the first version), or where one of ``values[k]`` is
+    not locally linear: ``curvature``: a second
     difference V[p + d] + V[p - d] - 2 V[p] over a pair of opposite
     neighbours beyond ``threshold`` (a linear ramp across the footprint is
     integrated exactly by the centre sample of a symmetric normalised
@@ -290,13 +296,22 @@ def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, n
                     if hit[r, c] != hit[rr, cc]:
                         geo = True
                     elif hit[r, c]:
+                        edge = False
                         if obj[r, c] != obj[rr, cc]:
-                            geo = True
+                            edge = True
                         elif abs(depth[r, c] - depth[rr, cc]) > depth_jump * min(depth[r, c], depth[rr, cc]):
-                            geo = True
+                            edge = True
                         elif (normal[r, c, 0] * normal[rr, cc, 0] + normal[r, c, 1] * normal[rr, cc, 1]
                               + normal[r, c, 2] * normal[rr, cc, 2]) < normal_cos:
-                            geo = True
+                            edge = True
+                        if edge:
+                            if geo_v < 0.0:
+                                geo = True
+                            else:
+                                for k in range(values.shape[0]):
+                                    if abs(values[k, r, c] - values[k, rr, cc]) > geo_v:
+                                        geo = True
+                                        break
                     if geo:
                         continue
                     if curvature:

@@ -252,7 +252,7 @@ def _refined(values, curvature, threshold=0.02, reach=1):
     out, full = np.zeros((H, W), bool), np.ones((H, W), bool)
     refine_mask(np.ones((H, W), bool), np.zeros((H, W), np.int32), np.ones((H, W), np.float32),
                 np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)), values[None].astype(np.float32), reach,
-                threshold, DEPTH_JUMP, NORMAL_COS, curvature, out, np.inf, full)
+                threshold, DEPTH_JUMP, NORMAL_COS, curvature, out, np.inf, full, 0.02)
     assert not full.any()                                  # one surface, no sharp edge: the shade grid
     return out
 
@@ -318,10 +318,11 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
 
 
 def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
-    """refine_mask's ``full``: pixels beside another object, or at a jump of V
-    beyond ``sharp``, get the full sub-pixel grid; pixels flagged only for
-    V's mild kinks (a soft penumbra's ends, noise) get the ``shade_grid``
-    lattice."""
+    """refine_mask's ``full``: pixels beside another object (where V differs
+    across it by more than ``geo_v``: an edge V does not see changes no
+    filtered pass), or at a jump of V beyond ``sharp``, get the full
+    sub-pixel grid; pixels flagged only for V's mild kinks (a soft
+    penumbra's ends, noise) get the ``shade_grid`` lattice."""
     H, W = 5, 24
     obj = np.zeros((H, W), np.int32)
     obj[:, 20:] = 1
@@ -329,12 +330,19 @@ def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
     v = np.clip(0.15 * (x - 4), 0.0, 0.6)                  # kinks of 0.15 at columns 4 and 8
     v[12:] = 0.0                                           # a hard edge: a jump of 0.6
     values = np.tile(v, (H, 1))[None].astype(np.float32)
-    out, full = np.zeros((H, W), bool), np.zeros((H, W), bool)
-    refine_mask(np.ones((H, W), bool), obj, np.ones((H, W), np.float32),
-                np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)), values, 1, 0.1, DEPTH_JUMP, NORMAL_COS,
-                True, out, 0.3, full)
-    assert np.array_equal(np.nonzero(out[2])[0], [4, 8, 11, 12, 19, 20])
-    assert np.array_equal(np.nonzero(full[2])[0], [11, 12, 19, 20])
+    def mask(values, geo_v):
+        out, full = np.zeros((H, W), bool), np.zeros((H, W), bool)
+        refine_mask(np.ones((H, W), bool), obj, np.ones((H, W), np.float32),
+                    np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)), values, 1, 0.1, DEPTH_JUMP,
+                    NORMAL_COS, True, out, 0.3, full, geo_v)
+        return np.nonzero(out[2])[0].tolist(), np.nonzero(full[2])[0].tolist()
+    # V = 0 on both sides of the object edge at 19 | 20: refined only in the first version
+    assert mask(values, -1.0) == ([4, 8, 11, 12, 19, 20], [11, 12, 19, 20])
+    assert mask(values, 0.02) == ([4, 8, 11, 12], [11, 12])
+    lit = values.copy()
+    lit[..., 20:] = 0.05                                   # V differs across the object edge (by less
+                                                           # than the threshold: only geo_v sees it)
+    assert mask(lit, 0.02) == ([4, 8, 11, 12, 19, 20], [11, 12, 19, 20])
     # the lattice: shade_grid sub-rows of the grid, symmetric about the pixel centre (its
     # samples' centroid is the centre: a linear V is integrated exactly)
     for grid, shade, want in ((4, 2, [1, 2]), (8, 2, [2, 5]), (8, 4, [1, 3, 4, 6]), (9, 3, [1, 4, 7]),
@@ -388,7 +396,7 @@ def test_hit_edges_are_the_full_grid_pixels_of_a_change_of_hit():
         refine_mask(hit, np.zeros((H, W), np.int32), np.ones((H, W), np.float32),
                     np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)),
                     rng.random((1, H, W)).astype(np.float32), reach, 0.1, DEPTH_JUMP, NORMAL_COS, True, out,
-                    0.2, full)
+                    0.2, full, 0.02)
         edges = filtered_frame.hit_edges(hit, reach)
         assert np.array_equal(edges, full & _hit_change(hit, reach)) and np.array_equal(edges, _hit_change(hit, reach))
 
