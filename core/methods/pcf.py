@@ -58,8 +58,8 @@ from typing import Optional
 import numpy as np
 from numba import njit, prange
 
-from .. import cancel, views
-from ..kernels import face_project, finite_bbox, parallel_chunks, pick_face
+from .. import views
+from ..kernels import borrowed, each_dealt_chunk, face_project, finite_bbox, pick_face
 from ..sampling import stream_next, stream_start
 from .registry import register
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
@@ -113,34 +113,43 @@ def _grid(sres, tres, NumSamples, MinSamples):
     return ns, nt
 
 
-@njit(cache=True, inline="always")
-def _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st, Bias0, Bias1, plane):
-    """Cell (i, j) of the region's ns x nt grid, jittered over the whole cell
-    (section 2's method (c)): (stream, map depth there, whether the receiver
-    is behind it by more than a bias drawn in [Bias0, Bias1]). Samples past
-    the map's border read the border texel; outside the map's box of finite
-    depths nothing is behind (3.3)."""
+@njit(cache=True, error_model="numpy")
+def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
+    """The region's ns x nt grid, each cell sampled once with jitter over the
+    whole cell (section 2's method (c)) from pixel ``pixel``'s stream: (the
+    samples the receiver is behind by more than a bias drawn in [Bias0,
+    Bias1], the sum of their map depths). Samples past the map's border
+    read the border texel; outside the map's box of finite depths nothing is
+    behind (3.3). One loop for ``sample_shadow`` and ``blocker_depth``."""
     ds = 2.0 * sres / ns
     dt = 2.0 * tres / nt
     smin = s - sres + 0.5 * ds
     tmin = t - tres + 0.5 * dt
-    st, r0 = stream_next(st)
-    st, r1 = stream_next(st)
-    st, r2 = stream_next(st)
-    iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
-    iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
-    bias = r2 * (Bias1 - Bias0) + Bias0
-    # the map's window is fitted to the receivers, not the light's field
-    # of view: samples past its border read the border texel
-    iu = min(max(iu, 0), depth_f.shape[1] - 1)
-    iv = min(max(iv, 0), depth_f.shape[0] - 1)
-    d = depth_f[iv, iu]
-    if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
-        zs = z
-        if plane[0] != 0.0:
-            zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
-        return st, d, zs > d * DEPTH_REL_EPS + bias
-    return st, d, False
+    h, w = depth_f.shape
+    st = stream_start(seed, pixel)
+    n = 0
+    acc = 0.0
+    for i in range(ns):
+        for j in range(nt):
+            st, r0 = stream_next(st)
+            st, r1 = stream_next(st)
+            st, r2 = stream_next(st)
+            iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
+            iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
+            bias = r2 * (Bias1 - Bias0) + Bias0
+            # the map's window is fitted to the receivers, not the light's field
+            # of view: samples past its border read the border texel
+            iu = min(max(iu, 0), w - 1)
+            iv = min(max(iv, 0), h - 1)
+            if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
+                d = depth_f[iv, iu]
+                zs = z
+                if plane[0] != 0.0:
+                    zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
+                if zs > d * DEPTH_REL_EPS + bias:
+                    n += 1
+                    acc += d
+    return n, acc
 
 
 @njit(cache=True)
@@ -159,14 +168,7 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     if lu > bbox_f[1] or hu < bbox_f[0] or lv > bbox_f[3] or hv < bbox_f[2]:
         return 0.0
     ns, nt = _grid(sres, tres, NumSamples, MinSamples)
-    inshadow = 0
-    st = stream_start(seed, pixel)
-    for i in range(ns):
-        for j in range(nt):
-            st, _, behind = _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st,
-                                         Bias0, Bias1, plane)
-            if behind:
-                inshadow += 1
+    inshadow, _ = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
     return inshadow / (ns * nt)
 
 
@@ -190,16 +192,7 @@ def blocker_depth(depth_f, bbox_f, s, t, z, sres, tres, BlockerSamples, Bias0, B
     on the region) that the receiver is behind (``sample_shadow``'s test);
     0.0 when there is none."""
     ns, nt = _grid(sres, tres, BlockerSamples, 1)
-    st = stream_start(seed, pixel)
-    acc = 0.0
-    n = 0
-    for i in range(ns):
-        for j in range(nt):
-            st, d, behind = _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st,
-                                         Bias0, Bias1, plane)
-            if behind:
-                acc += d
-                n += 1
+    n, acc = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
     return acc / n if n else 0.0
 
 
@@ -345,8 +338,8 @@ def plane_depth(pl, uc, vc, z):
 
 
 TILE = 8
-PIXEL_CHUNK = 4096   # pixels per scheduling chunk in pcf_kernel
-CANCEL_CHUNK = 1 << 18   # pixels per pcf_kernel call: the job's cancel token is checked between calls
+PIXEL_TILE = 32      # camera pixels per side of a tile of ``pcf_kernel`` (``filter_pixels``)
+PIXEL_BLOCK = 1024   # entries of a packed G-buffer dealt together to a chunk of ``pcf_kernel``
 
 # argument groups of ``pcf_kernel``
 CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays pixel")
@@ -364,16 +357,17 @@ Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples B
 and ``region="light"``'s switch and sample counts."""
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def tile_minmax(depth):
     """Per face, per TILE x TILE block: min and max map depth (Reeves et al.
-    3.3's tile scheme, "a maximum z value with each tile")."""
+    3.3's tile scheme, "a maximum z value with each tile"). Serial: a few ms
+    for a 1920 map, less than a parfor's compile."""
     F, h, w = depth.shape
     th = (h + TILE - 1) // TILE
     tw = (w + TILE - 1) // TILE
     lo = np.full((F, th, tw), np.inf, np.float32)
     hi = np.full((F, th, tw), -np.inf, np.float32)
-    for k in prange(F * th):
+    for k in range(F * th):
         f = k // th
         ty = k % th
         for tx in range(tw):
@@ -488,17 +482,46 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
     return -1.0
 
 
-@njit(cache=True, parallel=True)
-def pcf_kernel(cam, smap, flt, out, start, stop):
-    """Every camera pixel i in [start, stop) (row-major, ``cam.width`` wide;
-    or entry i of a packed G-buffer, pixel ``cam.pixel[i]``) where
-    ``cam.hit[i]``: out[i] = V; other pixels are left as they are.
-    Pixels are handed to the threads in chunks of a few rows (dynamic), not
-    in one contiguous half each: sky and ground rows differ widely in cost
-    (the caller sets the chunk size with ``kernels.parallel_chunks``).
-    cam: CameraPixels; smap: ShadowMap; flt: Filter."""
-    for i in prange(start, stop):
-        _pcf_pixel(i, cam, smap, flt, out)
+def filter_pixels(cam, smap, flt, out, height, threads=None) -> None:
+    """V into ``out`` for every camera pixel (``pcf_kernel``) on Numba's
+    thread count, the job's cancel token checked before each chunk
+    (``kernels.each_dealt_chunk``): a dense G-buffer (``height`` rows of
+    ``cam.width``) in tiles of PIXEL_TILE x PIXEL_TILE pixels, whose regions
+    lie close together in the map (rows of a 1080p frame sweep the whole
+    map: samples then miss the cache), dealt over the chunks (sky and ground
+    differ widely in cost); a packed one in blocks of PIXEL_BLOCK entries."""
+    if cam.pixel.shape[0]:
+        each_dealt_chunk(lambda idx: pcf_kernel(idx, 0, height, cam, smap, flt, out), out.shape[0], threads,
+                         block=PIXEL_BLOCK)
+        return
+    tiles = -(-cam.width // PIXEL_TILE) * -(-height // PIXEL_TILE)
+    each_dealt_chunk(lambda idx: pcf_kernel(idx, PIXEL_TILE, height, cam, smap, flt, out), tiles, threads)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pcf_kernel(idx, tile, height, cam, smap, flt, out):
+    """V into out[i] for every camera pixel i (row-major, ``cam.width`` wide)
+    in the tiles ``idx`` of ``tile`` x ``tile`` pixels (row-major over the
+    ``height``-row image), or, with ``tile`` 0, every entry i in ``idx`` (a
+    packed G-buffer: entry i is pixel ``cam.pixel[i]``), where
+    ``cam.hit[i]``; other pixels are left as they are. A serial ``nogil``
+    kernel with ``kernels.borrowed`` arguments (issue 15: no parfor to
+    compile), run on worker threads by ``filter_pixels``; each pixel's V is
+    its own, so the result does not depend on the order, the chunks or the
+    thread count. cam: CameraPixels; smap: ShadowMap; flt: Filter."""
+    cam, smap, flt, out = borrowed((cam, smap, flt, out))
+    if tile == 0:
+        for i in idx:
+            _pcf_pixel(i, cam, smap, flt, out)
+        return
+    W = cam.width
+    tw = (W + tile - 1) // tile
+    for k in idx:
+        r0 = (k // tw) * tile
+        c0 = (k % tw) * tile
+        for r in range(r0, min(r0 + tile, height)):
+            for c in range(c0, min(c0 + tile, W)):
+                _pcf_pixel(r * W + c, cam, smap, flt, out)
 
 
 @njit(cache=True, inline="always")
@@ -619,18 +642,14 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:
                     lsize[:] = 0.0
                 zmin = np.array([float(np.min(lo, initial=np.inf)) for lo in tlo], np.float64)
-                with parallel_chunks(PIXEL_CHUNK):
-                    pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
-                    cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
-                                       pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
-                    smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, lsize,
-                                     zmin)
-                    flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                                 b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
-                                 params.region == "light", max(1, int(params.BlockerSamples)),
-                                 max(1, int(params.PenumbraSamples)))
-                    for a in range(0, n, CANCEL_CHUNK):   # each pixel's V is its own
-                        cancel.check()
-                        pcf_kernel(cam, smap, flt, out, a, min(n, a + CANCEL_CHUNK))
+                pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
+                cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
+                                   pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
+                smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, lsize, zmin)
+                flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
+                             b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
+                             params.region == "light", max(1, int(params.BlockerSamples)),
+                             max(1, int(params.PenumbraSamples)))
+                filter_pixels(cam, smap, flt, out, n // W if g.pixel is None else 1)
         return MethodResult(passes={"pcf": out.reshape(g.shape)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
