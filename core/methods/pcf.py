@@ -40,13 +40,21 @@ planar light of half extent L (in the map's view plane) seen from a receiver
 at depth z_r covers, at depth z_b, L (z_r - z_b) / (z_r z_b) view-plane
 units around the receiver's own projection (exact for a light parallel to
 the view's image plane, as an area light's view is; a sun's orthographic
-view: tan(half angle) (z_r - z_b) scene units); the search uses the face's
-nearest depth for z_b. The samples nearer than the receiver (the same
+view: tan(half angle) (z_r - z_b) scene units); the search takes for z_b
+the face's nearest depth, then (``search="tiles"``, the default; "face":
+the first version) the nearest depth the tiles hold in the region so far,
+twice: a texel of depth d can block only within the reach at d, so the
+narrowed region still holds every blocker. The samples nearer than the receiver (the same
 comparison as the filter's, bias and ``receiver_plane`` included) give the
 mean blocker depth, the filter region is the light's extent at that depth
 (at least the figure-4 region), and it is sampled like figure 4 with
 ``PenumbraSamples`` samples. No blocker found: lit. The tile test runs on the
-search region, which holds the filter region, so it stays exact.
+search region, and again on the filter region; both exact.
+
+The tile test (3.3's tiles, a min / max depth per 8 x 8 block) also keeps a
+plane per block (``tile_planes``): a receiver on a surface slanted to the
+light is behind the tiles' min depth but on their plane, which decides it
+lit without samples (``planar_lit``; the same pass, issue 15).
 """
 from __future__ import annotations
 
@@ -92,6 +100,8 @@ class PCFParams:
                                   # depths (PCSS, Fernando 2005; module doc) | "figure4": the paper's
     BlockerSamples: int = 16      # region="light": samples of the blocker search
     PenumbraSamples: int = 64     # region="light": samples of the filter region (NumSamples' role)
+    search: str = "tiles"         # region="light": the blocker search region is the light's reach at the
+                                  # nearest depth the tiles hold in it ("tiles") | at the face's ("face")
     seed: int = 0
 
 
@@ -338,6 +348,8 @@ def plane_depth(pl, uc, vc, z):
 
 
 TILE = 8
+PLANAR_BLOCKS = 16   # blocks a region may span for ``planar_lit``
+SEARCH_STEPS = 2     # search="tiles": narrowing steps of the blocker search region (``search_region``)
 PIXEL_TILE = 32      # camera pixels per side of a tile of ``pcf_kernel`` (``filter_pixels``)
 PIXEL_BLOCK = 1024   # entries of a packed G-buffer dealt together to a chunk of ``pcf_kernel``
 
@@ -347,14 +359,16 @@ CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays pixel")
 camera's per-pixel ray terms (``pixel_ray_terms``) and, for a packed G-buffer
 (``GBuffer.pixel``), each entry's camera pixel (int64[N]; empty: entry i is
 pixel i)."""
-ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi lsize zmin")
+ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi planes lsize zmin")
 """Packed light-view faces, their depth maps, finite-depth boxes, the
-per-tile depth min / max as sparse tables (``tile_tables``), per face the light's reach
+per-tile depth min / max as sparse tables (``tile_tables``) and planes
+(``tile_planes``), per face the light's reach
 (``light_reach``: float64[F, 3]) and nearest depth (float64[F])."""
 Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles "
-                              "light_region BlockerSamples PenumbraSamples")
+                              "light_region BlockerSamples PenumbraSamples search_steps")
 """The filter's parameters (the paper's names), ``receiver_plane``, ``tiles``
-and ``region="light"``'s switch and sample counts."""
+and ``region="light"``'s switch, sample counts and search-region steps
+(``search``: SEARCH_STEPS, or 0 for "face")."""
 
 
 @njit(cache=True, nogil=True)
@@ -380,6 +394,61 @@ def tile_minmax(depth):
             lo[f, ty, tx] = a
             hi[f, ty, tx] = b
     return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def tile_planes(depth, ortho):
+    """Per face, per full TILE x TILE block: the least-squares plane through
+    its texels, float64[F, th, tw, 4] (a, b, c, r): at texel centre (u, v)
+    the map holds w = a (u - cu) + b (v - cv) + c within r, (cu, cv) the
+    block's centre, w = 1 / depth on a perspective face (a plane's 1 / depth
+    is affine in the texel position), w = depth on an orthographic one
+    (``ortho[f]``). r = inf for blocks that hold an empty texel or run past
+    the map (``region_decided``'s planar test skips them)."""
+    F, h, w = depth.shape
+    th = (h + TILE - 1) // TILE
+    tw = (w + TILE - 1) // TILE
+    out = np.empty((F, th, tw, 4), np.float64)
+    sxx = 0.0
+    for k in range(TILE):
+        x = k + 0.5 - 0.5 * TILE
+        sxx += x * x
+    sxx *= TILE
+    for f in range(F):
+        for ty in range(th):
+            for tx in range(tw):
+                out[f, ty, tx, 0], out[f, ty, tx, 1], out[f, ty, tx, 2], out[f, ty, tx, 3] = 0.0, 0.0, 0.0, np.inf
+                if (ty + 1) * TILE > h or (tx + 1) * TILE > w:
+                    continue
+                sw = 0.0
+                sxw = 0.0
+                syw = 0.0
+                full = True
+                for r in range(TILE):
+                    for c in range(TILE):
+                        d = np.float64(depth[f, ty * TILE + r, tx * TILE + c])
+                        if not (d > 0.0 and d < np.inf):
+                            full = False
+                            break
+                        v = d if ortho[f] else 1.0 / d
+                        sw += v
+                        sxw += (c + 0.5 - 0.5 * TILE) * v
+                        syw += (r + 0.5 - 0.5 * TILE) * v
+                    if not full:
+                        break
+                if not full:
+                    continue
+                a = sxw / sxx
+                b = syw / sxx
+                c0 = sw / (TILE * TILE)
+                res = 0.0
+                for r in range(TILE):
+                    for c in range(TILE):
+                        d = np.float64(depth[f, ty * TILE + r, tx * TILE + c])
+                        v = d if ortho[f] else 1.0 / d
+                        res = max(res, abs(v - (a * (c + 0.5 - 0.5 * TILE) + b * (r + 0.5 - 0.5 * TILE) + c0)))
+                out[f, ty, tx, 0], out[f, ty, tx, 1], out[f, ty, tx, 2], out[f, ty, tx, 3] = a, b, c0, res
+    return out
 
 
 def _levels(n: int) -> int:
@@ -448,14 +517,10 @@ def tile_range(tlo, thi, ty0, ty1, tx0, tx1):
     return dmin, dmax
 
 
-@njit(cache=True)
-def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
-    """The tile test: 0.0 when every sample of the region must be lit, 1.0
-    when every one must be in shadow, -1.0 when samples must be taken. Exact:
-    the receiver's depth over the region lies between its values at the
-    region's corners (a linear-fractional function of the texel position).
-    ``tlo``, ``thi``: one face's sparse tables (``tile_tables``), so the
-    test costs the same for a region of any size."""
+@njit(cache=True, inline="always")
+def _texel_box(w, h, s, t, sres, tres):
+    """The texels [u0, u1) x [v0, v1) a region's samples can read (clamped
+    to the map; at least one texel)."""
     u0 = max(0.0, math.floor(s - sres))
     u1 = min(float(w), math.ceil(s + sres))
     v0 = max(0.0, math.floor(t - tres))
@@ -464,6 +529,20 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
         u0, u1 = min(u0, w - 1.0), min(u0, w - 1.0) + 1.0
     if v1 <= v0:
         v0, v1 = min(v0, h - 1.0), min(v0, h - 1.0) + 1.0
+    return u0, u1, v0, v1
+
+
+@njit(cache=True)
+def region_decided(tlo, thi, planes, ortho, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
+    """The tile test: 0.0 when every sample of the region must be lit, 1.0
+    when every one must be in shadow, -1.0 when samples must be taken. Exact:
+    the receiver's depth over the region lies between its values at the
+    region's corners (a linear-fractional function of the texel position).
+    ``tlo``, ``thi``: one face's sparse tables (``tile_tables``), so the
+    test costs the same for a region of any size; ``planes``: its blocks'
+    planes (``tile_planes``) for ``planar_lit`` where the min / max do not
+    decide (a receiver on a surface slanted to the light)."""
+    u0, u1, v0, v1 = _texel_box(w, h, s, t, sres, tres)
     zlo, zhi = z, z
     if plane[0] != 0.0:
         for cu in (u0, u1):
@@ -479,7 +558,84 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
         return 0.0
     if dmax < np.inf and zlo > dmax * DEPTH_REL_EPS + Bias1:
         return 1.0
+    if planar_lit(tlo, thi, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
+        return 0.0
     return -1.0
+
+
+@njit(cache=True, error_model="numpy")
+def planar_lit(tlo, thi, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
+    """Whether no sample of texels [u0, u1) x [v0, v1) can be behind the map
+    (``region_decided``'s lit case), block by block (at most PLANAR_BLOCKS):
+    a block passes its min depth test, or its plane (``tile_planes``) stays
+    within half the smallest margin (Bias0 + the relative epsilon) of the
+    receiver's tangent plane (``plane``; ``z`` everywhere without one) over
+    the texel centres it shares with the region. On a perspective face both
+    1 / depth are affine in the texel position, so their difference peaks at
+    a corner, and zs - d = zs d (1/d - 1/zs) <= zhi dmax (that peak + r);
+    on an orthographic one the depths themselves are affine. Exact, as the
+    min / max test: only a receiver on (or in front of) the blocks' surfaces
+    passes, where every sample would be lit."""
+    ty0, ty1 = int(v0) // TILE, (int(v1) - 1) // TILE
+    tx0, tx1 = int(u0) // TILE, (int(u1) - 1) // TILE
+    if (ty1 - ty0 + 1) * (tx1 - tx0 + 1) > PLANAR_BLOCKS:
+        return False
+    if plane[0] == 0.0:
+        ra, rb, rc = 0.0, 0.0, (z if ortho else 1.0 / z)
+    elif plane[1] == 1.0:
+        ra, rb, rc = plane[2], plane[3], plane[4]
+    else:
+        ra, rb, rc = plane[2] / plane[5], plane[3] / plane[5], plane[4] / plane[5]
+    half = 0.5 * TILE
+    for ty in range(ty0, ty1 + 1):
+        for tx in range(tx0, tx1 + 1):
+            dmin = tlo[0, 0, ty, tx]
+            if zhi <= dmin * DEPTH_REL_EPS + Bias0:
+                continue
+            pa, pb, pc, pr = planes[ty, tx, 0], planes[ty, tx, 1], planes[ty, tx, 2], planes[ty, tx, 3]
+            if not (pr < np.inf):
+                return False
+            cu0 = max(u0, float(tx * TILE)) + 0.5
+            cu1 = min(u1, float(tx * TILE + TILE)) - 0.5
+            cv0 = max(v0, float(ty * TILE)) + 0.5
+            cv1 = min(v1, float(ty * TILE + TILE)) - 0.5
+            peak = -np.inf
+            for cu in (cu0, cu1):
+                for cv in (cv0, cv1):
+                    fit = pa * (cu - tx * TILE - half) + pb * (cv - ty * TILE - half) + pc
+                    rec = ra * cu + rb * cv + rc
+                    peak = max(peak, rec - fit if ortho else fit - rec)
+            peak += pr
+            excess = peak if ortho else zhi * np.float64(thi[0, 0, ty, tx]) * max(peak, 0.0)
+            if not (excess <= 0.5 * (Bias0 + dmin * (DEPTH_REL_EPS - 1.0))):
+                return False
+    return True
+
+
+@njit(cache=True)
+def search_region(tlo, thi, w, h, s, t, z, lsize, zmin, sres, tres, MaxSize, steps):
+    """region="light"'s blocker search region (half sizes, texels): the
+    light's reach (``light_halfwidth``) at the nearest depth ``zmin`` of the
+    face, at least the figure-4 region (``sres``, ``tres``), at most
+    ``MaxSize``; then ``steps`` times (``search="tiles"``) the reach at the
+    nearest depth the tiles hold inside the region so far. Exact: a texel of
+    depth d blocks a ray from the receiver to the light only within the
+    reach at d, which shrinks as d grows, so every such texel stays inside."""
+    zs = zmin
+    ws, wt = light_halfwidth(lsize, z, zs)
+    ws = min(max(ws, sres), MaxSize)
+    wt = min(max(wt, tres), MaxSize)
+    for _ in range(steps):
+        u0, u1, v0, v1 = _texel_box(w, h, s, t, ws, wt)
+        dmin, _ = tile_range(tlo, thi, int(v0) // TILE, (int(v1) - 1) // TILE,
+                             int(u0) // TILE, (int(u1) - 1) // TILE)
+        if not (dmin > zs):
+            break
+        zs = dmin
+        ws2, wt2 = light_halfwidth(lsize, z, min(zs, z))
+        ws = min(max(ws2, sres), ws)
+        wt = min(max(wt2, tres), wt)
+    return ws, wt
 
 
 def filter_pixels(cam, smap, flt, out, height, threads=None) -> None:
@@ -557,15 +713,14 @@ def _pcf_pixel(i, cam, smap, flt, out):
     lsize = smap.lsize[f]
     light = flt.light_region and z > 0.0 and (lsize[0] > 0.0 or lsize[1] > 0.0)
     if light:
-        # the blocker search region (PCSS): the light's reach at the face's nearest depth
-        ws, wt = light_halfwidth(lsize, z, smap.zmin[f])
-        ws = min(max(ws, sres), MaxSize)
-        wt = min(max(wt, tres), MaxSize)
+        # the blocker search region (PCSS): the light's reach at the nearest depth it can hold
+        ws, wt = search_region(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, lsize, smap.zmin[f],
+                               sres, tres, MaxSize, flt.search_steps)
     else:
         ws, wt = sres, tres
     if use_tiles and z >= 0.0:
-        known = region_decided(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, ws, wt,
-                               plane, Bias0, Bias1)
+        known = region_decided(tlo[f], thi[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
+                               depth.shape[1], s, t, z, ws, wt, plane, Bias0, Bias1)
         if known >= 0.0:
             out[i] = 1.0 - known
             return
@@ -579,6 +734,12 @@ def _pcf_pixel(i, cam, smap, flt, out):
         sres = min(max(ps, sres), MaxSize)
         tres = min(max(pt, tres), MaxSize)
         NumSamples = flt.PenumbraSamples
+        if use_tiles:     # the filter region's own tile test (exact, as the search region's)
+            known = region_decided(tlo[f], thi[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
+                                   depth.shape[1], s, t, z, sres, tres, plane, Bias0, Bias1)
+            if known >= 0.0:
+                out[i] = 1.0 - known
+                return
     out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
                                  MinSamples, Bias0, Bias1, seed, j, plane)
 
@@ -638,6 +799,8 @@ class PercentageCloserFiltering(Method):
                 tlo_t, thi_t = tile_tables(tlo, thi)
                 if params.region not in ("light", "figure4"):
                     raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
+                if params.search not in ("tiles", "face"):
+                    raise ValueError(f"pcf: unknown search {params.search!r} (tiles | face)")
                 lsize = light_reach(light, lv.faces)
                 if light.is_zero_size:
                     lsize[:] = 0.0
@@ -645,11 +808,13 @@ class PercentageCloserFiltering(Method):
                 pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
                 cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
                                    pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
-                smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, lsize, zmin)
+                faces = lv.packed_faces()
+                planes = tile_planes(lv.depth, faces[:, 16] == 1.0)
+                smap = ShadowMap(faces, lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, planes, lsize, zmin)
                 flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                              b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                              params.region == "light", max(1, int(params.BlockerSamples)),
-                             max(1, int(params.PenumbraSamples)))
+                             max(1, int(params.PenumbraSamples)), SEARCH_STEPS if params.search == "tiles" else 0)
                 filter_pixels(cam, smap, flt, out, n // W if g.pixel is None else 1)
         return MethodResult(passes={"pcf": out.reshape(g.shape)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
