@@ -354,3 +354,30 @@ def test_tiles_search_region_holds_every_blocker_and_is_exact_with_the_face_one(
     assert _rmse(a.passes["pcf"], b.passes["pcf"]) < 0.02
     with pytest.raises(ValueError, match="search"):
         run_pcf(scene, search="all")
+
+
+def test_pixel_step_shares_a_blocks_first_pixel_on_one_surface_only():
+    """pixel_step=2 (the Preview's): the first pixel of each 2 x 2 block has
+    the full pass's V (the same bits: its own stream); another pixel of the
+    block on the same object with a near normal has that V, one on another
+    object (or whose block starts on empty sky) its own full-pass V. A step
+    that does not divide the tile is an error."""
+    from synthetic import box
+    tris = quad(-10, 10, -10, 10, 0.0) + box(-0.7, 0.45, -0.3, 0.8, 0.0, 1.2)
+    scene = make_scene(tris, [0, 0] + [1] * 12, [area_light(1.5, z=4.0)], res=62,
+                       camera=persp_camera((0.5, -4.0, 3.5), (0.0, 0.0, 0.3)), names=("ground", "box"))
+    full, fb = run_pcf(scene)
+    step, _ = run_pcf(scene, pixel_step=2)
+    a, b = full.passes["pcf"], step.passes["pcf"]
+    g = fb.gbuffer
+    np.testing.assert_array_equal(b[::2, ::2], a[::2, ::2])
+    rows, cols = np.nonzero(g.hit)
+    r0, c0 = rows - rows % 2, cols - cols % 2
+    shared = g.hit[r0, c0] & (g.object_id[rows, cols] == g.object_id[r0, c0]) & (
+        np.sum(g.normal[rows, cols] * g.normal[r0, c0], axis=1) >= 0.95)
+    np.testing.assert_array_equal(b[rows[shared], cols[shared]], a[r0[shared], c0[shared]])
+    np.testing.assert_array_equal(b[rows[~shared], cols[~shared]], a[rows[~shared], cols[~shared]])
+    assert (~shared).sum() > 20 and ((rows % 2 + cols % 2) > 0)[shared].sum() > 1000
+    assert ((a > 0.0) & (a < 1.0)).sum() > 200            # a shadow with a penumbra
+    with pytest.raises(ValueError, match="pixel_step"):
+        run_pcf(scene, pixel_step=3)

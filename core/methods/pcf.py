@@ -102,6 +102,9 @@ class PCFParams:
     PenumbraSamples: int = 64     # region="light": samples of the filter region (NumSamples' role)
     search: str = "tiles"         # region="light": the blocker search region is the light's reach at the
                                   # nearest depth the tiles hold in it ("tiles") | at the face's ("face")
+    pixel_step: int = 1           # beyond the paper, a Preview's knob: V at the pixels whose row and column
+                                  # are multiples of it, shared by the block's pixels on the same surface
+                                  # (others computed themselves); 1 = every pixel (the paper's shading regions)
     seed: int = 0
 
 
@@ -351,11 +354,12 @@ TILE = 8
 PLANAR_BLOCKS = 16   # blocks a region may span for ``planar_lit``
 SEARCH_STEPS = 2     # search="tiles": narrowing steps of the blocker search region (``search_region``)
 PIXEL_TILE = 32      # camera pixels per side of a tile of ``pcf_kernel`` (``filter_pixels``)
+PIXEL_STEP_COS = 0.95   # ``pixel_step``: normals at most ~18 degrees apart share a V
 PIXEL_BLOCK = 1024   # entries of a packed G-buffer dealt together to a chunk of ``pcf_kernel``
 
 # argument groups of ``pcf_kernel``
-CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays pixel")
-"""G-buffer positions, normals and hit flags (row-major, ``width`` wide), the
+CameraPixels = namedtuple("CameraPixels", "P Nrm hit obj width rays pixel")
+"""G-buffer positions, normals, hit flags and object ids (row-major, ``width`` wide), the
 camera's per-pixel ray terms (``pixel_ray_terms``) and, for a packed G-buffer
 (``GBuffer.pixel``), each entry's camera pixel (int64[N]; empty: entry i is
 pixel i)."""
@@ -365,10 +369,10 @@ per-tile depth min / max as sparse tables (``tile_tables``) and planes
 (``tile_planes``), per face the light's reach
 (``light_reach``: float64[F, 3]) and nearest depth (float64[F])."""
 Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles "
-                              "light_region BlockerSamples PenumbraSamples search_steps")
+                              "light_region BlockerSamples PenumbraSamples search_steps pixel_step")
 """The filter's parameters (the paper's names), ``receiver_plane``, ``tiles``
 and ``region="light"``'s switch, sample counts and search-region steps
-(``search``: SEARCH_STEPS, or 0 for "face")."""
+(``search``: SEARCH_STEPS, or 0 for "face"), and ``pixel_step``."""
 
 
 @njit(cache=True, nogil=True)
@@ -672,12 +676,29 @@ def pcf_kernel(idx, tile, height, cam, smap, flt, out):
         return
     W = cam.width
     tw = (W + tile - 1) // tile
+    step = flt.pixel_step
     for k in idx:
         r0 = (k // tw) * tile
         c0 = (k % tw) * tile
         for r in range(r0, min(r0 + tile, height)):
             for c in range(c0, min(c0 + tile, W)):
-                _pcf_pixel(r * W + c, cam, smap, flt, out)
+                i = r * W + c
+                if step > 1 and cam.hit[i] and (r % step or c % step):
+                    j = (r - r % step) * W + (c - c % step)     # the block's first pixel: done before
+                    if _same_surface(cam, i, j):
+                        out[i] = out[j]
+                        continue
+                _pcf_pixel(i, cam, smap, flt, out)
+
+
+@njit(cache=True, inline="always")
+def _same_surface(cam, i, j):
+    """``pixel_step``: pixel j's V stands for pixel i's (both hit the same
+    object, normals within PIXEL_STEP_COS)."""
+    if not cam.hit[j] or cam.obj[i] != cam.obj[j]:
+        return False
+    dot = cam.Nrm[i, 0] * cam.Nrm[j, 0] + cam.Nrm[i, 1] * cam.Nrm[j, 1] + cam.Nrm[i, 2] * cam.Nrm[j, 2]
+    return dot >= PIXEL_STEP_COS
 
 
 @njit(cache=True, inline="always")
@@ -801,20 +822,23 @@ class PercentageCloserFiltering(Method):
                     raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
                 if params.search not in ("tiles", "face"):
                     raise ValueError(f"pcf: unknown search {params.search!r} (tiles | face)")
+                if params.pixel_step < 1 or PIXEL_TILE % int(params.pixel_step):
+                    raise ValueError(f"pcf: pixel_step {params.pixel_step!r} must divide {PIXEL_TILE}")
                 lsize = light_reach(light, lv.faces)
                 if light.is_zero_size:
                     lsize[:] = 0.0
                 zmin = np.array([float(np.min(lo, initial=np.inf)) for lo in tlo], np.float64)
                 pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
-                cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
-                                   pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
+                cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1),
+                                   g.object_id.reshape(-1), W, pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
                 faces = lv.packed_faces()
                 planes = tile_planes(lv.depth, faces[:, 16] == 1.0)
                 smap = ShadowMap(faces, lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, planes, lsize, zmin)
                 flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                              b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                              params.region == "light", max(1, int(params.BlockerSamples)),
-                             max(1, int(params.PenumbraSamples)), SEARCH_STEPS if params.search == "tiles" else 0)
+                             max(1, int(params.PenumbraSamples)), SEARCH_STEPS if params.search == "tiles" else 0,
+                             max(1, int(params.pixel_step)) if g.pixel is None else 1)
                 filter_pixels(cam, smap, flt, out, n // W if g.pixel is None else 1)
         return MethodResult(passes={"pcf": out.reshape(g.shape)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
