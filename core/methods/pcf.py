@@ -477,11 +477,15 @@ def tile_tables(lo, hi):
 @njit(cache=True, nogil=True)
 def _fill_tables(lo, hi, tlo, thi):
     """``tile_tables``' levels: along x, then along y (entries whose block
-    runs past the grid repeat the last valid one; ``tile_range`` never reads them)."""
+    runs past the grid repeat the last valid one; ``tile_range`` never reads
+    them). Scalar loops only: a slice assignment here compiled Numba's
+    broadcasting machinery, 3 s of pcf's cold start (issue 15)."""
     F, KY, KX, th, tw = tlo.shape
     for f in range(F):
-        tlo[f, 0, 0] = lo[f]
-        thi[f, 0, 0] = hi[f]
+        for y in range(th):
+            for x in range(tw):
+                tlo[f, 0, 0, y, x] = lo[f, y, x]
+                thi[f, 0, 0, y, x] = hi[f, y, x]
         for kx in range(1, KX):
             step = 1 << (kx - 1)
             for y in range(th):
@@ -670,25 +674,24 @@ def pcf_kernel(idx, tile, height, cam, smap, flt, out):
     its own, so the result does not depend on the order, the chunks or the
     thread count. cam: CameraPixels; smap: ShadowMap; flt: Filter."""
     cam, smap, flt, out = borrowed((cam, smap, flt, out))
-    if tile == 0:
-        for i in idx:
-            _pcf_pixel(i, cam, smap, flt, out)
-        return
     W = cam.width
-    tw = (W + tile - 1) // tile
+    tw = (W + tile - 1) // tile if tile else 1
     step = flt.pixel_step
     for k in idx:
-        r0 = (k // tw) * tile
-        c0 = (k % tw) * tile
-        for r in range(r0, min(r0 + tile, height)):
-            for c in range(c0, min(c0 + tile, W)):
-                i = r * W + c
+        if tile:
+            ra, ca = (k // tw) * tile, (k % tw) * tile
+            rb, cb = min(ra + tile, height), min(ca + tile, W)
+        else:                         # a packed entry: one "row" of one
+            ra, rb, ca, cb = 0, 1, k, k + 1
+        for r in range(ra, rb):
+            for c in range(ca, cb):
+                i = r * W + c if tile else c
                 if step > 1 and cam.hit[i] and (r % step or c % step):
                     j = (r - r % step) * W + (c - c % step)     # the block's first pixel: done before
                     if _same_surface(cam, i, j):
                         out[i] = out[j]
                         continue
-                _pcf_pixel(i, cam, smap, flt, out)
+                _pcf_pixel(i, cam, smap, flt, out)     # one call site: inlined once
 
 
 @njit(cache=True, inline="always")
@@ -703,7 +706,9 @@ def _same_surface(cam, i, j):
 
 @njit(cache=True, inline="always")
 def _pcf_pixel(i, cam, smap, flt, out):
-    """``pcf_kernel``'s body for pixel i."""
+    """``pcf_kernel``'s body for pixel i (inlined: a call costs 15-25 % of
+    the filter; ``pcf_kernel`` calls it from one place, as Numba compiles
+    an inlined body once per call site)."""
     P, Nrm, hit, width, rays = cam.P, cam.Nrm, cam.hit, cam.width, cam.rays
     faces, depth, bbox, tlo, thi = smap.faces, smap.depth, smap.bbox, smap.tlo, smap.thi
     ResFactor, MinSize, MaxSize, NumSamples = flt.ResFactor, flt.MinSize, flt.MaxSize, flt.NumSamples
