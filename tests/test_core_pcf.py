@@ -225,7 +225,8 @@ def _centre_texel(face, p):
 def test_tile_tables_give_the_min_and_max_of_any_block_of_tiles():
     """The tile test's sparse tables: the min / max over any block of tiles
     in four lookups equal a loop over the tiles, on maps of odd sizes with
-    empty (+inf) texels, one and several faces."""
+    empty (+inf) texels, one and several faces; with ``span``, over any
+    block of at most that many tiles a side."""
     from penumbra.core.methods.pcf import tile_minmax, tile_range, tile_tables
     rng = np.random.default_rng(3)
     for shape in ((1, 8, 8), (1, 37, 101), (3, 64, 17)):
@@ -239,6 +240,15 @@ def test_tile_tables_give_the_min_and_max_of_any_block_of_tiles():
             y0, y1 = sorted(rng.integers(0, th, 2))
             x0, x1 = sorted(rng.integers(0, tw, 2))
             dmin, dmax = tile_range(tlo[f], thi[f], y0, y1, x0, x1)
+            assert dmin == lo[f, y0:y1 + 1, x0:x1 + 1].min() and dmax == hi[f, y0:y1 + 1, x0:x1 + 1].max()
+        span = 5                                    # blocks of at most 5 tiles a side: fewer levels
+        slo, shi = tile_tables(lo, hi, span)
+        assert slo.shape[1:3] == (min(3, tlo.shape[1]), min(3, tlo.shape[2]))
+        for _ in range(200):
+            f = rng.integers(F)
+            y0, x0 = rng.integers(0, th), rng.integers(0, tw)
+            y1, x1 = min(th - 1, y0 + rng.integers(0, span)), min(tw - 1, x0 + rng.integers(0, span))
+            dmin, dmax = tile_range(slo[f], shi[f], y0, y1, x0, x1)
             assert dmin == lo[f, y0:y1 + 1, x0:x1 + 1].min() and dmax == hi[f, y0:y1 + 1, x0:x1 + 1].max()
 
 

@@ -460,16 +460,21 @@ def _levels(n: int) -> int:
     return max(1, int(n).bit_length())
 
 
-def tile_tables(lo, hi):
+def tile_tables(lo, hi, span=None):
     """Sparse tables of the per-tile min / max (``tile_minmax``): float32[F,
     KY, KX, th, tw], entry [f, ky, kx, y, x] the min (max) over the tiles
     [y, y + 2^ky) x [x, x + 2^kx), so ``tile_range`` reads the min / max over
     any block of tiles in four lookups (the same values as a loop over the
-    tiles: min and max are exact)."""
+    tiles: min and max are exact); blocks of at most ``span`` tiles a side
+    (default: any). The min and max tables are views of one array with each
+    entry's min beside its max, so a lookup reads one cache line for both
+    (issue 15: the lookups missed the cache, 28 % of the filter's time)."""
     F, th, tw = lo.shape
     ky, kx = _levels(th), _levels(tw)
-    tlo = np.empty((F, ky, kx, th, tw), np.float32)
-    thi = np.empty((F, ky, kx, th, tw), np.float32)
+    if span is not None:
+        ky, kx = min(ky, _levels(span)), min(kx, _levels(span))
+    both = np.empty((F, ky, kx, th, tw, 2), np.float32)
+    tlo, thi = both[..., 0], both[..., 1]
     _fill_tables(lo, hi, tlo, thi)
     return tlo, thi
 
@@ -822,7 +827,7 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
-                tlo_t, thi_t = tile_tables(tlo, thi)
+                tlo_t, thi_t = tile_tables(tlo, thi, int(2.0 * params.MaxSize + 2.0) // TILE + 2)
                 if params.region not in ("light", "figure4"):
                     raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
                 if params.search not in ("tiles", "face"):
