@@ -233,22 +233,22 @@ def test_tile_tables_give_the_min_and_max_of_any_block_of_tiles():
         depth = rng.uniform(1.0, 5.0, shape).astype(np.float32)
         depth[rng.random(shape) < 0.2] = np.inf
         lo, hi = tile_minmax(depth)
-        tlo, thi = tile_tables(lo, hi)
+        tt = tile_tables(lo, hi)
         F, th, tw = lo.shape
         for _ in range(200):
             f = rng.integers(F)
             y0, y1 = sorted(rng.integers(0, th, 2))
             x0, x1 = sorted(rng.integers(0, tw, 2))
-            dmin, dmax = tile_range(tlo[f], thi[f], y0, y1, x0, x1)
+            dmin, dmax = tile_range(tt[f], y0, y1, x0, x1)
             assert dmin == lo[f, y0:y1 + 1, x0:x1 + 1].min() and dmax == hi[f, y0:y1 + 1, x0:x1 + 1].max()
         span = 5                                    # blocks of at most 5 tiles a side: fewer levels
-        slo, shi = tile_tables(lo, hi, span)
-        assert slo.shape[1:3] == (min(3, tlo.shape[1]), min(3, tlo.shape[2]))
+        st = tile_tables(lo, hi, span)
+        assert st.shape[1:3] == (min(3, tt.shape[1]), min(3, tt.shape[2]))
         for _ in range(200):
             f = rng.integers(F)
             y0, x0 = rng.integers(0, th), rng.integers(0, tw)
             y1, x1 = min(th - 1, y0 + rng.integers(0, span)), min(tw - 1, x0 + rng.integers(0, span))
-            dmin, dmax = tile_range(slo[f], shi[f], y0, y1, x0, x1)
+            dmin, dmax = tile_range(st[f], y0, y1, x0, x1)
             assert dmin == lo[f, y0:y1 + 1, x0:x1 + 1].min() and dmax == hi[f, y0:y1 + 1, x0:x1 + 1].max()
 
 
@@ -302,7 +302,7 @@ def test_region_decided_lit_holds_for_every_texel():
     for trial in range(6):
         depth, (a, b, c) = _slanted_map(rng)
         lo, hi = tile_minmax(depth)
-        tlo, thi = tile_tables(lo, hi)
+        tt = tile_tables(lo, hi)
         planes = tile_planes(depth, np.array([False]))
         h, w = depth.shape[1:]
         for _ in range(300):
@@ -312,14 +312,14 @@ def test_region_decided_lit_holds_for_every_texel():
             z = plane_depth(plane, s, t, -1.0)
             sres, tres = rng.uniform(0.5, 12.0, 2)
             bias0 = rng.choice([0.0, 1e-3, 0.02])
-            known = region_decided(tlo[0], thi[0], planes[0], False, w, h, s, t, z, sres, tres, plane, bias0, bias0)
+            known = region_decided(tt[0], planes[0], False, w, h, s, t, z, sres, tres, plane, bias0, bias0)
             u0, u1, v0, v1 = (int(x) for x in _texel_box(w, h, s, t, sres, tres))
             vv, uu = np.mgrid[v0:v1, u0:u1] + 0.5
             zs = np.array([plane_depth(plane, x, y, z) for x, y in zip(uu.ravel(), vv.ravel())])
             d = depth[0, v0:v1, u0:u1].ravel().astype(np.float64)
             if known == 0.0:
                 assert np.all(zs <= d * DEPTH_REL_EPS + bias0)
-                dmin, _ = tile_range(tlo[0], thi[0], v0 // 8, (v1 - 1) // 8, u0 // 8, (u1 - 1) // 8)
+                dmin, _ = tile_range(tt[0], v0 // 8, (v1 - 1) // 8, u0 // 8, (u1 - 1) // 8)
                 decided_by_planes += max(zs.max(), z) > dmin * DEPTH_REL_EPS + bias0
             elif known == 1.0:
                 assert np.all(zs > d * DEPTH_REL_EPS + bias0)
@@ -337,7 +337,7 @@ def test_tiles_search_region_holds_every_blocker_and_is_exact_with_the_face_one(
     rng = np.random.default_rng(9)
     depth, _ = _slanted_map(rng, boxes=6)
     lo, hi = tile_minmax(depth)
-    tlo, thi = tile_tables(lo, hi)
+    tt = tile_tables(lo, hi)
     h, w = depth.shape[1:]
     zmin = float(depth.min())
     lsize = np.array([40.0, 30.0, 0.0])
@@ -347,8 +347,8 @@ def test_tiles_search_region_holds_every_blocker_and_is_exact_with_the_face_one(
         if not np.isfinite(z):
             continue
         z *= 1.001
-        ws, wt = search_region(tlo[0], thi[0], w, h, s, t, z, lsize, zmin, 2.0, 2.0, 64.0, 2)
-        fs, ft = search_region(tlo[0], thi[0], w, h, s, t, z, lsize, zmin, 2.0, 2.0, 64.0, 0)
+        ws, wt = search_region(tt[0], w, h, s, t, z, lsize, zmin, 2.0, 2.0, 64.0, 2)
+        fs, ft = search_region(tt[0], w, h, s, t, z, lsize, zmin, 2.0, 2.0, 64.0, 0)
         assert ws <= fs and wt <= ft
         vv, uu = np.mgrid[0:h, 0:w] + 0.5
         d = depth[0].astype(np.float64)

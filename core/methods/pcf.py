@@ -363,7 +363,7 @@ CameraPixels = namedtuple("CameraPixels", "P Nrm hit obj width rays pixel")
 camera's per-pixel ray terms (``pixel_ray_terms``) and, for a packed G-buffer
 (``GBuffer.pixel``), each entry's camera pixel (int64[N]; empty: entry i is
 pixel i)."""
-ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi planes lsize zmin")
+ShadowMap = namedtuple("ShadowMap", "faces depth bbox tiles planes lsize zmin")
 """Packed light-view faces, their depth maps, finite-depth boxes, the
 per-tile depth min / max as sparse tables (``tile_tables``) and planes
 (``tile_planes``), per face the light's reach
@@ -462,50 +462,49 @@ def _levels(n: int) -> int:
 
 def tile_tables(lo, hi, span=None):
     """Sparse tables of the per-tile min / max (``tile_minmax``): float32[F,
-    KY, KX, th, tw], entry [f, ky, kx, y, x] the min (max) over the tiles
+    KY, KX, th, tw, 2], entry [f, ky, kx, y, x] the (min, max) over the tiles
     [y, y + 2^ky) x [x, x + 2^kx), so ``tile_range`` reads the min / max over
     any block of tiles in four lookups (the same values as a loop over the
     tiles: min and max are exact); blocks of at most ``span`` tiles a side
-    (default: any). The min and max tables are views of one array with each
-    entry's min beside its max, so a lookup reads one cache line for both
-    (issue 15: the lookups missed the cache, 28 % of the filter's time)."""
+    (default: any). Each entry's min sits beside its max, so a lookup reads
+    one cache line for both (issue 15: the lookups missed the cache, 28 % of
+    the filter's time)."""
     F, th, tw = lo.shape
     ky, kx = _levels(th), _levels(tw)
     if span is not None:
         ky, kx = min(ky, _levels(span)), min(kx, _levels(span))
-    both = np.empty((F, ky, kx, th, tw, 2), np.float32)
-    tlo, thi = both[..., 0], both[..., 1]
-    _fill_tables(lo, hi, tlo, thi)
-    return tlo, thi
+    tt = np.empty((F, ky, kx, th, tw, 2), np.float32)
+    _fill_tables(lo, hi, tt)
+    return tt
 
 
 @njit(cache=True, nogil=True)
-def _fill_tables(lo, hi, tlo, thi):
+def _fill_tables(lo, hi, tt):
     """``tile_tables``' levels: along x, then along y (entries whose block
     runs past the grid repeat the last valid one; ``tile_range`` never reads
     them). Scalar loops only: a slice assignment here compiled Numba's
     broadcasting machinery, 3 s of pcf's cold start (issue 15)."""
-    F, KY, KX, th, tw = tlo.shape
+    F, KY, KX, th, tw, _ = tt.shape
     for f in range(F):
         for y in range(th):
             for x in range(tw):
-                tlo[f, 0, 0, y, x] = lo[f, y, x]
-                thi[f, 0, 0, y, x] = hi[f, y, x]
+                tt[f, 0, 0, y, x, 0] = lo[f, y, x]
+                tt[f, 0, 0, y, x, 1] = hi[f, y, x]
         for kx in range(1, KX):
             step = 1 << (kx - 1)
             for y in range(th):
                 for x in range(tw):
                     x2 = min(x + step, tw - 1)
-                    tlo[f, 0, kx, y, x] = min(tlo[f, 0, kx - 1, y, x], tlo[f, 0, kx - 1, y, x2])
-                    thi[f, 0, kx, y, x] = max(thi[f, 0, kx - 1, y, x], thi[f, 0, kx - 1, y, x2])
+                    tt[f, 0, kx, y, x, 0] = min(tt[f, 0, kx - 1, y, x, 0], tt[f, 0, kx - 1, y, x2, 0])
+                    tt[f, 0, kx, y, x, 1] = max(tt[f, 0, kx - 1, y, x, 1], tt[f, 0, kx - 1, y, x2, 1])
         for ky in range(1, KY):
             step = 1 << (ky - 1)
             for kx in range(KX):
                 for y in range(th):
                     y2 = min(y + step, th - 1)
                     for x in range(tw):
-                        tlo[f, ky, kx, y, x] = min(tlo[f, ky - 1, kx, y, x], tlo[f, ky - 1, kx, y2, x])
-                        thi[f, ky, kx, y, x] = max(thi[f, ky - 1, kx, y, x], thi[f, ky - 1, kx, y2, x])
+                        tt[f, ky, kx, y, x, 0] = min(tt[f, ky - 1, kx, y, x, 0], tt[f, ky - 1, kx, y2, x, 0])
+                        tt[f, ky, kx, y, x, 1] = max(tt[f, ky - 1, kx, y, x, 1], tt[f, ky - 1, kx, y2, x, 1])
 
 
 @njit(cache=True, inline="always")
@@ -517,7 +516,7 @@ def _floor_log2(n):
 
 
 @njit(cache=True)
-def tile_range(tlo, thi, ty0, ty1, tx0, tx1):
+def tile_range(tt, ty0, ty1, tx0, tx1):
     """(min, max) map depth over the tiles [ty0, ty1] x [tx0, tx1] of one
     face's sparse tables (``tile_tables``): four overlapping power-of-two
     blocks that cover the range exactly."""
@@ -525,8 +524,8 @@ def tile_range(tlo, thi, ty0, ty1, tx0, tx1):
     kx = _floor_log2(tx1 - tx0 + 1)
     ya, yb = ty0, ty1 - (1 << ky) + 1
     xa, xb = tx0, tx1 - (1 << kx) + 1
-    dmin = min(min(tlo[ky, kx, ya, xa], tlo[ky, kx, ya, xb]), min(tlo[ky, kx, yb, xa], tlo[ky, kx, yb, xb]))
-    dmax = max(max(thi[ky, kx, ya, xa], thi[ky, kx, ya, xb]), max(thi[ky, kx, yb, xa], thi[ky, kx, yb, xb]))
+    dmin = min(min(tt[ky, kx, ya, xa, 0], tt[ky, kx, ya, xb, 0]), min(tt[ky, kx, yb, xa, 0], tt[ky, kx, yb, xb, 0]))
+    dmax = max(max(tt[ky, kx, ya, xa, 1], tt[ky, kx, ya, xb, 1]), max(tt[ky, kx, yb, xa, 1], tt[ky, kx, yb, xb, 1]))
     return dmin, dmax
 
 
@@ -546,12 +545,12 @@ def _texel_box(w, h, s, t, sres, tres):
 
 
 @njit(cache=True)
-def region_decided(tlo, thi, planes, ortho, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
+def region_decided(tt, planes, ortho, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
     """The tile test: 0.0 when every sample of the region must be lit, 1.0
     when every one must be in shadow, -1.0 when samples must be taken. Exact:
     the receiver's depth over the region lies between its values at the
     region's corners (a linear-fractional function of the texel position).
-    ``tlo``, ``thi``: one face's sparse tables (``tile_tables``), so the
+    ``tt``: one face's sparse tables (``tile_tables``), so the
     test costs the same for a region of any size; ``planes``: its blocks'
     planes (``tile_planes``) for ``planar_lit`` where the min / max do not
     decide (a receiver on a surface slanted to the light)."""
@@ -565,19 +564,19 @@ def region_decided(tlo, thi, planes, ortho, w, h, s, t, z, sres, tres, plane, Bi
                     return -1.0
                 zlo = min(zlo, zc)
                 zhi = max(zhi, zc)
-    dmin, dmax = tile_range(tlo, thi, int(v0) // TILE, (int(v1) - 1) // TILE,
+    dmin, dmax = tile_range(tt, int(v0) // TILE, (int(v1) - 1) // TILE,
                             int(u0) // TILE, (int(u1) - 1) // TILE)
     if zhi <= dmin * DEPTH_REL_EPS + Bias0:
         return 0.0
     if dmax < np.inf and zlo > dmax * DEPTH_REL_EPS + Bias1:
         return 1.0
-    if planar_lit(tlo, thi, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
+    if planar_lit(tt, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
         return 0.0
     return -1.0
 
 
 @njit(cache=True, error_model="numpy")
-def planar_lit(tlo, thi, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
+def planar_lit(tt, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
     """Whether no sample of texels [u0, u1) x [v0, v1) can be behind the map
     (``region_decided``'s lit case), block by block (at most PLANAR_BLOCKS):
     a block passes its min depth test, or its plane (``tile_planes``) stays
@@ -602,7 +601,7 @@ def planar_lit(tlo, thi, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
     half = 0.5 * TILE
     for ty in range(ty0, ty1 + 1):
         for tx in range(tx0, tx1 + 1):
-            dmin = tlo[0, 0, ty, tx]
+            dmin = tt[0, 0, ty, tx, 0]
             if zhi <= dmin * DEPTH_REL_EPS + Bias0:
                 continue
             pa, pb, pc, pr = planes[ty, tx, 0], planes[ty, tx, 1], planes[ty, tx, 2], planes[ty, tx, 3]
@@ -619,14 +618,14 @@ def planar_lit(tlo, thi, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
                     rec = ra * cu + rb * cv + rc
                     peak = max(peak, rec - fit if ortho else fit - rec)
             peak += pr
-            excess = peak if ortho else zhi * np.float64(thi[0, 0, ty, tx]) * max(peak, 0.0)
+            excess = peak if ortho else zhi * np.float64(tt[0, 0, ty, tx, 1]) * max(peak, 0.0)
             if not (excess <= 0.5 * (Bias0 + dmin * (DEPTH_REL_EPS - 1.0))):
                 return False
     return True
 
 
 @njit(cache=True)
-def search_region(tlo, thi, w, h, s, t, z, lsize, zmin, sres, tres, MaxSize, steps):
+def search_region(tt, w, h, s, t, z, lsize, zmin, sres, tres, MaxSize, steps):
     """region="light"'s blocker search region (half sizes, texels): the
     light's reach (``light_halfwidth``) at the nearest depth ``zmin`` of the
     face, at least the figure-4 region (``sres``, ``tres``), at most
@@ -640,7 +639,7 @@ def search_region(tlo, thi, w, h, s, t, z, lsize, zmin, sres, tres, MaxSize, ste
     wt = min(max(wt, tres), MaxSize)
     for _ in range(steps):
         u0, u1, v0, v1 = _texel_box(w, h, s, t, ws, wt)
-        dmin, _ = tile_range(tlo, thi, int(v0) // TILE, (int(v1) - 1) // TILE,
+        dmin, _ = tile_range(tt, int(v0) // TILE, (int(v1) - 1) // TILE,
                              int(u0) // TILE, (int(u1) - 1) // TILE)
         if not (dmin > zs):
             break
@@ -715,7 +714,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
     the filter; ``pcf_kernel`` calls it from one place, as Numba compiles
     an inlined body once per call site)."""
     P, Nrm, hit, width, rays = cam.P, cam.Nrm, cam.hit, cam.width, cam.rays
-    faces, depth, bbox, tlo, thi = smap.faces, smap.depth, smap.bbox, smap.tlo, smap.thi
+    faces, depth, bbox, tiles = smap.faces, smap.depth, smap.bbox, smap.tiles
     ResFactor, MinSize, MaxSize, NumSamples = flt.ResFactor, flt.MinSize, flt.MaxSize, flt.NumSamples
     MinSamples, Bias0, Bias1, seed = flt.MinSamples, flt.Bias0, flt.Bias1, flt.seed
     use_plane, use_tiles = flt.use_plane, flt.use_tiles
@@ -745,12 +744,12 @@ def _pcf_pixel(i, cam, smap, flt, out):
     light = flt.light_region and z > 0.0 and (lsize[0] > 0.0 or lsize[1] > 0.0)
     if light:
         # the blocker search region (PCSS): the light's reach at the nearest depth it can hold
-        ws, wt = search_region(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, lsize, smap.zmin[f],
+        ws, wt = search_region(tiles[f], depth.shape[2], depth.shape[1], s, t, z, lsize, smap.zmin[f],
                                sres, tres, MaxSize, flt.search_steps)
     else:
         ws, wt = sres, tres
     if use_tiles and z >= 0.0:
-        known = region_decided(tlo[f], thi[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
+        known = region_decided(tiles[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
                                depth.shape[1], s, t, z, ws, wt, plane, Bias0, Bias1)
         if known >= 0.0:
             out[i] = 1.0 - known
@@ -766,7 +765,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
         tres = min(max(pt, tres), MaxSize)
         NumSamples = flt.PenumbraSamples
         if use_tiles:     # the filter region's own tile test (exact, as the search region's)
-            known = region_decided(tlo[f], thi[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
+            known = region_decided(tiles[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
                                    depth.shape[1], s, t, z, sres, tres, plane, Bias0, Bias1)
             if known >= 0.0:
                 out[i] = 1.0 - known
@@ -827,7 +826,7 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
-                tlo_t, thi_t = tile_tables(tlo, thi, int(2.0 * params.MaxSize + 2.0) // TILE + 2)
+                tt = tile_tables(tlo, thi, int(2.0 * params.MaxSize + 2.0) // TILE + 2)
                 if params.region not in ("light", "figure4"):
                     raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
                 if params.search not in ("tiles", "face"):
@@ -843,7 +842,7 @@ class PercentageCloserFiltering(Method):
                                    g.object_id.reshape(-1), W, pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
                 faces = lv.packed_faces()
                 planes = tile_planes(lv.depth, faces[:, 16] == 1.0)
-                smap = ShadowMap(faces, lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, planes, lsize, zmin)
+                smap = ShadowMap(faces, lv.depth, finite_bbox(lv.depth), tt, planes, lsize, zmin)
                 flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                              b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                              params.region == "light", max(1, int(params.BlockerSamples)),
