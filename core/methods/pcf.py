@@ -44,8 +44,9 @@ view: tan(half angle) (z_r - z_b) scene units); the search takes for z_b
 the face's nearest depth, then (``search="tiles"``, the default; "face":
 the first version) the nearest depth the tiles hold in the region so far,
 twice: a texel of depth d can block only within the reach at d, so the
-narrowed region still holds every blocker. The samples nearer than the receiver (the same
-comparison as the filter's, bias and ``receiver_plane`` included) give the
+narrowed region still holds every blocker. The samples nearer than the
+receiver (the same comparison as the filter's, bias and ``receiver_plane``
+included) give the
 mean blocker depth, the filter region is the light's extent at that depth
 (at least the figure-4 region), and it is sampled like figure 4 with
 ``PenumbraSamples`` samples. No blocker found: lit. The tile test runs on the
@@ -838,8 +839,9 @@ class PercentageCloserFiltering(Method):
                     lsize[:] = 0.0
                 zmin = np.array([float(np.min(lo, initial=np.inf)) for lo in tlo], np.float64)
                 pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
+                rays = pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H))
                 cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1),
-                                   g.object_id.reshape(-1), W, pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
+                                   g.object_id.reshape(-1), W, rays, pixel)
                 faces = lv.packed_faces()
                 planes = tile_planes(lv.depth, faces[:, 16] == 1.0)
                 smap = ShadowMap(faces, lv.depth, finite_bbox(lv.depth), tt, planes, lsize, zmin)
