@@ -118,9 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--samples", type=_positive("--samples", 1, 65536), default=None,
                    help="light samples per pixel for sampling methods")
     r.add_argument("--seed", type=_positive("--seed", 0, 2**31 - 1), default=0)
-    r.add_argument("--pixel-filter", type=_pixel_filter, default="none",
-                   help="none (one receiver per pixel centre, the default), scene (the scene's "
-                        "render filter), box:W, gaussian:W or blackman-harris:W (W in pixels)")
+    r.add_argument("--pixel-filter", type=_pixel_filter, default="scene",
+                   help="scene (the default: filtered like the scene's render, Cycles' pixel filter "
+                        "or EEVEE's filter size), none (one receiver per pixel centre), box:W, "
+                        "gaussian:W or blackman-harris:W (W in pixels)")
     r.add_argument("--map-size", type=_positive("--map-size", 8, MAX_SIDE), default=None,
                    help="light depth-map resolution (larger side)")
     r.add_argument("--threads", type=_positive("--threads", 1, 1024), default=None)
@@ -137,6 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="WxH the lights' reach is judged at, as render's (default: the scene's)")
     pl.add_argument("--error-budget", type=_error_budget, default=None,
                     help="RMSE against the reference that 'auto' must meet (default: 0.05)")
+    pl.add_argument("--pixel-filter", type=_pixel_filter, default="scene",
+                    help="as render's: the filter the passes would get (default: the scene's)")
     pl.add_argument("--quiet", action="store_true", help="accepted for symmetry with render (plan "
                                                          "compiles nothing and shows no bar)")
     b = sub.add_parser("bench", help="accuracy-versus-time study / per-phase timings")
@@ -271,6 +274,9 @@ def _summary(result) -> str:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
+    if result.pixel_filter is not None:
+        f = result.pixel_filter
+        lines.append(f"pixel filter: {f['type']} {f['width_px']:g} px (--pixel-filter none: pixel centres)")
     if result.compile_s > 0:
         lines.append(f"kernel compilation: {result.compile_s:.3f} s (in no method's time)")
     return "\n".join(lines)
@@ -343,7 +349,15 @@ def cmd_plan(args) -> int:
     W, H = scene.resolution
     plan, _reach = plan_frame(scene, passes, lights, args.error_budget, FrameBuffers(scene, W, H))
     print(plan.describe())
+    print(f"pixel filter: {_filter_of(args.pixel_filter).describe()}")
     return 0
+
+
+def _filter_of(spec: str):
+    """``--pixel-filter`` on the open scene (``scene``: its render filter)."""
+    import bpy
+    from .bridge import settings
+    return settings.pixel_filter(bpy.context.scene, spec)
 
 
 def cmd_bench(args) -> int:

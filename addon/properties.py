@@ -302,7 +302,7 @@ def _make_classes():
             name="Cycles Samples", default=64, min=1, max=1 << 16,
             description="Samples of the Cycles shadow reference: less noise at proportional cost"),
         "pixel_filter": bpy.props.EnumProperty(
-            name="Pixel Filter", default="NONE",
+            name="Pixel Filter", default="SCENE",
             items=[("NONE", "Pixel Centres", "One receiver at each pixel centre (no anti-aliasing)", 0),
                    ("SCENE", "Scene", "Filtered like the scene's render: Cycles' pixel filter type and "
                     "width, or EEVEE's filter size", 1),

@@ -2,12 +2,15 @@
 by side at 10K, 100K and 1M triangles, and where penumbra casting's time goes
 on foliage.
 
-The large scenes are built here from arrays (core ``Scene``), not committed
-as .blend files (a 1M-triangle .blend is tens of MB in the repository):
+The 1M and 500K+ rows are the sample scenes ``dense_sphere`` (1,032,194
+triangles) and ``dense_foliage`` (576,814), made by Subdivision Surface
+modifiers so the .blend files stay small; the steps between are built here
+from arrays (core ``Scene``):
 
-* ``smooth_sphere_scene(n)``: the contact scene's shape: a smooth UV sphere
-  of about ``n`` triangles resting on a ground plane (contact at its south
-  pole), under a 1 m square area light, seen by a perspective camera.
+* ``smooth_sphere_scene(n)``: the contact scene's shape (dense_sphere's
+  layout): a smooth UV sphere of about ``n`` triangles resting on a ground
+  plane (contact at its south pole), under a 1 m square area light, seen by a
+  perspective camera.
 * ``dense_foliage_scene(levels)``: the captured ``foliage`` sample with every
   leaf triangle split ``levels`` times (4^levels triangles each) and bulged
   off its plane by ``27 b0 b1 b2`` (barycentric; zero on the triangle's
@@ -124,8 +127,10 @@ WHERE = ("blockers", "interior_blockers", "triangles_backface_culled", "blockers
          "hidden_pairs", "hidden_nodes", "group_volume_tests", "hard_volume_tests", "sample_tests_per_relation")
 COLUMNS = ["scene", "triangles", "size", "samples", "embree_s", "penumbra_casting_s", "speedup", "rmse_pc_vs_embree",
            "phases"] + list(WHERE)
-SPHERE_TRIANGLES = (10_000, 100_000, 1_000_000)
-FOLIAGE_LEVELS = (0, 1, 2, 3)          # 12.8K, 43K, 164K, 649K triangles
+SPHERE_TRIANGLES = (10_000, 100_000)   # then the 1M sample scene dense_sphere
+FOLIAGE_LEVELS = (0, 1, 2)             # 12.8K, 43K, 164K triangles; then dense_foliage (577K)
+#: dense_foliage's samples at 1080p: 64 (at 256 its casting takes tens of minutes here)
+DENSE_FOLIAGE_SAMPLES = 64
 
 
 def _pair(name, scene, res, samples, repeats, rows):
@@ -157,20 +162,26 @@ def _pair(name, scene, res, samples, repeats, rows):
 
 
 def bench_scaling(repeats: int, quick: bool):
-    """Issue 17's tables: cost against triangle count (smooth sphere 10K-1M
-    at 1080p, 64 samples; foliage split to 650K at 1080p, 256 samples) and
-    the foliage sample at 512x512 and 1920x1080 (256 samples), embree and
-    penumbra_casting measured side by side, with where the casting's time
-    goes (blockers per leaf node and per receiver, V_Gk tests, sample tests)."""
+    """Issue 17's tables: cost against triangle count (smooth sphere 10K,
+    100K and the 1M sample ``dense_sphere`` at 1080p, 64 samples; foliage
+    split to 164K at 1080p, 256 samples, and the 577K sample
+    ``dense_foliage``, ``DENSE_FOLIAGE_SAMPLES``) and the foliage sample at
+    512x512 and 1920x1080 (256 samples), embree and penumbra_casting measured
+    side by side, with where the casting's time goes (blockers per leaf node
+    and per receiver, V_Gk tests, sample tests)."""
     from .harness import load_sample
     hd = (480, 270) if quick else (1920, 1080)
     rows = []
-    for n in (SPHERE_TRIANGLES[:2] if quick else SPHERE_TRIANGLES):
+    for n in (SPHERE_TRIANGLES[:1] if quick else SPHERE_TRIANGLES):
         _pair("smooth sphere", smooth_sphere_scene(n, hd), hd, 64, repeats, rows)
+    if not quick:
+        _pair("dense_sphere", load_sample("dense_sphere", hd), hd, 64, repeats, rows)
     sq = (128, 128) if quick else (512, 512)
     _pair("foliage", load_sample("foliage", sq), sq, 256, repeats, rows)
     base = load_sample("foliage", hd)
     for lv in (FOLIAGE_LEVELS[:2] if quick else FOLIAGE_LEVELS):
         _pair("foliage" if lv == 0 else f"foliage split {lv}x", dense_foliage_scene(base, lv) if lv else base, hd,
               256, repeats, rows)
+    dense = (96, 54) if quick else hd
+    _pair("dense_foliage", load_sample("dense_foliage", dense), dense, DENSE_FOLIAGE_SAMPLES, repeats, rows)
     return rows

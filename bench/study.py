@@ -27,7 +27,7 @@ import numpy as np
 from ..core import auto_choice
 from ..core import methods as registry
 from ..core.buffers import FrameBuffers
-from ..core.metrics import errors, reach_mask
+from ..core.metrics import errors, reach_mask, whole_light_mask
 from ..core.warmup import ensure_compiled
 from .harness import ROOT, load_sample
 
@@ -53,30 +53,41 @@ SWEEPS: Dict[str, List] = {
             ("paper: figure-4 region, receiver_plane off", {"region": "figure4", "receiver_plane": False})],
     "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
     # the defaults (issue 17): every blocker texel's light summed, ids = connected mesh
-    # pieces, no adaptive sampling (section 4.3's interpolation is made for a ramp)
+    # pieces, no adaptive sampling (section 4.3's interpolation is made for a ramp), V x the
+    # light above the receiver's tangent plane (horizon)
     "single_sample": [("sum of blockers, mesh pieces", {}),
+                      ("sum of blockers, mesh pieces, no horizon", {"horizon": False}),
                       ("sum of blockers, mesh pieces, adaptive", {"adaptive": True}),
                       ("map 2x", {"map_scale": 2.0}),
                       ("paper radius knobs", {"auto_radius": False}),
                       # the paper's one blocker per pixel on object ids (adaptive, section 4.3)
-                      ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object"})],
-    # the default: splat "auto" (the paper's 4-neighbour splat; the footprint splat where a
-    # shadow caster has an alpha matte), ids = connected mesh pieces
+                      ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object",
+                                                                         "horizon": False})],
+    # the default (issue 17): the footprint splat and the bilinear display (the paper's 4-neighbour
+    # splat and nearest pixel on surfaces steeper than steep_slope), ids = connected mesh pieces
     "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
-                ("bilinear", {"samples": 64, "bilinear": True}),
-                ("footprint splat", {"samples": 64, "splat": "footprint"}),
-                ("paper: 4-neighbour splat, object ids", {"samples": 64, "splat": "neighbours", "surfaces": "object"})],
+                ("nearest LDI pixel", {"samples": 64, "bilinear": False}),
+                ("footprint splat, bilinear everywhere", {"samples": 64, "steep_slope": float("inf")}),
+                # the default from issue 18 to 17: footprint only where a caster has a matte, nearest pixel
+                ("auto splat (footprint where mattes), nearest pixel",
+                 {"samples": 64, "splat": "auto", "bilinear": False, "steep_slope": float("inf")}),
+                ("paper: 4-neighbour splat, nearest pixel, object ids",
+                 {"samples": 64, "splat": "neighbours", "bilinear": False, "surfaces": "object"})],
     "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
                        ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False}),
                        # issue 17: the sun's reference windows fitted to the receivers (the first version)
-                       ("sun windows fitted to receivers", {"samples": 64, "fit_window": "receivers"}, ("sun",))],
+                       ("sun windows fitted to receivers", {"samples": 64, "fit_window": "receivers"}, ("sun",)),
+                       # issue 17: a sun's maps from map_scale alone (no 1024^2 minimum)
+                       ("sun maps from map_scale alone", {"samples": 64, "sun_min_map": 0}, ("sun",))],
     "penumbra_casting": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
                          ("samples=256", {"samples": 256}),
                          # the paper's per-triangle blockers (no coplanar polygons, no interior slices)
                          ("paper: triangles", {"samples": 64, "coplanar_blockers": False,
                                                "interior_blockers": False})],
     "irregular": [("silhouettes from centre", {}), ("overlap C=0 (paper)", {"overlap": "zero"}),
-                  ("silhouettes from light", {"silhouette_from": "light"})],
+                  ("silhouettes from light", {"silhouette_from": "light"}),
+                  # issue 17: V at most the light above the receiver's tangent plane (not the default)
+                  ("silhouettes from centre, horizon", {"horizon": True})],
 }
 
 
@@ -137,6 +148,7 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
     ref = ref_m.run(fb, light, ref_p)
     ref_time = time.perf_counter() - t0
     mask = reach_mask(fb.gbuffer, light)
+    whole = mask & whole_light_mask(fb.gbuffer, light)    # issue 17's measure: the whole light in front
     refs = {"average": ref.passes["embree"], "irradiance": ref.passes["embree_irr"]}
     sheet = {"reference (embree)": refs["average"]}
     common = dict(scene=name, size=f"{res[0]}x{res[1]}", threads=numba.get_num_threads(),
@@ -170,8 +182,10 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
                 vis = m.passes[pid]
                 v = np.where(mask, out.passes[pid], 1.0)
                 e = errors(v, refs[vis], mask)
+                ew = errors(v, refs[vis], whole)
                 row.update(visibility=vis, rmse=e["rmse"], max_abs=e["max_abs"],
-                           mean_signed=e["mean_signed"], rmse_penumbra=e["rmse_penumbra"])
+                           mean_signed=e["mean_signed"], rmse_penumbra=e["rmse_penumbra"],
+                           rmse_whole=ew["rmse"], rmse_penumbra_whole=ew["rmse_penumbra"])
                 if label == entries[0][0]:
                     sheet[mid] = v
             except Exception as exc:  # a failing method is shown, not dropped
@@ -183,7 +197,7 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
                      else row["error"]), flush=True)
     rows.append(dict(common, method="embree (reference)", setting=f"samples={ref_ns}", seconds=ref_time,
                      status="ok", repeats=1, visibility="average", rmse=0.0, max_abs=0.0, mean_signed=0.0,
-                     rmse_penumbra=0.0))
+                     rmse_penumbra=0.0, rmse_whole=0.0, rmse_penumbra_whole=0.0))
     print(f"{name} {res[0]}x{res[1]} kernel compilation {compile_s:.2f}s (in no row's seconds)", flush=True)
     sheets[(name, res)] = (sheet, refs["average"], mask)
     return rows
@@ -192,8 +206,9 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
 #: study.csv's columns; the numbers among them (read back by ``kept_rows``)
 CSV_KEYS = ["scene", "size", "method", "setting", "status", "visibility", "seconds", "phases", "rmse", "max_abs",
             "mean_signed", "rmse_penumbra", "threads", "repeats", "error", "light_kind", "light_extent",
-            "triangles", "light_relative", "mattes", "load"]
-_FLOATS = ("seconds", "rmse", "max_abs", "mean_signed", "rmse_penumbra", "light_extent", "light_relative", "load")
+            "triangles", "light_relative", "mattes", "load", "rmse_whole", "rmse_penumbra_whole"]
+_FLOATS = ("seconds", "rmse", "max_abs", "mean_signed", "rmse_penumbra", "light_extent", "light_relative", "load",
+           "rmse_whole", "rmse_penumbra_whole")
 _INTS = ("threads", "repeats", "triangles", "mattes")
 
 
@@ -288,15 +303,22 @@ def write_outputs(rows, sheets, out_dir):
              f"{'/'.join(map(str, threads))} Numba threads"
              + (f", 1-minute load average {min(loads):.1f}-{max(loads):.1f} (per scene in study.csv)" if loads else "")
              + f"; errors against embree ({', '.join(sorted({r['setting'] for r in rows if 'reference' in r['method']}))})"
-             " over the pixels the light reaches.", "",
-             "| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             " over the pixels the light reaches; \"whole light\": over those that see the whole light above"
+             " their tangent plane (issue 17's measure, ``metrics.whole_light_mask``).", "",
+             "| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra "
+             "| rmse whole light | rmse penumbra whole light |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def num(r, k):
+        return f"{float(r[k]):.4f}" if r.get(k) not in (None, "") else ""
+
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | FAILED: {r.get('error','')[:60]} | | | | |")
+            lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | FAILED: {r.get('error','')[:60]} | | | | | | |")
             continue
         lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | {r['seconds']:.4f} | "
-                     f"{r['rmse']:.4f} | {r['max_abs']:.3f} | {r['mean_signed']:+.4f} | {r['rmse_penumbra']:.4f} |")
+                     f"{r['rmse']:.4f} | {r['max_abs']:.3f} | {r['mean_signed']:+.4f} | {r['rmse_penumbra']:.4f} | "
+                     f"{num(r, 'rmse_whole')} | {num(r, 'rmse_penumbra_whole')} |")
     with open(os.path.join(out_dir, "study.md"), "w") as f:
         f.write("\n".join(lines) + "\n")
 

@@ -425,7 +425,9 @@ def prepare_frame(scene, request: FrameRequest) -> FrameJob:
                              resolution=request.resolution, mode=request.mode)
     if captured.camera is None:
         raise NoCamera()
-    flt = settings.pixel_filter(scene, request.pixel_filter)
+    # a Preview is preview quality: pixel centres, unless the request names a filter
+    flt = settings.pixel_filter(scene, "none" if request.fast and request.pixel_filter is None
+                                else request.pixel_filter)
     if not request.use_light_settings:
         step = _uniform_step(request)
         external, notes = external_producers(scene, captured, step.passes, request.in_render,

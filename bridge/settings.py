@@ -140,9 +140,9 @@ def preferred_threads() -> int:
 
 def pixel_filter_spec(scene) -> str:
     """The scene's ``--pixel-filter`` spec (``scene.penumbra.pixel_filter``;
-    ``none`` when the add-on is not registered)."""
+    ``scene``, the default, when the add-on is not registered)."""
     ss = scene_settings(scene) if scene is not None else None
-    kind = str(getattr(ss, "pixel_filter", "NONE")) if ss is not None else "NONE"
+    kind = str(getattr(ss, "pixel_filter", "SCENE")) if ss is not None else "SCENE"
     if kind in ("NONE", "SCENE"):
         return kind.lower()
     width = round(float(getattr(ss, "pixel_filter_width", 1.5)), 6)   # Blender stores float32

@@ -18,13 +18,13 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass
-from typing import Dict, FrozenSet, Iterable, Optional, Set, Tuple
+from typing import Callable, Dict, FrozenSet, Iterable, Optional, Set, Tuple
 
 import numba
 import numpy as np
 
 from . import raycast, views
-from .methods.base import GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES
+from .methods.base import GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES, params_dict
 from .scene import GBuffer, Light, LightView, Scene
 from .sampling import scene_scale
 
@@ -56,7 +56,7 @@ NEED_PHASE: Dict[str, str] = {
     LIGHT_SAMPLE_VIEWS: "bvh",      # sample views are the method's own work, on the shared BVH
 }
 #: the frame's inputs (not buffers): every method sees them
-FRAME_INPUTS = ("scene", "width", "height", "map_size", "scale")
+FRAME_INPUTS = ("scene", "width", "height", "map_size", "scale", "frame_memo")
 
 
 class UndeclaredBufferError(RuntimeError):
@@ -93,6 +93,7 @@ class FrameBuffers:
         self._bvh_key: Dict[str, str] = {}        # light -> key of the BVH its shadow rays use
         self.culling: Dict[str, Dict[str, int]] = {}
         self._results: Dict[tuple, object] = {}   # ``result_key`` -> a method's MethodResult
+        self._memo: Dict[tuple, object] = {}      # ``frame_memo``: shared with the sub-pixel stage
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
@@ -103,7 +104,12 @@ class FrameBuffers:
         (built in ``seconds``; a packed one: the passes are packed too,
         ``shape``), sharing this frame's BVHs, shadow triangles and
         light views (fitted to the pixel-centre receivers; their build time is
-        billed to the pixel-centre stage) and its map size."""
+        billed to the pixel-centre stage), its map size and its receivers:
+        what is fitted to them (views, depth tolerances: ``light_extent``) is
+        the pixel-centre stage's, so a sub-pixel receiver is shaded as a pixel
+        centre there would be; their box grows to hold the sub-pixel
+        receivers (occluder culling keeps what can shadow them; the culled
+        BVHs are shared when it did not grow)."""
         sub = FrameBuffers(scene, width, height, self.map_size)
         sub._gbuffer = gbuffer
         sub.build_times["gbuffer"] = float(seconds)
@@ -111,7 +117,27 @@ class FrameBuffers:
         sub._shadow, sub._camera_scene = self._shadow, self._camera_scene
         sub._shadow_triangles = self._shadow_triangles
         sub._views = dict(self._views)
+        sub._memo = self._memo
+        pts, lo, hi = self._receiver_points()
+        P = gbuffer.position[gbuffer.hit]
+        if lo is not None and len(P):
+            slo, shi = np.minimum(lo, P.min(0)), np.maximum(hi, P.max(0))
+            sub._receivers = (pts, slo, shi)
+            if np.array_equal(slo, lo) and np.array_equal(shi, hi):
+                sub._culled, sub._bvh_key = dict(self._culled), dict(self._bvh_key)
+                sub.culling = dict(self.culling)
         return sub
+
+    def frame_memo(self, tag: str, light: Light, params, build: Callable[[], object]):
+        """A method's own light-space precompute (layered's LDI,
+        depth_raytrace's reference maps) for ``light`` and ``params``: built
+        once per frame, from the pixel-centre stage's receivers, and shared
+        with its sub-pixel stage (``supersampled``), which shades other
+        receivers with the same maps: billed where it was built."""
+        key = (tag,) + self.result_key(light, tag, params_dict(params))
+        if key not in self._memo:
+            self._memo[key] = build()
+        return self._memo[key]
 
     def adopt(self, prev: "FrameBuffers") -> None:
         """Take over what ``prev`` built for the same camera and geometry:

@@ -35,7 +35,7 @@ from .frame import REFERENCE_FOR, FrameResult, render_frame
 from .methods.base import IRRADIANCE
 from .methods.embree_ref import unshadowed_irradiance
 from .metrics import errors, reach_mask
-from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, V_TESTS, PixelFilter, coverage, footprint_samples,
+from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, V_TESTS, PixelFilter, coverage, footprint_flat,
                            refine_mask, resolve_samples)
 from .scene import GBuffer, Scene
 from .warmup import ensure_filter_compiled
@@ -43,21 +43,30 @@ from .warmup import ensure_filter_compiled
 E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
 
 
-#: producers that run on a packed G-buffer of the sub-pixel receivers (their
-#: kernels work per receiver point: embree, penumbra_casting; pcf per pixel
-#: with the camera footprint at each receiver's own sub-pixel, ``GBuffer.pixel``);
-#: the others run on the supersampled image (its other pixels empty)
-PACKED_PRODUCERS = frozenset({"embree", "pcf", "penumbra_casting"})
+#: producers that run on a packed G-buffer of the sub-pixel receivers: every
+#: core method shades each receiver point on its own (pcf with the camera
+#: footprint at the receiver's own sub-pixel, ``GBuffer.pixel``; single_sample
+#: without its adaptive image walk; layered and depth_raytrace on the maps the
+#: pixel-centre stage built, ``FrameBuffers.frame_memo``); a producer left out
+#: runs on the supersampled image (its other pixels empty)
+PACKED_PRODUCERS = frozenset({"embree", "pcf", "penumbra_casting", "single_sample", "layered", "irregular",
+                              "depth_raytrace"})
 
 
 def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
                     pixel_filter: Optional[PixelFilter] = None, **options) -> FrameResult:
     """``frame.render_frame(scene, passes, light_names, **options)`` with the
     passes filtered by ``pixel_filter`` (None or ``none``: exactly
-    ``render_frame``)."""
+    ``render_frame``). Each light's producer (a method with its passes) gets
+    its own sub-pixel samples, the footprints that the geometry or its own
+    pixel-centre passes need refined (``refine_mask``), so a method's
+    filtered pass does not depend on what else the frame computes; the
+    G-buffer is traced once at the union of them all."""
     flt = pixel_filter or PixelFilter()
     if flt.is_none:
         return render_frame(scene, passes, light_names, **options)
+    if flt.v_test not in V_TESTS:
+        raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
     W, H = scene.resolution
     progress = options.get("progress")
     compile_s = ensure_filter_compiled(scene, flt, render_filtered,
@@ -68,67 +77,121 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     t0 = time.perf_counter()
     g = buffers.gbuffer
     s = int(flt.grid)
+    SW, SH = s * W, s * H
     m0, taps = flt.taps()
-    computed = {lr.name: [pid for pid, rec in lr.record.items()
-                          if not method_registry.is_external(pid) and "skipped" not in rec]
-                for lr in base.lights}
-    computed = {k: v for k, v in computed.items() if v}
-    refine = np.zeros((H, W), bool)
-    full = np.zeros((H, W), bool)         # refined on the full grid (geometry, hard shadow edges)
-    if taps.size and flt.threshold < 0:
-        refine[:] = True                  # every pixel: the full supersampled pass (bench, tests)
-        full[:] = True
-    elif taps.size:
-        values = [lr.passes[pid] for lr in base.lights for pid in computed.get(lr.name, ())]
-        stack = np.ascontiguousarray(np.stack(values) if values else np.zeros((0, H, W), np.float32),
-                                     np.float32)
-        if flt.v_test not in V_TESTS:
-            raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
-        refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
-                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full)
-    rows, cols = footprint_samples(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_step)
-    sub_scene = dataclasses.replace(scene, resolution=(s * W, s * H))
-    tg = time.perf_counter()
-    sub_g = raycast.camera_gbuffer_at(sub_scene, s * W, s * H, cols, rows, buffers.camera_scene, packed=True)
-    tg = time.perf_counter() - tg
-    subs = []
-    if computed and len(rows):
-        sub_passes = list(dict.fromkeys(pid for v in computed.values() for pid in v))
-        packed = [p for p in sub_passes if method_registry.producer_of(p).id in PACKED_PRODUCERS]
-        dense = [p for p in sub_passes if p not in packed]
-        for group, gb in ((packed, sub_g), (dense, None)):
-            if group:
-                gb = gb or raycast.unpack_gbuffer(sub_g, s * W, s * H)
-                subs.append(render_frame(sub_scene, group, list(computed), options.get("overrides"),
-                                         options.get("method_overrides"),
-                                         buffers=buffers.supersampled(sub_scene, s * W, s * H, gb, tg)))
-    stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
-             "subpixel_receivers": int(sub_g.hit.sum())}
-    setup_s = time.perf_counter() - t0
+    units = []                            # (light result, producer id, its computed passes)
     for lr in base.lights:
-        _resolve_light(scene, flt, lr, computed.get(lr.name, ()), subs, sub_g, buffers, refine, rows, cols,
-                       stats, setup_s)
-    base.coverage = coverage(flt, refine, g.hit, rows, cols, sub_g.hit)
+        by_producer: Dict[str, list] = {}
+        for pid, rec in lr.record.items():
+            if not method_registry.is_external(pid) and "skipped" not in rec:
+                by_producer.setdefault(method_registry.producer_of(pid).id, []).append(pid)
+        units += [(lr, prod, pids) for prod, pids in by_producer.items()]
+    # each unit's footprints (the geometry's and its passes' V); the coverage's are those
+    # of the pixels beside a change of hit, which every unit refines on the full grid (the
+    # geometry's own when there is no unit)
+    masks = [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
+    if not units:
+        masks = [_refined(flt, g, [], taps.size > 0)]
+    flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice,
+                           flt.shade_footprint)
+            for refine, full in masks]
+    samples = [(f // SW, f % SW) for f in flat]
+    traced = np.zeros(SH * SW, bool)      # the union of every list: one flag per sub-pixel
+    for f in flat:
+        traced[f] = True
+    union = np.flatnonzero(traced)
+    del traced
+    sub_scene = dataclasses.replace(scene, resolution=(SW, SH))
+    tg = time.perf_counter()
+    sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
+                                      packed=True)
+    tg = time.perf_counter() - tg
+    setup_s = time.perf_counter() - t0 - tg       # refine masks, footprints, union
+    overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
+    for i, (lr, prod, pids) in enumerate(units):
+        t1 = time.perf_counter()
+        at = np.searchsorted(union, flat[i])      # the unit's samples in the traced union
+        g_u = sub_g if len(at) == len(union) else _take(sub_g, at)    # the whole union: itself
+        sub_lr, sub_s = None, 0.0
+        if len(at):
+            gb = g_u if prod in PACKED_PRODUCERS else raycast.unpack_gbuffer(g_u, SW, SH)
+            t2 = time.perf_counter()
+            sub = render_frame(sub_scene, pids, [lr.name], overrides, method_overrides,
+                               buffers=buffers.supersampled(sub_scene, SW, SH, gb, tg * len(at) / len(union)))
+            sub_s = time.perf_counter() - t2
+            sub_lr = sub.lights[0] if sub.lights else None
+        refine = masks[i][0]
+        rows, cols = samples[i]
+        stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
+                 "subpixel_receivers": int(g_u.hit.sum())}
+        own_s = setup_s / len(units) + time.perf_counter() - t1 - sub_s
+        _resolve_unit(scene, flt, lr, pids, sub_lr, g_u, buffers, refine, rows, cols, stats, own_s)
+    for lr in base.lights:
+        _errors(lr, buffers.reach(scene.light(lr.name)))   # the pixel-centre stage's mask, as its errors used
+    rows, cols = samples[0]
+    edges = hit_edges(g.hit, flt.reach) if taps.size else np.zeros((H, W), bool)
+    first_hit = sub_g.hit[0] if len(samples) == 1 else _take(sub_g, np.searchsorted(union, flat[0])).hit
+    base.coverage = coverage(flt, edges, g.hit, rows, cols, first_hit)
     base.pixel_filter = flt.to_json()
     base.total_s += time.perf_counter() - t0
     return base
 
 
-def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, subs: Sequence[FrameResult], sub_g: GBuffer,
-                   buffers: FrameBuffers, refine: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                   stats: Dict[str, int], setup_s: float) -> None:
-    """Filter light ``lr``'s computed passes ``pids`` in place from the
-    sub-pixel stages ``subs`` (packed passes, or supersampled images read at
-    the sub-samples (rows, cols)); record the filter, the sub-pixel sample
-    counts and the sub-pixel stage's time."""
-    sub_lrs = [x for sub in subs for x in sub.lights if x.name == lr.name]
+def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool):
+    """(refine, full) bool[H, W] of ``refine_mask`` for the pixel-centre
+    passes ``values`` (none: the geometry alone); nothing refined when the
+    filter is narrower than the sub-sample spacing; everything (full grid)
+    for ``threshold`` < 0 (the full supersampled pass: bench, tests)."""
+    H, W = g.shape
+    refine = np.zeros((H, W), bool)
+    full = np.zeros((H, W), bool)
+    if any_taps and flt.threshold < 0:
+        refine[:] = True
+        full[:] = True
+    elif any_taps:
+        stack = np.ascontiguousarray(np.stack(values) if len(values) else np.zeros((0, H, W)), np.float32)
+        refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
+                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full)
+    return refine, full
+
+
+def hit_edges(hit: np.ndarray, reach: int) -> np.ndarray:
+    """bool[H, W]: pixels with a neighbour within ``reach`` (in the frame)
+    whose centre sees a surface where theirs sees the world, or the other way
+    round: ``refine_mask``'s first geometry test, which puts them on the full
+    grid in every producer's list."""
+    H, W = hit.shape
+    pad = np.pad(hit, reach, mode="edge")       # beyond the frame: the border pixel again, no edge
+    out = np.zeros((H, W), bool)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            out |= pad[reach + dy:reach + dy + H, reach + dx:reach + dx + W] != hit
+    return out
+
+
+def _take(g: GBuffer, at: np.ndarray) -> GBuffer:
+    """Entries ``at`` of the packed G-buffer ``g`` (a packed G-buffer)."""
+    return GBuffer(position=g.position[:, at], normal=g.normal[:, at], depth=g.depth[:, at],
+                   object_id=g.object_id[:, at], triangle_id=g.triangle_id[:, at], hit=g.hit[:, at],
+                   pixel=g.pixel[at])
+
+
+def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_lr, sub_g: GBuffer, buffers: FrameBuffers,
+                  refine: np.ndarray, rows: np.ndarray, cols: np.ndarray, stats: Dict[str, int],
+                  own_s: float) -> None:
+    """Filter light ``lr``'s passes ``pids`` (one producer's) in place from
+    the sub-pixel stage ``sub_lr`` (packed passes at ``sub_g``, or
+    supersampled images read at the sub-samples (rows, cols); None: nothing
+    to refine); record the filter, the sub-pixel sample counts and the
+    sub-pixel stage's time (``own_s``: the producer's share of the refine
+    masks, footprints and G-buffer lists)."""
     light = scene.light(lr.name)
     e0 = None
     for pid in pids:
         rec = lr.record[pid]
         t = time.perf_counter()
-        sub_lr = next((x for x in sub_lrs if pid in x.passes), None)
-        if sub_lr is not None:
+        sub_time = 0.0
+        if sub_lr is not None and pid in sub_lr.passes:
             weight = None
             if rec["visibility"] == IRRADIANCE:
                 if e0 is None:
@@ -139,15 +202,16 @@ def _resolve_light(scene: Scene, flt: PixelFilter, lr, pids, subs: Sequence[Fram
             lr.passes[pid] = np.clip(resolve_samples(flt, refine, lr.passes[pid], rows, cols, v, weight),
                                      0.0, 1.0).astype(np.float32)
             sub_time = sub_lr.record[pid]["time_s"]["total"]
-        else:
-            sub_time = 0.0
         phases = {k: v for k, v in rec["time_s"].items() if k != "total"}
-        phases["subpixel"] = round(sub_time + setup_s / max(1, len(pids)), 6)
+        phases["subpixel"] = round(sub_time + own_s / len(pids), 6)
         phases["resolve"] = round(time.perf_counter() - t, 6)
         phases["total"] = round(sum(phases.values()), 6)
         rec["time_s"] = phases
         rec["pixel_filter"] = {**flt.to_json(), **stats}
-    mask = buffers.reach(light)           # the pixel-centre stage's, as its errors used
+
+
+def _errors(lr, mask: np.ndarray) -> None:
+    """Light ``lr``'s errors again, on its filtered passes and references."""
     for pid in lr.record:
         ref = REFERENCE_FOR[lr.record[pid]["visibility"]]
         if "error" in lr.record[pid] and ref in lr.passes:
@@ -162,6 +226,6 @@ def _unshadowed(sub_g: GBuffer, light, seed, scale: float) -> np.ndarray:
     if len(idx):
         P = sub_g.position.reshape(-1, 3)[idx]
         N = sub_g.normal.reshape(-1, 3)[idx].astype(np.float64)
-        out[idx] = unshadowed_irradiance(P, N, idx, light, 1 if light.is_zero_size else E0_SAMPLES,
+        out[idx] = unshadowed_irradiance(P, N, sub_g.seed_ids(idx), light, 1 if light.is_zero_size else E0_SAMPLES,
                                          int(seed or 0), scale)
     return out

@@ -20,6 +20,16 @@ PENUMBRA_LO, PENUMBRA_HI = 0.02, 0.98
 REACH_SUN, REACH_SPHERE, REACH_SPOT, REACH_AREA = 0, 1, 2, 3
 
 
+def _area_boundary(light: Light, c, ax, ay) -> list:
+    """An area light's boundary points around centre ``c`` along ``ax``,
+    ``ay`` (its corners; 16 points of a disk / ellipse)."""
+    hx, hy = light.half_size
+    if light.is_round:
+        ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+        return [c + ax * hx * math.cos(a) + ay * hy * math.sin(a) for a in ang]
+    return [c + ax * sx * hx + ay * sy * hy for sx in (-1, 1) for sy in (-1, 1)]
+
+
 def reach_mask(g: GBuffer, light: Light) -> np.ndarray:
     """bool[H,W]: visible pixels some part of the light can illuminate,
     ignoring occlusion (tests on the light's boundary points / cone), in
@@ -39,13 +49,7 @@ def reach_mask(g: GBuffer, light: Light) -> np.ndarray:
         mode = REACH_AREA
         m = light.world_from_light
         ax, ay, axis = m[:3, 0], m[:3, 1], -np.asarray(m[:3, 2], np.float64)
-        hx, hy = light.half_size
-        if light.is_round:
-            ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
-            pts = [c + ax * hx * math.cos(a) + ay * hy * math.sin(a) for a in ang]
-        else:
-            pts = [c + ax * sx * hx + ay * sy * hy for sx in (-1, 1) for sy in (-1, 1)]
-        pts = np.array(pts + [c], np.float64)
+        pts = np.array(_area_boundary(light, c, ax, ay) + [c], np.float64)
     H, W = g.hit.shape
     out = np.empty(H * W, np.bool_)
     _reach_kernel(np.ascontiguousarray(g.position, np.float64).reshape(-1, 3),
@@ -53,6 +57,35 @@ def reach_mask(g: GBuffer, light: Light) -> np.ndarray:
                   mode, c, np.ascontiguousarray(axis, np.float64), float(limit), float(light.radius),
                   np.ascontiguousarray(pts, np.float64), out)
     return out.reshape(H, W)
+
+
+def whole_light_mask(g: GBuffer, light: Light, margin: float = 0.02) -> np.ndarray:
+    """bool[H,W]: visible pixels that see the whole light above their tangent
+    plane, by ``margin`` in cosine (issue 17's measure: "the pixels where the
+    whole light is in front of the receiver"; the rule of
+    tests/test_cycles_reference.py's ``fully_facing``, with round area lights
+    by 16 boundary points and suns by the cone's edge). Vectorised NumPy:
+    within ``reach_mask``, it leaves out the receivers turned partly away
+    from the light, where a method must also know what its own surface
+    hides."""
+    P = np.asarray(g.position, np.float64)
+    n = np.asarray(g.normal, np.float64)
+    ok = np.asarray(g.hit, bool).copy()
+    if light.kind == "sun":
+        axis = -np.asarray(light.direction, np.float64)
+        cos_n = np.clip(n @ axis, -1.0, 1.0)
+        # the angle between n and the axis plus the half-angle stays below 90 degrees
+        return ok & (np.cos(np.arccos(cos_n) + light.sun_half_angle) > margin)
+    c = np.asarray(light.position, np.float64)
+    if light.kind == "sphere":
+        d = c - P
+        dist = np.maximum(np.linalg.norm(d, axis=-1), 1e-300)
+        return ok & (np.einsum("...i,...i->...", n, d) / dist > np.minimum(light.radius / dist, 1.0) + margin)
+    ax, ay, _ = light.axes
+    for q in _area_boundary(light, c, ax, ay):
+        dq = q - P
+        ok &= np.einsum("...i,...i->...", n, dq) / np.maximum(np.linalg.norm(dq, axis=-1), 1e-300) > margin
+    return ok
 
 
 @njit(cache=True, nogil=True)

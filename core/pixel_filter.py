@@ -61,7 +61,7 @@ DEFAULT_GRID = 4               # sub-pixel samples per axis where a pixel is ref
 MAX_GRID = 16
 DEFAULT_SHADE_GRID = 2         # sub-pixel samples per axis where only V is mildly not locally linear
 DEFAULT_SHARP = 0.2            # V's second difference beyond which a shadow edge gets the full grid
-DEFAULT_THRESHOLD = 0.1        # V's second difference between pixel centres that marks a shadow edge
+DEFAULT_THRESHOLD = 0.07       # V's second difference between pixel centres that marks a shadow edge
 V_TESTS = ("curvature", "variation")   # refine_mask's test of V (PixelFilter.v_test)
 EDGE_TAIL = 0.01               # PixelFilter.reach: an edge it misses moves a pixel by <= 1 % of the jump
 TAIL_STEPS = 4096
@@ -87,12 +87,26 @@ class PixelFilter:
     shade_grid: int = DEFAULT_SHADE_GRID   # sub-samples per axis where only V's mild kinks need them;
                                            # must divide ``grid``; = grid: the first version (full grid)
     sharp: float = DEFAULT_SHARP  # V's test beyond which a shadow edge gets the full grid
+    shade_footprint: bool = False  # a pixel refined for V alone reads the lattice of its own pixel
+                                   # (and of refined neighbours'); True: of its whole footprint
+                                   # (the first version)
 
     @property
-    def shade_step(self) -> int:
-        """Sub-sample stride of the pixels refined for V alone (``shade_grid``)."""
+    def shade_lattice(self) -> np.ndarray:
+        """bool[grid]: the sub-rows (and sub-columns) of each pixel that the
+        pixels refined for V alone read: ``shade_grid`` of the ``grid``,
+        placed symmetrically about the pixel centre (each pixel's samples'
+        centroid is its centre, so a linear V is integrated exactly: the
+        first version's every ``grid / shade_grid``-th sub-row was not);
+        all of them when ``shade_grid`` does not divide ``grid`` or equals it."""
         g, v = int(self.grid), int(self.shade_grid)
-        return g // v if 0 < v < g and g % v == 0 else 1
+        keep = np.ones(g, np.bool_)
+        if 0 < v < g and g % v == 0:
+            keep[:] = False
+            for k in range((v + 1) // 2):
+                j = int(g * (k + 0.5) / v)
+                keep[j] = keep[g - 1 - j] = True
+        return keep
 
     @property
     def is_none(self) -> bool:
@@ -181,6 +195,13 @@ class PixelFilter:
 
     def spec(self) -> str:
         return NONE if self.is_none else f"{self.kind}:{self.width:g}:{self.grid}"
+
+    def describe(self) -> str:
+        """One line for ``penumbra plan`` and ``render``'s table."""
+        if self.is_none:
+            return "none (one receiver at each pixel centre)"
+        return (f"{self.kind} {self.width:g} px ({self.grid} x {self.grid} sub-pixel receivers where a "
+                f"pixel's footprint holds an edge or a shadow edge; each pass gets an Alpha, the coverage)")
 
 
 def parse(spec: str, scene_filter: Optional[PixelFilter] = None) -> PixelFilter:
@@ -299,64 +320,77 @@ def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, n
             full[r, c] = geo
 
 
-@njit(cache=True)
-def _footprint_rows(refine, full, grid, m0, k, step, count, rows, cols):
-    """``footprint_samples``' kernel: per sub-row I the sub-columns some
-    refined pixel's footprint reads (a refined pixel (r, c) reads sub-rows
-    grid r + m0 ... + k - 1, the same for columns; one that is not ``full``
-    only every ``step``-th of them, those with I and J divisible by
-    ``step``); ``count`` only counts them (rows, cols unused), else they are
-    written in row-major order."""
+@njit(cache=True, nogil=True)
+def _footprint_rows(refine, full, grid, m0, k, lattice, shade_footprint, out):
+    """``footprint_samples``' kernel: ``out`` (bool[SH * SW], row-major, all
+    False) gets True at the sub-samples some refined pixel reads: a
+    ``full`` one its whole footprint (sub-rows grid r + m0 ... + k - 1, the
+    same for columns), another the sub-samples with ``lattice[I % grid]``
+    and ``lattice[J % grid]`` of its own pixel (``shade_footprint``: of its
+    footprint, the first version)."""
     H, W = refine.shape
     SH, SW = grid * H, grid * W
-    reads = np.zeros((H, SW), np.bool_)        # pixel row r reads sub-column J on every sub-row
-    sparse = np.zeros((H, SW), np.bool_)       # ... on the sub-rows divisible by step
+    reads = np.zeros((H, SW), np.bool_)        # pixel row r's footprints read sub-column J on every sub-row
+    sparse = np.zeros((H, SW), np.bool_)       # ... on the lattice's sub-rows (of the footprint or the pixel)
+    rows_used = np.zeros(H, np.bool_)
+    rows_sparse = np.zeros(H, np.bool_)
     for r in range(H):
         for c in range(W):
             if refine[r, c]:
-                for b in range(k):
-                    J = grid * c + m0 + b
-                    if 0 <= J < SW:
-                        if full[r, c]:
+                if full[r, c]:
+                    rows_used[r] = True
+                    for b in range(k):
+                        J = grid * c + m0 + b
+                        if 0 <= J < SW:
                             reads[r, J] = True
-                        elif J % step == 0:
+                else:
+                    rows_sparse[r] = True
+                    lo, n = (grid * c + m0, k) if shade_footprint else (grid * c, grid)
+                    for b in range(n):
+                        J = lo + b
+                        if 0 <= J < SW and lattice[J % grid]:
                             sparse[r, J] = True
-    line = np.zeros(SW, np.bool_)
-    n = 0
     for I in range(SH):
+        base = I * SW
         r0, r1 = max(0, -((k - 1 - (I - m0)) // grid)), min(H - 1, (I - m0) // grid)
-        if r1 < r0:
-            continue
-        line[:] = reads[r0]
-        for r in range(r0 + 1, r1 + 1):
-            line |= reads[r]
-        if I % step == 0:
+        for r in range(r0, r1 + 1):
+            if rows_used[r]:
+                for J in range(SW):
+                    out[base + J] |= reads[r, J]
+        if lattice[I % grid]:
+            if not shade_footprint:
+                r0 = r1 = I // grid
             for r in range(r0, r1 + 1):
-                line |= sparse[r]
-        for J in range(SW):
-            if line[J]:
-                if not count:
-                    rows[n] = I
-                    cols[n] = J
-                n += 1
-    return n
+                if rows_sparse[r]:
+                    for J in range(SW):
+                        out[base + J] |= sparse[r, J]
+
+
+def footprint_flat(refine: np.ndarray, grid: int, m0: int, k: int, full: Optional[np.ndarray] = None,
+                   lattice: Optional[np.ndarray] = None, shade_footprint: bool = True) -> np.ndarray:
+    """int64[N]: the sub-samples the refined pixels read, as sorted flat
+    indices I * SW + J of the supersampled view: a ``full`` pixel (None:
+    all are) its footprint (taps ``m0``, size ``k``), another only the
+    sub-samples whose sub-row and sub-column within their pixel the
+    bool[grid] ``lattice`` keeps (``PixelFilter.shade_lattice``; None: all),
+    in its footprint (``shade_footprint``) or in its own pixel. No
+    supersampled image is made, only one flag per sub-sample."""
+    refine = np.ascontiguousarray(refine, np.bool_)
+    full = refine if full is None else np.ascontiguousarray(full, np.bool_)
+    lattice = np.ones(grid, np.bool_) if lattice is None else np.ascontiguousarray(lattice, np.bool_)
+    H, W = refine.shape
+    flags = np.zeros(grid * H * grid * W, np.bool_)
+    _footprint_rows(refine, full, int(grid), int(m0), int(k), lattice, bool(shade_footprint), flags)
+    return np.flatnonzero(flags)
 
 
 def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int, full: Optional[np.ndarray] = None,
-                      step: int = 1):
-    """(rows int64[N], cols int64[N]): the sub-samples (supersampled pixel
-    (rows[n], cols[n])) some refined pixel's footprint (taps ``m0``, size
-    ``k``) reads, row-major; a refined pixel that is not ``full`` (None:
-    all are) reads only the sub-samples whose row and column are divisible
-    by ``step`` (a ``grid / step`` lattice). No supersampled image is made."""
-    refine = np.ascontiguousarray(refine, np.bool_)
-    full = refine if full is None else np.ascontiguousarray(full, np.bool_)
-    step = max(1, int(step))
-    empty = np.zeros(0, np.int64)
-    n = _footprint_rows(refine, full, grid, m0, k, step, True, empty, empty)
-    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
-    _footprint_rows(refine, full, grid, m0, k, step, False, rows, cols)
-    return rows, cols
+                      lattice: Optional[np.ndarray] = None, shade_footprint: bool = True):
+    """(rows int64[N], cols int64[N]): ``footprint_flat``'s sub-samples as
+    supersampled pixels (rows[n], cols[n]), row-major."""
+    flat = footprint_flat(refine, grid, m0, k, full, lattice, shade_footprint)
+    SW = int(grid) * refine.shape[1]
+    return flat // SW, flat % SW
 
 
 @njit(cache=True)

@@ -314,6 +314,13 @@ class GBuffer:
         N = np.ascontiguousarray(self.normal.reshape(-1, 3)[idx], np.float64)
         return idx, P, N
 
+    def seed_ids(self, idx: np.ndarray) -> np.ndarray:
+        """The pixel ids that seed entries ``idx``' per-pixel samples: their
+        flat index in the view (a packed G-buffer's ``pixel``), so a
+        sub-pixel receiver draws the same samples whichever list holds it."""
+        idx = np.asarray(idx, np.int64)
+        return idx if self.pixel is None else np.ascontiguousarray(self.pixel[idx], np.int64)
+
 
 @dataclass
 class ViewFace:

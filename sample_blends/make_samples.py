@@ -1,6 +1,6 @@
 """Build Penumbra's sample scenes (run: ``.venv/bin/python sample_blends/make_samples.py``).
 
-Writes, next to this script, six .blend files (Cycles, 512x512 at 100 %):
+Writes, next to this script, eight .blend files (Cycles, 512x512 at 100 %):
 
 * ``grids.blend``        - Laine & Aila 2005's GRIDS test scene: three stacked
   lattices of thin crossing bars over a ground plane, each lattice rotated
@@ -17,6 +17,16 @@ Writes, next to this script, six .blend files (Cycles, 512x512 at 100 %):
   rectangular area light (about the leaf cluster's size). Many small occluders.
 * ``sun_pillars.blend``  - issue 17: two colonnades of thin pillars and arches
   over a ground plane, under a low sun of 4 degrees angular diameter.
+* ``dense_sphere.blend`` - issue 17, production triangle counts: the contact
+  scene of ``bench/scaling.py`` (a smooth sphere resting on a ground plane
+  under a 1 m square area light) with the sphere a 64 x 32 UV sphere under a
+  Catmull-Clark Subdivision Surface modifier of 4 levels: 1,032,192 triangles
+  once evaluated, a few KB of mesh in the file.
+* ``dense_foliage.blend`` - issue 17: ``foliage``'s shrub (the same stems,
+  leaf placements and light) with every leaf one hexagon under a
+  Catmull-Clark Subdivision Surface modifier of 3 levels and a Displace
+  modifier (Clouds texture, along the normals): curved leaves of 192
+  triangles, 576K leaf triangles once evaluated.
 * ``leaf_cards.blend``   - issue 18: alpha-matte occluders under an area light:
   36 leaf cards with a binary leaf matte (Closest), a chain-link fence card
   (binary, tiled), and four cards with a soft leaf matte (Linear). Each matte
@@ -42,7 +52,8 @@ import numpy as np
 from mathutils import Vector
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-SCENES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards")
+SCENES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards", "dense_sphere",
+          "dense_foliage")
 
 # GRIDS parameters
 GRID_SPAN = 6.0          # lattice side length
@@ -62,6 +73,12 @@ FOLIAGE_STEM_WIDTH = 0.012
 FOLIAGE_CROWN_CENTRE = (0.0, 0.0, 1.25)
 FOLIAGE_CROWN_RADII = (0.75, 0.45, 0.45)   # ellipsoid the branch tips fill
 FOLIAGE_LIGHT_SIZE = (1.5, 0.8)            # rectangle, about the crown's size
+
+# dense scenes (issue 17: production triangle counts, made by modifiers)
+DENSE_SPHERE_LEVELS = 4          # Catmull-Clark levels on a 64 x 32 UV sphere: 1,032,192 triangles
+DENSE_LEAF_LEVELS = 3            # Catmull-Clark levels on a hexagonal leaf: 192 triangles
+DENSE_LEAF_DISPLACE = 0.02       # Displace strength (m) along the leaf normal (Clouds, midlevel 0.5)
+DENSE_LEAF_NOISE = 0.06          # the Clouds texture's noise size (m): about a leaf
 
 # sun and pillars parameters
 SUN_ANGLE_DEG = 4.0              # angular diameter (SunLight.angle)
@@ -458,11 +475,9 @@ def build_torus_plane():
     return scene
 
 
-def build_foliage():
-    scene = _reset("foliage")
-    rng = np.random.default_rng(FOLIAGE_SEED)
-    white = _material("Diffuse", (0.8, 0.8, 0.8))
-    _plane(scene, "Ground", 10.0, 10.0, white)
+def _foliage_parts(rng):
+    """foliage's stems (verts, quads) and leaves (per leaf a rotation and a
+    base point), drawn from ``rng`` in a fixed order."""
     centre = np.array(FOLIAGE_CROWN_CENTRE)
     radii = np.array(FOLIAGE_CROWN_RADII)
     fork = np.array([0.0, 0.0, centre[2] - radii[2]])
@@ -474,21 +489,88 @@ def build_foliage():
     for tip in tips:
         stems.append(_tube_arrays(np.linspace(fork, tip, 4), _perpendicular(tip - fork),
                                   FOLIAGE_STEM_WIDTH))
-    sv, sf = _merge(stems)
-    _mesh_object(scene, "Stems", sv, sf, _material("Stem", (0.35, 0.22, 0.1)))
     # leaves: base on a branch (its outer 60 %), a little off it, any orientation
-    leaf_v, leaf_t = _leaf_arrays(FOLIAGE_LEAF_LENGTH, FOLIAGE_LEAF_WIDTH)
     branch = rng.integers(0, FOLIAGE_BRANCHES, FOLIAGE_LEAVES)
     t = rng.uniform(0.4, 1.0, (FOLIAGE_LEAVES, 1))
     bases = fork + t * (tips[branch] - fork) + rng.normal(0.0, 0.06, (FOLIAGE_LEAVES, 3))
     rot = _random_rotations(rng, FOLIAGE_LEAVES)
+    return _merge(stems), rot, bases
+
+
+def _foliage_base(name: str):
+    """A new scene ``name`` with foliage's ground and stems; returns it and
+    the leaves' rotations and base points."""
+    scene = _reset(name)
+    rng = np.random.default_rng(FOLIAGE_SEED)
+    white = _material("Diffuse", (0.8, 0.8, 0.8))
+    _plane(scene, "Ground", 10.0, 10.0, white)
+    (sv, sf), rot, bases = _foliage_parts(rng)
+    _mesh_object(scene, "Stems", sv, sf, _material("Stem", (0.35, 0.22, 0.1)))
+    return scene, rot, bases
+
+
+def build_foliage():
+    scene, rot, bases = _foliage_base("foliage")
+    leaf_v, leaf_t = _leaf_arrays(FOLIAGE_LEAF_LENGTH, FOLIAGE_LEAF_WIDTH)
     verts = np.einsum("nij,vj->nvi", rot, leaf_v) + bases[:, None, :]
     tris = leaf_t[None] + (len(leaf_v) * np.arange(FOLIAGE_LEAVES))[:, None, None]
     _mesh_object(scene, "Leaves", verts.reshape(-1, 3), tris.reshape(-1, 3),
                  _material("Leaf", (0.15, 0.5, 0.1)), recalc=False)
-    _light(scene, "AreaLight", "AREA", (0.8, -0.4, 3.6), tuple(centre), 800.0,
+    _foliage_light_camera(scene)
+    return scene
+
+
+def _foliage_light_camera(scene):
+    _light(scene, "AreaLight", "AREA", (0.8, -0.4, 3.6), tuple(FOLIAGE_CROWN_CENTRE), 800.0,
            shape="RECTANGLE", size=FOLIAGE_LIGHT_SIZE[0], size_y=FOLIAGE_LIGHT_SIZE[1])
     _camera(scene, (2.0, -3.0, 2.1), (-0.45, 0.3, 0.55), lens=30.0)
+
+
+def _subdivided(ob, levels: int):
+    """A Catmull-Clark Subdivision Surface modifier of ``levels`` (viewport and render)."""
+    mod = ob.modifiers.new("Subdivision", "SUBSURF")
+    mod.subdivision_type = "CATMULL_CLARK"
+    mod.levels = mod.render_levels = levels
+    return mod
+
+
+def build_dense_foliage():
+    """``foliage`` at 576K leaf triangles: each leaf one hexagon face (the six
+    corners of ``_leaf_arrays``) under Catmull-Clark (``DENSE_LEAF_LEVELS``)
+    and a Displace along the normals: curved, no longer coplanar leaves."""
+    scene, rot, bases = _foliage_base("dense_foliage")
+    leaf_v, _ = _leaf_arrays(FOLIAGE_LEAF_LENGTH, FOLIAGE_LEAF_WIDTH)
+    verts = np.einsum("nij,vj->nvi", rot, leaf_v) + bases[:, None, :]
+    hexagons = np.arange(len(leaf_v))[None] + (len(leaf_v) * np.arange(FOLIAGE_LEAVES))[:, None]
+    leaves = _mesh_object(scene, "Leaves", verts.reshape(-1, 3), hexagons, _material("Leaf", (0.15, 0.5, 0.1)),
+                          recalc=False)
+    _subdivided(leaves, DENSE_LEAF_LEVELS)
+    tex = bpy.data.textures.new("LeafBend", "CLOUDS")
+    tex.noise_scale = DENSE_LEAF_NOISE
+    disp = leaves.modifiers.new("Displace", "DISPLACE")
+    disp.texture = tex
+    disp.texture_coords = "LOCAL"
+    disp.direction = "NORMAL"
+    disp.strength = DENSE_LEAF_DISPLACE
+    _foliage_light_camera(scene)
+    return scene
+
+
+def build_dense_sphere():
+    """The contact scene of ``bench/scaling.smooth_sphere_scene`` at about 1M
+    triangles: a UV sphere (64 x 32) of radius 1 resting on the ground under
+    ``DENSE_SPHERE_LEVELS`` of Catmull-Clark (which pulls its coarse faces in
+    by under 1 %: it floats that little above the ground)."""
+    scene = _reset("dense_sphere")
+    white = _material("Diffuse", (0.8, 0.8, 0.8))
+    _plane(scene, "Ground", 16.0, 16.0, white)
+    verts, faces = _uv_sphere_arrays(1.0, 64, 32)
+    sphere = _mesh_object(scene, "Sphere", verts, faces, _material("Sphere", (0.7, 0.7, 0.75)))
+    sphere.location = (0.0, 0.0, 1.0)
+    sphere.data.shade_smooth()
+    _subdivided(sphere, DENSE_SPHERE_LEVELS)
+    _light(scene, "AreaLight", "AREA", (-2.5, -1.5, 4.5), (0.0, 0.0, 0.5), 1000.0, shape="SQUARE", size=1.0)
+    _camera(scene, (5.0, -6.0, 4.0), (-0.8, 0.6, 0.4), lens=35.0)
     return scene
 
 
@@ -565,7 +647,8 @@ def build_leaf_cards():
 
 BUILDERS = {"grids": build_grids, "sphere_plane": build_sphere_plane,
             "torus_plane": build_torus_plane, "foliage": build_foliage,
-            "sun_pillars": build_sun_pillars, "leaf_cards": build_leaf_cards}
+            "sun_pillars": build_sun_pillars, "leaf_cards": build_leaf_cards,
+            "dense_sphere": build_dense_sphere, "dense_foliage": build_dense_foliage}
 
 
 def main(out_dir: str = HERE, names=SCENES):

@@ -12,7 +12,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SAMPLES = os.path.join(ROOT, "sample_blends")
 
 #: Every scene ``sample_blends/make_samples.py`` builds (its ``SCENES``).
-SAMPLE_NAMES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards")
+SAMPLE_NAMES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards", "dense_sphere",
+                "dense_foliage")
 
 
 def sample_path(name: str) -> str:

@@ -292,3 +292,19 @@ def leaf_cloud_scene(n_leaves=150, res=48, seed=17, leaf=(0.2, 0.11), light_size
                   shape="RECTANGLE", size=light_size[0], size_y=light_size[1])
     cam = persp_camera((1.8, -2.6, 2.0), (-0.3, 0.3, 0.5), lens=30.0)
     return make_scene(tris, ids, [light], res, camera=cam, names=("ground", "leaves"))
+
+
+def lone_tilted_plane(tilt_deg, light, res=64, size=3.0, view=0.5):
+    """A 2 size x 2 size plane through the origin tilted by ``tilt_deg``
+    about x, alone under the light, seen from above by an orthographic camera
+    over [-view, view]^2 (by default its middle only, edges out of view:
+    where an open surface ends, seen from the light, the paper's splat leaves
+    its border texels partly covered)."""
+    t = math.radians(tilt_deg)
+    c, s = math.cos(t), math.sin(t)
+    tris = np.array(quad(-size, size, -size, size, 0.0), np.float64)
+    y, z = tris[..., 1].copy(), tris[..., 2].copy()
+    tris[..., 1], tris[..., 2] = c * y - s * z, s * y + c * z
+    cam = top_ortho_camera(half=view, height=3.0)
+    return Scene(tris.astype(np.float32), np.zeros(2, np.int32), [ObjectInfo("tilted", 0)], cam, [light],
+                 (res, res))

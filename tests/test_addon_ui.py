@@ -75,7 +75,9 @@ def test_light_and_scene_properties(registered):
     sc = bpy.context.scene.penumbra
     assert sc.output_folder == "" and sc.seed == 0 and sc.cycles_samples == 64
     assert sc.render_passes is False
-    # the pixel filter: pixel centres by default; the scene's own, or one of Cycles' with a width
+    # the pixel filter: the scene's own by default (issue 14), pixel centres, or one of Cycles' with a width
+    assert settings.pixel_filter_spec(bpy.context.scene) == "scene"
+    sc.pixel_filter = "NONE"
     assert settings.pixel_filter_spec(bpy.context.scene) == "none"
     sc.pixel_filter, sc.pixel_filter_width = "GAUSSIAN", 0.7
     assert settings.pixel_filter_spec(bpy.context.scene) == "gaussian:0.7"

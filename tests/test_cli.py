@@ -26,13 +26,17 @@ def test_render_sphere_plane_contract(tmp_path):
     rec = json.loads((tmp_path / "sphere_plane.0001.json").read_text())
     layers = exr.read_multilayer(str(exr_path))
     assert rec["scene"] == "sphere_plane" and rec["frame"] == 1 and rec["resolution"] == [64, 48]
+    # the default pixel filter is the scene's render filter (issue 14): Cycles' Blackman-Harris 1.5
+    assert rec["pixel_filter"]["type"] == "blackman-harris" and rec["pixel_filter"]["width_px"] == 1.5
     for light in rec["lights"]:
         assert light["layer"] == light["name"].replace(".", "_")
         passes = layers[light["layer"]]
-        assert set(passes) == {"pcf", "embree", "embree_irr"}
+        assert set(passes) == {"pcf", "embree", "embree_irr", "Alpha"}     # Alpha: the coverage
         for pid, img in passes.items():
             assert img.shape == (48, 64) and np.isfinite(img).all()
             assert img.min() >= 0 and img.max() <= 1
+            if pid == "Alpha":
+                continue
             m = light["methods"][pid]
             assert m["visibility"] in ("average", "irradiance")
             assert m["time_s"]["total"] >= 0
@@ -44,11 +48,11 @@ def test_render_sphere_plane_contract(tmp_path):
 
 def test_render_filtered_contract(tmp_path):
     """--pixel-filter: the filter and sub-pixel counts in the JSON, an Alpha pass
-    (the coverage) in every layer; without it, no Alpha and no filter record."""
+    (the coverage) in every layer; with none, no Alpha and no filter record."""
     blend = sample_path("torus_plane")
     args = ["--resolution", "40x32", "--samples", "8", "--methods", "pcf,embree,embree_irr", "--no-previews"]
     assert main(["render", blend, "--out", str(tmp_path / "f"), "--pixel-filter", "gaussian:1"] + args) == 0
-    assert main(["render", blend, "--out", str(tmp_path / "n")] + args) == 0
+    assert main(["render", blend, "--out", str(tmp_path / "n"), "--pixel-filter", "none"] + args) == 0
     rec = json.loads((tmp_path / "f" / "torus_plane.0001.json").read_text())
     assert rec["pixel_filter"]["type"] == "gaussian" and rec["pixel_filter"]["width_px"] == 1.0
     layers = exr.read_multilayer(str(tmp_path / "f" / "torus_plane.0001.exr"))

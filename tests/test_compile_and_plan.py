@@ -107,7 +107,8 @@ def test_plan_and_render_agree(tmp_path, capsys, scene):
     res = "48x40"
     capsys.readouterr()
     assert main(["plan", blend, "--resolution", res]) == 0             # default: auto
-    planned = _plan_lights(capsys.readouterr().out)
+    said = capsys.readouterr().out
+    planned = _plan_lights(said)
     assert main(["render", blend, "--out", str(tmp_path / "o"), "--resolution", res, "--samples", "4",
                  "--no-previews", "--quiet"]) == 0
     stem = os.path.splitext(os.path.basename(blend))[0]
@@ -115,6 +116,8 @@ def test_plan_and_render_agree(tmp_path, capsys, scene):
     rec = json.loads((tmp_path / "o" / frame).read_text())
     assert rec["plan"]["passes"] == ["auto"]
     assert planned == _render_lights(rec) and planned, stem
+    flt = rec["pixel_filter"]                                           # default: the scene's filter
+    assert f"pixel filter: {flt['type']} {flt['width_px']:g} px (" in said
     if scene == "unreached":
         assert planned["Away"] == ("skip", [])
         (lp,) = [lp for lp in rec["plan"]["lights"] if lp["name"] == "Away"]
@@ -147,7 +150,8 @@ sys.path.insert(0, {tests!r})
 from numba.core import event
 from penumbra.core import warmup
 from penumbra.core.alpha import CLOSEST, REPEAT
-from penumbra.core.frame import render_frame
+from penumbra.core.filtered_frame import render_filtered
+from penumbra.core.pixel_filter import parse
 from synthetic import area_light, matte_layers_scene
 
 inside, outside = [], []
@@ -171,20 +175,22 @@ class Compiles(event.Listener):
 event.register("numba:compile", Compiles())
 sc = matte_layers_scene(area_light(1.0), [(2.0, [[0.0, 1.0], [1.0, 0.0]], CLOSEST, REPEAT)], res=16,
                         camera_sees=True)
-render_frame(sc, {methods!r}, overrides={{"samples": 4}})
+render_filtered(sc, {methods!r}, overrides={{"samples": 4}}, pixel_filter=parse({pixel_filter!r}))
 print(json.dumps({{"inside": inside, "outside": outside}}))
 """
 
 
-def test_a_matte_scene_compiles_nothing_outside_the_warm_up(tmp_path):
-    """Issue 15 / 18: on a fresh Numba cache, every kernel a frame with
+@pytest.mark.parametrize("pixel_filter", ["none", "blackman-harris:1.5"])
+def test_a_matte_scene_compiles_nothing_outside_the_warm_up(tmp_path, pixel_filter):
+    """Issue 15 / 18 / 14: on a fresh Numba cache, every kernel a frame with
     alpha mattes compiles (camera G-buffer pass-through, dithered light map,
-    matte transmittance, the planner's reach) compiles inside the warm-up,
-    never inside a buffer's or a method's time."""
+    matte transmittance, the planner's reach; filtered: the refine masks,
+    sub-pixel G-buffer, resolve) compiles inside the warm-up, never inside a
+    buffer's or a method's time."""
     env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=str(tmp_path / "cache"))
     env.pop("NUMBA_CACHE_DIR", None)
     code = _COMPILES_OUTSIDE_WARM_UP.format(tests=os.path.dirname(os.path.abspath(__file__)),
-                                            methods=["pcf", "embree"])
+                                            methods=["pcf", "embree"], pixel_filter=pixel_filter)
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     seen = json.loads(p.stdout.strip().splitlines()[-1])

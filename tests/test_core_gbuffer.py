@@ -211,3 +211,30 @@ def test_reach_mask_kernel_equals_the_numpy_formula(case):
         m = reach_mask(g, light)
         assert m.dtype == np.bool_ and m.shape == (H, W) and not (m & ~g.hit).any()
         np.testing.assert_array_equal(m, numpy_reach_mask(g, light))
+
+
+@pytest.mark.parametrize("make, whole", [(lambda: area_light(8.0, z=4.0), False),
+                                         (lambda: area_light(1.0, z=4.0), True),
+                                         (lambda: area_light(8.0, shape="DISK", z=4.0), False),
+                                         (lambda: sphere_light(3.5, z=4.0), False),
+                                         (lambda: sphere_light(0.3, z=4.0), True),
+                                         (lambda: sun_light(1.2), False), (lambda: sun_light(0.2), True)])
+def test_whole_light_mask_on_a_tilted_plane(make, whole):
+    """Issue 17's measure (``metrics.whole_light_mask``): on a lone plane
+    tilted 60 degrees, a light whose part lies below every point's tangent
+    plane (an 8-unit area light 4 above it, a 3.5 sphere, a 69-degree sun)
+    leaves no pixel in the mask; a small one above keeps every pixel; the
+    mask lies inside ``reach_mask`` and where it holds the closed-form share
+    of the light above the plane (``horizon.horizon_share``) is 1."""
+    from penumbra.core.metrics import reach_mask, whole_light_mask
+    from penumbra.core.methods.horizon import horizon_share
+    from synthetic import lone_tilted_plane
+    light = make()
+    scene = lone_tilted_plane(60.0, light, res=16)
+    g = raycast.camera_gbuffer(scene, 16, 16)
+    m = whole_light_mask(g, light)
+    assert g.hit.all() and m.dtype == np.bool_ and m.shape == (16, 16)
+    assert m.all() if whole else not m.any()
+    assert not (m & ~reach_mask(g, light)).any()
+    share = horizon_share(light, g.position.reshape(-1, 3), g.normal.reshape(-1, 3)).reshape(16, 16)
+    assert (share[m] == 1.0).all() and (share[~m] < 1.0).all()

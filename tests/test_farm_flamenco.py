@@ -32,10 +32,12 @@ def job(**settings):
 
 def test_job_type_settings_and_defaults():
     settings = {s["key"]: s for s in job(frames="1")["jobType"]["settings"]}
-    assert set(settings) == {"frames", "chunk_size", "out_dir", "methods", "resolution", "blendfile"}
+    assert set(settings) == {"frames", "chunk_size", "out_dir", "methods", "resolution", "pixel_filter",
+                             "blendfile"}
     assert settings["frames"]["eval"] == "f'{C.scene.frame_start}-{C.scene.frame_end}'"
     assert settings["chunk_size"]["type"] == "int32" and settings["chunk_size"]["default"] == 10
     assert settings["methods"]["default"] == "auto" and settings["resolution"]["default"] == ""
+    assert settings["pixel_filter"]["default"] == "scene"
     assert all(settings[k]["required"] for k in ("frames", "out_dir", "blendfile"))
 
 
@@ -59,18 +61,29 @@ def test_one_exec_task_per_chunk_that_penumbra_render_accepts(frames, chunk_size
         assert args[:6] == ["render", "/shared/shot.blend", "--frames", chunk, "--out", "/shared/passes"]
         parsed = build_parser().parse_args(args)        # penumbra's own parser takes the whole command
         assert parsed.command == "render" and parsed.methods == "auto" and parsed.resolution is None
+        assert parsed.pixel_filter == "scene"
         assert len(parsed.frames) <= (chunk_size or 10)
         covered += parsed.frames
     wanted = build_parser().parse_args(["render", "x", "--frames", frames.replace("..", "-").replace(" ", "")]).frames
     assert covered == wanted                             # every frame once, in order
 
 
-def test_methods_and_resolution_are_passed_on():
-    (task,) = job(frames="5", methods="pcf,embree", resolution=" 1920x1080 ")["tasks"]
+def test_methods_resolution_and_pixel_filter_are_passed_on():
+    (task,) = job(frames="5", methods="pcf,embree", resolution=" 1920x1080 ",
+                  pixel_filter=" Gaussian:1.5 ")["tasks"]
     args = task["commands"][0]["parameters"]["args"]
-    assert args[6:] == ["--methods", "pcf,embree", "--resolution", "1920x1080"]
+    assert args[6:] == ["--methods", "pcf,embree", "--pixel-filter", "gaussian:1.5", "--resolution", "1920x1080"]
     parsed = build_parser().parse_args(args)
     assert parsed.methods == "pcf,embree" and parsed.resolution == (1920, 1080) and parsed.frames == [5]
+    assert parsed.pixel_filter == "gaussian:1.5"
+    for spec in ("none", "scene", "blackman-harris:2", "box:1:8", "scene:8", "gaussian:.5"):
+        (task,) = job(frames="5", pixel_filter=spec)["tasks"]
+        assert build_parser().parse_args(task["commands"][0]["parameters"]["args"]).pixel_filter == spec
+
+
+@pytest.mark.parametrize("spec", ["sinc:1", "gaussian", "box:x", "none:2"])
+def test_a_bad_pixel_filter_fails_the_submission(spec):
+    assert "pixel_filter must be" in job(frames="1-3", pixel_filter=spec)["error"]
 
 
 @pytest.mark.parametrize("resolution", ["1920", "3x", "axb", "1920x1080x2"])

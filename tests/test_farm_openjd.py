@@ -37,8 +37,10 @@ def written_frames(out):
     for name in sorted(os.listdir(out)):
         if name.endswith(".json"):
             rec = json.loads((out / name).read_text())
-            v = exr.read_multilayer(str(out / rec["exr"]))["Spot"]["pcf"]
+            layers = exr.read_multilayer(str(out / rec["exr"]))
+            v = layers["Spot"]["pcf"]
             assert v.shape == (32, 32) and np.isfinite(v).all()
+            assert rec["pixel_filter"]["type"] != "none" and "Alpha" in layers["Spot"]   # the default: filtered
             frames.append(rec["frame"])
     return frames
 
@@ -53,11 +55,11 @@ def test_template_parameters_step_and_chunking():
     assert t["specificationVersion"] == "jobtemplate-2023-09" and t["extensions"] == ["TASK_CHUNKING"]
     params = {p["name"]: p for p in t["parameterDefinitions"]}
     assert {k: params[k]["type"] for k in ("SceneFile", "OutputDir", "Frames", "ChunkSize", "Methods",
-                                           "Resolution")} == \
+                                           "Resolution", "PixelFilter")} == \
         {"SceneFile": "PATH", "OutputDir": "PATH", "Frames": "STRING", "ChunkSize": "INT",
-         "Methods": "STRING", "Resolution": "STRING"}
+         "Methods": "STRING", "Resolution": "STRING", "PixelFilter": "STRING"}
     assert (params["Frames"]["default"], params["ChunkSize"]["default"], params["Methods"]["default"],
-            params["Resolution"]["default"]) == ("1-250", 10, "auto", "")
+            params["Resolution"]["default"], params["PixelFilter"]["default"]) == ("1-250", 10, "auto", "", "scene")
     (step,) = t["steps"]
     assert step["name"] == "Render"
     (frame,) = step["parameterSpace"]["taskParameterDefinitions"]

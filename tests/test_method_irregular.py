@@ -790,3 +790,26 @@ def test_paper_overlap_switch_keeps_equation_4(samples, name):
 def test_overlap_switch_rejects_unknown_values():
     with pytest.raises(ValueError, match="overlap"):
         _on_the_line(_strips(HALF_A, 1.0), area_light(1.0, z=4.0), overlap="average")
+
+
+def test_horizon_switch_bounds_v_by_the_light_above_the_plane():
+    """Issue 17, ``horizon`` (off by default): a lone plane tilted 60 degrees
+    under an 8 x 8 square light 4 above the origin hides the light beyond a
+    line that is the same for every point on it: V = (4 + 4 cot 60) / 8 =
+    0.789 (the reference agrees: its rays into the plane hit it). With the
+    switch V is at most that share (here exactly it: nothing else casts);
+    the default is the paper's and unchanged by it."""
+    from synthetic import lone_tilted_plane
+    t = math.radians(60.0)
+    scene = lone_tilted_plane(60.0, area_light(size=8.0, z=4.0), res=24)
+    exact = (4.0 + 4.0 / math.tan(t)) / 8.0
+    on, fb = run(scene, horizon=True)
+    off, _ = run(scene)
+    ref = reference(fb, scene.lights[0])
+    hit = fb.gbuffer.hit
+    assert hit.all() and abs(ref[hit].mean() - exact) < 0.01
+    v_on, v_off = on.passes["irregular"][hit], off.passes["irregular"][hit]
+    assert (v_on <= v_off + 1e-7).all()
+    np.testing.assert_allclose(v_on, np.minimum(v_off, exact), atol=1e-5)
+    assert np.abs(v_on - ref[hit]).mean() < 0.01
+    assert np.abs(v_off - ref[hit]).mean() > 0.05, v_off.mean()     # the paper's misses it here

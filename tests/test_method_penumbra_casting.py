@@ -14,7 +14,7 @@ from penumbra.core.methods.penumbra_casting import (PenumbraCasting, _bucket_sor
 from penumbra.core.methods.penumbra_casting.geometry import (MAXB, MAXP, blocked_by_edges, hard_volume, in_hard_volume,
                                                  penumbra_volume, point_in_volume, receiver_edge_functions,
                                                  triangle_plane)
-from penumbra.core.methods.penumbra_casting.hierarchy import build_hierarchy
+from penumbra.core.methods.penumbra_casting.hierarchy import _stable_order, build_hierarchy
 from penumbra.core.methods.penumbra_casting.light import MODE_SPHERE, group_layout
 from penumbra.core.metrics import errors
 from penumbra.core.scene import Camera, Light, ObjectInfo, Scene
@@ -450,6 +450,17 @@ def test_hierarchy_midpoint_sah_and_leaves():
             ax = int(np.argmax(bb[n, 3:] - bb[n, :3]))
             mid = 0.5 * (bb[n, ax] + bb[n, 3 + ax])
             assert bb[l, 3 + ax] < mid <= bb[r, ax]
+
+
+@pytest.mark.parametrize("c", [0, 1, 2, 7, 64, 1000])
+def test_sah_key_order_is_numpys_stable_argsort(c):
+    """The hierarchy's own merge sort orders keys as np.argsort(kind="mergesort"):
+    ascending, ties in index order (the SAH split depends on it)."""
+    rng = np.random.default_rng(c)
+    for keys in (rng.integers(0, 4, 1024).astype(float), rng.normal(0, 1, 1024), np.zeros(1024)):
+        order, tmp = np.empty(1024, np.int64), np.empty(1024, np.int64)
+        _stable_order(keys, c, order, tmp, np.empty(1024), np.empty(1024))
+        assert np.array_equal(order[:c], np.argsort(keys[:c], kind="mergesort"))
 
 
 def test_receiver_chunks_are_median_splits():

@@ -10,7 +10,10 @@ from penumbra.core.methods.penumbra_casting.cores import closed_solids, interior
 from penumbra.core.scene import Camera, ObjectInfo, Scene
 from penumbra.core.views import look_rotation
 from synthetic import area_light, quad, sun_light
+from test_compile_and_plan import _COMPILES_OUTSIDE_WARM_UP
 from test_method_penumbra_casting import assert_exact, own_rays, run_pc
+
+_REGISTER = 'event.register("numba:compile", Compiles())\n'
 
 LIGHT = dict(light_point=np.array([3.0, -2.0, 5.0]), light_dir=None,
              light_lo=np.array([2.5, -2.5, 5.0]), light_hi=np.array([3.5, -1.5, 5.0]))
@@ -172,3 +175,30 @@ def test_merge_on_the_solids_mesh_equals_the_merge_from_scratch():
     b = coplanar_blockers(tris[sel], mesh=sub_mesh(s.mesh, sel))
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
+
+
+#: test_compile_and_plan's listener (compile events inside / outside the
+#: warm-up), then a frame of a closed sphere
+_CLOSED_SOLID_COMPILES = _COMPILES_OUTSIDE_WARM_UP.split(_REGISTER)[0] + _REGISTER + r"""
+from penumbra.bench.scaling import smooth_sphere_scene
+render_frame(smooth_sphere_scene(2000, (16, 16)), ["penumbra_casting"], overrides={"samples": 4})
+print(json.dumps({"inside": inside, "outside": outside}))
+"""
+
+
+def test_a_closed_solid_compiles_nothing_outside_the_warm_up(tmp_path):
+    """Issue 15: the warm-up's scene (two quads) has no closed solid; on a
+    fresh Numba cache the slicing kernels (``cores``) a real scene's closed
+    mesh needs still compile inside the warm-up, not in the method's time."""
+    import json
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=str(tmp_path / "cache"))
+    env.pop("NUMBA_CACHE_DIR", None)
+    code = _CLOSED_SOLID_COMPILES.replace("{tests!r}", repr(os.path.dirname(os.path.abspath(__file__))))
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    seen = json.loads(p.stdout.strip().splitlines()[-1])
+    assert "_components" in seen["inside"] and "_slice_loop" in seen["inside"], seen["inside"]
+    assert seen["outside"] == [], seen["outside"]

@@ -210,20 +210,26 @@ def test_footprint_samples_are_the_union_of_the_refined_footprints():
         rows, cols = footprint_samples(refine, s, m0, k)
         wr, wc = np.nonzero(want)
         assert np.array_equal(rows, wr) and np.array_equal(cols, wc), flt
-        # pixels refined for V alone read every step-th sub-row and sub-column of their footprint
+        # pixels refined for V alone read the lattice's sub-rows and sub-columns of their own
+        # pixel (shade_footprint: of their footprint, the first version)
         full = refine & (rng.random((H, W)) > 0.5)
-        for step in (2, s):
-            want = np.zeros((s * H, s * W), bool)
-            for r, c in zip(*np.nonzero(refine)):
-                I = np.arange(s * r + m0, s * r + m0 + k)
-                J = np.arange(s * c + m0, s * c + m0 + k)
-                if not full[r, c]:
-                    I, J = I[I % step == 0], J[J % step == 0]
-                I, J = I[(I >= 0) & (I < s * H)], J[(J >= 0) & (J < s * W)]
-                want[np.ix_(I, J)] = True
-            rows, cols = footprint_samples(refine, s, m0, k, full, step)
-            wr, wc = np.nonzero(want)
-            assert np.array_equal(rows, wr) and np.array_equal(cols, wc), (flt, step)
+        for shade in (1, 2, s):
+            lattice = dataclasses.replace(flt, shade_grid=shade).shade_lattice
+            for shade_footprint in (True, False):
+                want = np.zeros((s * H, s * W), bool)
+                for r, c in zip(*np.nonzero(refine)):
+                    if full[r, c] or shade_footprint:
+                        I = np.arange(s * r + m0, s * r + m0 + k)
+                        J = np.arange(s * c + m0, s * c + m0 + k)
+                    else:
+                        I, J = np.arange(s * r, s * r + s), np.arange(s * c, s * c + s)
+                    I, J = I[(I >= 0) & (I < s * H)], J[(J >= 0) & (J < s * W)]
+                    if not full[r, c]:
+                        I, J = I[lattice[I % s]], J[lattice[J % s]]
+                    want[np.ix_(I, J)] = True
+                rows, cols = footprint_samples(refine, s, m0, k, full, lattice, shade_footprint)
+                wr, wc = np.nonzero(want)
+                assert np.array_equal(rows, wr) and np.array_equal(cols, wc), (flt, shade, shade_footprint)
 
 
 def test_reach_is_where_the_filter_tail_ends():
@@ -289,15 +295,25 @@ def test_adaptive_pass_is_the_full_supersampled_pass():
     assert np.array_equal(adaptive.coverage[~cov], full.coverage[~cov])
 
 
+PACKED = ["pcf", "embree", "penumbra_casting", "irregular", "layered", "depth_raytrace", "single_sample"]
+
+
 def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
-    """pcf on the packed sub-pixel receivers (its footprint and seed at each
-    receiver's own sub-pixel) is pcf on the supersampled image, bit for bit."""
+    """Every method on the packed sub-pixel receivers (pcf's footprint and
+    every seed at each receiver's own sub-pixel; layered's LDI and
+    depth_raytrace's reference maps those of the pixel-centre stage) is the
+    method on the supersampled image, bit for bit (single_sample without its
+    adaptive image walk, which a packed list cannot take)."""
     sc = _box_scene(24)
     flt = PixelFilter("blackman-harris", 1.5)
-    packed = render_filtered(sc, ["pcf"], pixel_filter=flt)
+    assert set(PACKED) == set(filtered_frame.PACKED_PRODUCERS)
+    opts = dict(overrides={"samples": 16}, method_overrides={"single_sample": {"adaptive": False}})
+    packed = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
     monkeypatch.setattr(filtered_frame, "PACKED_PRODUCERS", frozenset())
-    dense = render_filtered(sc, ["pcf"], pixel_filter=flt)
-    assert np.array_equal(packed.lights[0].passes["pcf"], dense.lights[0].passes["pcf"])
+    dense = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
+    for pid in PACKED:
+        assert np.array_equal(packed.lights[0].passes[pid], dense.lights[0].passes[pid]), pid
+        assert packed.lights[0].record[pid]["pixel_filter"]["subpixel_samples"] > 0, pid
     assert np.array_equal(packed.coverage, dense.coverage)
 
 
@@ -319,5 +335,69 @@ def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
                 True, out, 0.3, full)
     assert np.array_equal(np.nonzero(out[2])[0], [4, 8, 11, 12, 19, 20])
     assert np.array_equal(np.nonzero(full[2])[0], [11, 12, 19, 20])
-    assert PixelFilter("blackman-harris", 1.5).shade_step == 2
-    assert PixelFilter("blackman-harris", 1.5, shade_grid=4).shade_step == 1    # the first version
+    # the lattice: shade_grid sub-rows of the grid, symmetric about the pixel centre (its
+    # samples' centroid is the centre: a linear V is integrated exactly)
+    for grid, shade, want in ((4, 2, [1, 2]), (8, 2, [2, 5]), (8, 4, [1, 3, 4, 6]), (9, 3, [1, 4, 7]),
+                              (4, 4, [0, 1, 2, 3]), (4, 3, [0, 1, 2, 3])):
+        lat = PixelFilter("blackman-harris", 1.5, grid=grid, shade_grid=shade).shade_lattice
+        assert np.flatnonzero(lat).tolist() == want, (grid, shade)
+        offsets = (np.flatnonzero(lat) + 0.5) / grid - 0.5
+        assert abs(offsets.sum()) < 1e-12
+
+
+def test_each_light_and_method_gets_its_own_sub_pixel_samples():
+    """Two lights whose penumbrae fall on different sides of a box: each
+    light's method is refined where the geometry and its own passes need it,
+    so its filtered pass is the one it gets when it is filtered alone (one
+    light, one method), bit for bit (the sub-pixel receivers draw their
+    samples by their own sub-pixel), and the JSON's counts are its own."""
+    from synthetic import light_matrix
+    west = dataclasses.replace(area_light(1.2, z=3.0, name="West"), world_from_light=light_matrix((-2.0, 0, 3.0)))
+    east = dataclasses.replace(area_light(0.4, z=3.0, name="East"), world_from_light=light_matrix((2.0, 0, 3.0)))
+    tris = quad(-3, 3, -3, 3, 0.0) + box(-0.5, 0.5, -0.5, 0.5, 0.4, 0.9)
+    sc = make_scene(tris, [0, 0] + [1] * 12, [west, east], res=40,
+                    camera=persp_camera((0.0, -3.0, 4.0), (0.0, 0.0, 0.3)))
+    flt = PixelFilter("blackman-harris", 1.5)
+    passes = ["pcf", "embree", "embree_irr"]
+    both = render_filtered(sc, passes, overrides={"samples": 16}, pixel_filter=flt)
+    stats = {}
+    for lr in both.lights:
+        for group in (["pcf"], ["embree", "embree_irr"]):
+            alone = render_filtered(sc, group, [lr.name], overrides={"samples": 16}, pixel_filter=flt).lights[0]
+            for pid in group:
+                assert np.array_equal(lr.passes[pid], alone.passes[pid]), (lr.name, pid)
+                assert lr.record[pid]["pixel_filter"] == alone.record[pid]["pixel_filter"], (lr.name, pid)
+        stats[lr.name] = lr.record["pcf"]["pixel_filter"]
+        assert stats[lr.name] != lr.record["embree"]["pixel_filter"]      # refined by its own V
+    w, e = stats["West"], stats["East"]
+    assert w["subpixel_samples"] != e["subpixel_samples"]
+    geometry_only = render_filtered(sc, ["pcf"], ["West"], overrides={"samples": 16},
+                                    pixel_filter=dataclasses.replace(flt, threshold=2.0)).lights[0]
+    assert min(w["refined_pixels"], e["refined_pixels"]) > geometry_only.record["pcf"]["pixel_filter"]["refined_pixels"]
+
+
+def test_hit_edges_are_the_full_grid_pixels_of_a_change_of_hit():
+    """The coverage reads the pixels beside a change of hit: exactly those
+    ``refine_mask`` puts on the full grid for one flat surface, whatever the
+    producer's V (so every producer's list holds their whole footprints)."""
+    rng = np.random.default_rng(3)
+    for reach in (1, 2):
+        H, W = 9, 13
+        hit = rng.random((H, W)) > 0.4
+        out, full = np.zeros((H, W), bool), np.zeros((H, W), bool)
+        refine_mask(hit, np.zeros((H, W), np.int32), np.ones((H, W), np.float32),
+                    np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)),
+                    rng.random((1, H, W)).astype(np.float32), reach, 0.1, DEPTH_JUMP, NORMAL_COS, True, out,
+                    0.2, full)
+        edges = filtered_frame.hit_edges(hit, reach)
+        assert np.array_equal(edges, full & _hit_change(hit, reach)) and np.array_equal(edges, _hit_change(hit, reach))
+
+
+def _hit_change(hit, reach):
+    H, W = hit.shape
+    out = np.zeros_like(hit)
+    for r in range(H):
+        for c in range(W):
+            win = hit[max(0, r - reach):r + reach + 1, max(0, c - reach):c + reach + 1]
+            out[r, c] = (win != hit[r, c]).any()
+    return out

@@ -178,3 +178,19 @@ def test_the_preview_runs_the_fast_methods_at_preview_settings(scene):
     job.run()
     params = job.result().lights[0].record["pcf"]["params"]
     assert (params["PenumbraSamples"], params["BlockerSamples"]) == (48, PREVIEW_PARAMS["pcf"]["BlockerSamples"])
+
+
+def test_the_preview_is_at_pixel_centres_and_compute_is_filtered(scene):
+    """Issue 14: the scene's Pixel Filter is "Scene" by default, so Compute
+    Passes is filtered like the render (an Alpha, the JSON's filter), while
+    the Preview stays preview quality: pixel centres, unless its request
+    names a filter."""
+    assert scene.penumbra.pixel_filter == "SCENE"
+    job, _, t = _preview(scene)
+    assert job.result().pixel_filter is None and job.result().coverage is None and "subpixel" not in t
+    job = prepare_frame(scene, FrameRequest(resolution=RES, references=()))
+    res = job.run().result()
+    assert res.pixel_filter["type"] == "blackman-harris" and res.coverage is not None
+    assert "subpixel" in res.lights[0].record["pcf"]["time_s"]
+    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=(), pixel_filter="box:1"))
+    assert job.run().result().pixel_filter["type"] == "box"

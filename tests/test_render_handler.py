@@ -10,7 +10,7 @@ import pytest
 import penumbra
 from penumbra.bridge import compat
 from penumbra.addon import handlers
-from penumbra.bridge import compositor, pipeline
+from penumbra.bridge import compositor, pipeline, settings
 from penumbra.cli import main
 from penumbra.core import exr
 from scenes import sample_path
@@ -119,8 +119,9 @@ def test_animation_render_writes_passes_matching_cli(registered, tmp_path):
                      "--out", str(cli_out), "--no-previews"]) == 0
         cli = exr.read_multilayer(str(cli_out / f"anim.{f:04d}.exr"))
         assert set(cli) == set(ours[f]) == {layer}
-        assert set(cli[layer]) == set(ours[f][layer]) == {"pcf", "embree"}
-        for pid in ("pcf", "embree"):
+        # filtered like the render by default (issue 14): the coverage as an Alpha pass
+        assert set(cli[layer]) == set(ours[f][layer]) == {"pcf", "embree", "Alpha"}
+        for pid in ("pcf", "embree", "Alpha"):
             np.testing.assert_array_equal(ours[f][layer][pid], cli[layer][pid])
         cli_rec = json.loads((cli_out / f"anim.{f:04d}.json").read_text())
         for pid in ("pcf", "embree"):
@@ -140,9 +141,10 @@ def test_still_render_writes_its_frame(registered, tmp_path):
     assert handlers.state["errors"] == []
     assert any("cycles reference skipped" in n for n in handlers.state["notes"])
     layers = exr.read_multilayer(str(tmp_path / "still" / "anim.0002.exr"))
-    assert set(layers["Key_Light"]) == {"pcf", "embree"}
+    assert set(layers["Key_Light"]) == {"pcf", "embree", "Alpha"}
     rec = json.loads((tmp_path / "still" / "anim.0002.json").read_text())
     assert rec["frame"] == 2 and rec["resolution"] == [SIZE, SIZE]
+    assert rec["pixel_filter"]["type"] == settings.render_pixel_filter(scene).kind     # the render's own
 
 
 def test_render_without_render_layers_node(registered, tmp_path):

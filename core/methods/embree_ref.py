@@ -167,7 +167,7 @@ class EmbreeReference(Method):
             idx, P, Nrm = g.hit_points()
         ns = 1 if light.is_zero_size else max(1, int(params.samples))
         with timer("trace"):
-            va, vi, rays = trace_visibility(buffers.shadow_scene_for(light), P, Nrm, idx, light, ns,
+            va, vi, rays = trace_visibility(buffers.shadow_scene_for(light), P, Nrm, g.seed_ids(idx), light, ns,
                                             int(params.seed), buffers.scale)
         out_a = np.ones(H * W, np.float32)
         out_i = np.ones(H * W, np.float32)

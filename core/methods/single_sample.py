@@ -115,7 +115,19 @@ ramp says 0.5 or more); it still sees only what the light's centre sees.
 shrub's leaves, one object, shadow each other. Measured on foliage (256 x
 256): RMSE 0.075 (paper) -> 0.044 (sum + mesh).
 
-A light of size zero gives exactly the hard test (no search). Pixels outside
+The receiver's own surface (issue 17; ``horizon``, default on): the id
+test keeps a receiver from shadowing itself, so a surface turned partly
+away from the light (a leaf at a steep angle, a curved object's
+terminator) got the light below its tangent plane as lit. V is multiplied
+by the share of the light above that plane (``horizon.horizon_share``,
+closed forms in NumPy: no kernel to compile), as if the blockers hid the light
+above and below it alike. On issue 17's foliage (256 x 256, against 1024-sample
+embree) 2 % of the pixels the light reaches do not see the whole light and
+held 79 % of the squared error: RMSE over every pixel the light reaches
+0.080 -> 0.046; over the pixels that see the whole light (issue 17's
+measure) 0.037, unchanged. ``horizon=False`` is the paper's.
+
+A light of size zero gives exactly the hard test (no search, no horizon). Pixels outside
 every face of the view, behind a perspective eye, or with no G-buffer hit
 get V = 1. The pass is average-visibility-like (AVERAGE) but not physical:
 the attenuation is a linear ramp from the nearest texel, the umbra of an
@@ -135,6 +147,7 @@ from numba import njit
 from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from ..sampling import rand01
 from .registry import register
+from .horizon import horizon_share
 from .surfaces import mesh_pieces
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
@@ -180,6 +193,8 @@ class SingleSampleParams:
     surfaces: str = "mesh"        # what one id is: "mesh" (connected mesh pieces) | "object" (paper)
     ramp: str = "slope"           # auto_radius: "slope" (true slope at the edge) | "extent" (whole penumbra)
     tile_skip: bool = True        # skip search boxes the 8x8 tiles' depth range rules out (not in the paper)
+    horizon: bool = True          # V x the share of the light above the receiver's tangent plane (issue 17;
+                                  # False: the paper, an object never shadows itself softly)
     map_size: Optional[int] = None  # light map's larger side; None = output's larger side
     seed: int = 0                 # jitter hash seed
 
@@ -942,7 +957,8 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
     g = buffers.gbuffer
     H, W = g.shape
     out = np.ones(H * W, np.float64)
-    adaptive = resolved_adaptive(params)
+    adaptive = resolved_adaptive(params) and g.pixel is None   # the walk needs an image: a packed
+                                                               # G-buffer (sub-pixel receivers) is searched
     stats = {"searched": 0, "pixels": int(g.hit.sum()), "adaptive": adaptive,
              "searched_fraction": 0.0, "mean_search_radius_texels": 0.0, "clipped": 0,
              "texels_read": 0, "faces": 0, "map": [0, 0, 0], "hard_only": False}
@@ -1003,6 +1019,10 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
         with timer("interpolate"):
             adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, True)
         stats["searched"] = int(len(sel))
+    if params.horizon and prm[P_HARD] == 0.0:
+        with timer("horizon"):
+            sel = np.flatnonzero(hit)
+            out[sel] *= horizon_share(light, P[sel], Nrm[sel])
     out = np.where(np.isfinite(out), out, 1.0)
     out = np.clip(out, 0.0, 1.0)
     searched_rad = np.minimum(rad[hit & (rad > 0)], prm[P_MAXRAD])

@@ -30,6 +30,9 @@ const JOB_TYPE = {
           description: "Method ids, comma-separated, 'all', or 'auto' (picked per light)" },
         { key: "resolution", type: "string", default: "",
           description: "WxH, e.g. 1920x1080; empty: the scene's own resolution" },
+        { key: "pixel_filter", type: "string", default: "scene",
+          description: "How passes are filtered over each pixel: 'scene' (like the scene's render), 'none' " +
+                       "(pixel centres), 'box:W', 'gaussian:W' or 'blackman-harris:W' (W in pixels)" },
 
         // Automatically evaluated settings:
         { key: "blendfile", type: "string", required: true, visible: "web",
@@ -50,9 +53,17 @@ function compileJob(job) {
     }
 }
 
-// The options every chunk shares. An empty resolution is the scene's own.
+// The options every chunk shares. An empty resolution is the scene's own,
+// an empty pixel filter the scene's render filter.
+const PIXEL_FILTER = /^(none|scene(:[0-9]+)?|(box|gaussian|blackman-harris):[0-9]*\.?[0-9]+(:[0-9]+)?)$/;
+
 function renderOptions(settings) {
     const options = ["--methods", (settings.methods || "auto").trim() || "auto"];
+    const pixelFilter = (settings.pixel_filter || "").trim().toLowerCase() || "scene";
+    if (!PIXEL_FILTER.test(pixelFilter)) {
+        throw new Error(`pixel_filter must be scene, none, box:W, gaussian:W or blackman-harris:W, not "${pixelFilter}"`);
+    }
+    options.push("--pixel-filter", pixelFilter);
     const resolution = (settings.resolution || "").trim();
     if (resolution) {
         if (!/^[0-9]+x[0-9]+$/i.test(resolution)) {

@@ -78,7 +78,21 @@ Departures / choices, each documented where it is made:
     the paper leaves view placement open, footnote 4): on
     ``sun_pillars`` a texel drops from 5.7 to 1.1 cm, RMSE 0.027 -> 0.007
     (penumbra 0.067 -> 0.020); ``fit_window="receivers"`` is the first
-    version, bit for bit.
+    version, bit for bit;
+  * the maps of a sun with those windows are at least ``sun_min_map``
+    (1024, the paper's size, section 6) on a side, up to 4 x the map_scale
+    side (issue 17; the warm-up's 8-pixel run keeps 64-texel maps): the texel then
+    follows the blockers' extent, not the output's pixels, and map_scale x a
+    small output quantised the pillars' silhouettes into their penumbrae.
+    ``sun_pillars`` 256 x 256, 256 samples, against 1024-sample ``embree``,
+    pixels seeing the whole sun / every pixel it reaches: 0.0074 / 0.0096
+    (penumbra 0.0195 / 0.0226) -> 0.0067 / 0.0090 (0.0134 / 0.0175), +20 %
+    CPU; the paper says these artifacts "are easy to control by generating
+    higher resolution reference images" (5.1). Of what remains over every
+    reached pixel, 40 % sits in 21 pixels of faces edge-on to the sun
+    (cos 0.002) at the ends of the geometry, where rays under the face's
+    plane escape past its edge in the reference and count as blocked here.
+    ``sun_min_map=0``: map_scale alone, the first version.
 
 Known failure (the stress suite's ``huge_area_light``: a 50-unit light 2
 units above a 20-unit occluder; +0.20 too bright, the irradiance pass +0.40
@@ -115,6 +129,7 @@ from numba import njit, prange
 from ... import sampling, views
 from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from ...sampling import strata
+from ...scene import Light
 from ..registry import register
 from .coherence import (M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_QH, M_QT, M_RAYS, M_SEEDED, M_SIZE,
                         Points, Sampler, TileState, absorb, begin_point, blocker_capacity, finish_point,
@@ -125,6 +140,9 @@ from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEO
                    Method, MethodResult, PhaseTimer)
 
 
+SUN_MIN_MAP_REACH = 4     # sun_min_map raises a map side at most this many times
+
+
 @dataclass
 class DepthRaytraceParams:
     samples: int = 256            # light samples per pixel (section 6: "the equivalent of 256")
@@ -133,6 +151,8 @@ class DepthRaytraceParams:
     map_scale: float = 2.0        # map side / output side: the paper's 1024^2 maps for 512^2 images
     map_size: Optional[int] = None  # overrides map_scale
     fit_window: str = "blockers"  # sun: windows fitted to what can block ("receivers": the first version; ``window``)
+    sun_min_map: int = 1024       # sun, fit_window="blockers": map side at least this (the paper's 1024^2
+                                  # maps, section 6; issue 17); 0: map_scale alone (the first version)
     ref_points: int = 4           # boundary points for disk / ellipse / sun (rectangle: its 4 corners)
     shadow_bias: Optional[float] = None  # scene units; None = bias_texels + slope_bias terms
     bias_texels: float = 0.5      # constant part, in texel footprints at the texel's depth
@@ -501,10 +521,21 @@ def casters_box(casters, scale):
     return v.min(0) - pad, v.max(0) + pad
 
 
-def resolve_map_size(params: DepthRaytraceParams, W: int, H: int) -> int:
+def resolve_map_size(params: DepthRaytraceParams, W: int, H: int, light: Optional[Light] = None) -> int:
+    """The reference maps' side: ``map_size``, else ``map_scale`` x the
+    output's larger side -- for a sun whose windows hold only the blockers
+    (``fit_window="blockers"``) at least ``sun_min_map`` (up to
+    ``SUN_MIN_MAP_REACH`` times that side): there the texel follows the
+    blockers' extent, not the output's pixels, and a small output's maps
+    quantised the pillars' silhouettes into the penumbra."""
     if params.map_size:
         return int(params.map_size)
-    return max(8, int(round(float(params.map_scale) * max(W, H))))
+    side = max(8, int(round(float(params.map_scale) * max(W, H))))
+    if light is not None and light.kind == "sun" and params.fit_window == "blockers":
+        # at most SUN_MIN_MAP_REACH x the map_scale side: a tiny output (the warm-up's
+        # 8 px) keeps tiny maps
+        side = max(side, min(int(params.sun_min_map), SUN_MIN_MAP_REACH * side))
+    return side
 
 
 @register
@@ -539,11 +570,12 @@ class DepthRaytrace(Method):
             return MethodResult({"depth_raytrace": out_a.reshape(H, W),
                                  "depth_raytrace_irr": out_i.reshape(H, W)}, timer.result(), stats)
         with timer("order"):
-            order, tile_ptr = coherent_order(idx, W, params.tile)
+            gid = g.seed_ids(idx)             # pixels of the view (a packed G-buffer's sub-pixels)
+            order, tile_ptr = coherent_order(gid, buffers.width, params.tile)
             sel = idx[order]
             P = np.ascontiguousarray(g.position.reshape(-1, 3)[sel], np.float64)
             Nrm = np.ascontiguousarray(g.normal.reshape(-1, 3)[sel], np.float64)
-            pix = np.ascontiguousarray(sel, np.int64)
+            pix = np.ascontiguousarray(gid[order], np.int64)
             if params.reset_distance is not None:
                 tol = np.full(len(sel), float(params.reset_distance))
             else:
@@ -560,7 +592,8 @@ class DepthRaytrace(Method):
         elif params.tracer == "depth":
             if maps is None:
                 with timer("reference_maps"):
-                    maps = self.build_maps(buffers, light, params)
+                    maps = buffers.frame_memo("depth_raytrace.maps", light, params,
+                                              lambda: self.build_maps(buffers, light, params))
             stats["reference_faces"] = maps.face_count
             stats["reference_eyes"] = int(len(maps.eyes))
             stats["map_texels"] = maps.map_texels
@@ -602,7 +635,7 @@ class DepthRaytrace(Method):
     @staticmethod
     def build_maps(buffers, light, params: DepthRaytraceParams) -> ReferenceMaps:
         W, H = buffers.width, buffers.height
-        return build_reference_maps(buffers, light, resolve_map_size(params, W, H), params.ref_points,
+        return build_reference_maps(buffers, light, resolve_map_size(params, W, H, light), params.ref_points,
                                     params.shadow_bias, params.bias_texels, params.slope_bias,
                                     params.gap_bias, params.gap_texels, fit_window=params.fit_window)
 

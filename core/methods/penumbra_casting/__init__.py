@@ -122,7 +122,8 @@ from .cast import (N_ST, ST_GROUP_TESTS, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_
                    ST_LEAF_VISITS,
                    ST_LIVE,
                    ST_NODES, ST_PEAK, ST_PAIRS, ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers,
-                   CastSwitches, Hierarchy, LightGroups, Masks, Receivers, UmbraBits, cast_chunk, chunk_visibility)
+                   CastSwitches, Hierarchy, LightGroups, Masks, Receivers, UmbraBits, cast_chunk_for,
+                   chunk_visibility)
 from .geometry import MAXP, _newell, box_vs_volume, penumbra_volume
 from .hierarchy import build_hierarchy, node_umbra_bits
 from .light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, LightSamples, all_sample_points,
@@ -390,7 +391,7 @@ def prepare(buffers, light, params: PenumbraCastingParams) -> Setup:
         M, _ = min_rotations(Pg, L.centre, L.w0)
     else:
         M = np.zeros((1, 9))
-    set_id = assign_sets(idx, L.nsets, seed) if L.nsets > 1 else np.zeros(len(idx), np.int64)
+    set_id = assign_sets(g.seed_ids(idx), L.nsets, seed) if L.nsets > 1 else np.zeros(len(idx), np.int64)
     return Setup(idx, Pg, pts, set_id, M, L, seed, tol, eps)
 
 
@@ -648,6 +649,8 @@ def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: P
     smp = setup.light_samples()
     switches = CastSwitches(optA, optB, optC, optD, float(params.RebuildFraction), leaf, setup.tol, setup.eps,
                             bool(params.materialize_hard_volumes), bool(blocker_core.size and blocker_core.max() >= 0))
+
+    cast_chunk = cast_chunk_for(L.mode, switches.materialize)
 
     def run_pool(fn):
         each_in_threads(fn, chunks, workers)

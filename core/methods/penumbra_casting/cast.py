@@ -1,5 +1,8 @@
 """The per-triangle traversal of hierarchical penumbra casting (Laine & Aila
-2005, figures 2 and 3) as one Numba kernel with an explicit stack.
+2005, figures 2 and 3) as one Numba kernel with an explicit stack, built once
+per way of testing line 70 (``cast_chunk_for``: sample words, the paper's
+V_li planes, the reference's own samples), so that a cold start compiles
+only the helpers of its own.
 
 ``cast_chunk`` processes blocker triangles ``tri_sel[t0:]`` against one
 receiver hierarchy and returns where it stopped: at the end, or where
@@ -291,278 +294,309 @@ def chunk_visibility(fu, slot, pool, S, out):
             out[r] = 1.0 - c / S
 
 
-@njit(cache=True, nogil=True)
-def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
-    """Cast ``blk.tri_sel[t0:]`` against one chunk; returns where it stopped.
+def _make_cast_chunk(variant: str):
+    """``cast_chunk`` for one way of testing line 70 (``variant``): "words"
+    (the sample table a word at a time: fixed and sphere samples), "planes"
+    (``materialize_hard_volumes``: the paper's V_li planes) or "shared" (the
+    reference's own per-pixel samples). Each is its own kernel: Numba prunes
+    the other variants' branches before typing, so a cold start compiles only
+    the helpers its light needs (issue 15)."""
+    PLANES = variant == "planes"
+    SHARED = variant == "shared"
 
-    blk: Blockers; grp: LightGroups; smp: light.LightSamples; rec: Receivers
-    (the chunk's, in leaf order); hier: Hierarchy; umb: UmbraBits (A);
-    masks: Masks (D); st: counters (``ST_*``); opt: CastSwitches."""
-    tri_sel, tris, nverts, VL, nVL = blk.tri_sel, blk.tris, blk.nverts, blk.VL, blk.nVL
-    bsolid, solids, disks, gface = blk.solid, blk.solids, blk.disks, blk.gface
-    DVg, nvg, DEg, neg, g_start = grp.DVg, grp.nvg, grp.DEg, grp.neg, grp.g_start
-    mode, SP, Q, centre, bit2s = smp.mode, smp.SP, smp.Q, smp.centre, smp.bit2s
-    pts, set_id, M = rec.pts, rec.set_id, rec.M
-    perm, bb, left, right = hier.perm, hier.bb, hier.left, hier.right
-    start, count, depth = hier.start, hier.count, hier.depth
-    fu, gu, node_gu, node_fu = umb.fu, umb.gu, umb.node_gu, umb.node_fu
-    slot, pool, free = masks.slot, masks.pool, masks.free
-    optA, optB, optC, optD = opt.optA, opt.optB, opt.optC, opt.optD
-    rebuild_frac, leaf_size, tol, eps = opt.rebuild_frac, opt.leaf_size, opt.tol, opt.eps
-    hidden = opt.hidden
-    G = g_start.shape[0] - 1
-    planes = opt.materialize and mode == MODE_FIXED     # the paper's V_li planes per (set, sample)
-    S = bit2s.shape[0]
-    nsets = SP.shape[0]
-    nwords = pool.shape[1]
-    L = depth + 3
-    PLv = np.empty(L, np.int64)
-    act = np.empty((L, G), np.int64)
-    act_on = np.zeros((L, G), np.uint8)
-    st_node = np.empty(2 * L + 4, np.int64)
-    st_lev = np.empty(2 * L + 4, np.int64)
-    st_state = np.empty(2 * L + 4, np.int64)
-    VG = np.zeros((G, 4, MAXP))
-    nVG = np.zeros(G, np.int64)
-    hsets = nsets if planes else 1
-    HV = np.zeros((hsets, S if planes else 1, MAXB + 1, 4))
-    hv_ok = np.zeros((hsets, S if planes else 1), np.bool_)
-    tn = np.zeros(4)
-    ef = np.zeros((MAXB, 4))
-    co = np.zeros(4 * MAXB + 4)
-    # samples as structure of arrays (x, y, z, w rows): fixed points, or the
-    # sphere's disk offsets with w = 1 (the per-receiver rotation goes into
-    # the coefficients)
-    if mode == MODE_SPHERE:
-        T4 = np.ones((Q.shape[0], 4, S))
-        for jj in range(Q.shape[0]):
-            for ii in range(S):
-                for aa in range(3):
-                    T4[jj, aa, ii] = Q[jj, ii, aa]
-    else:
-        T4 = np.zeros((SP.shape[0], 4, SP.shape[1]))
-        for jj in range(SP.shape[0]):
-            for ii in range(SP.shape[1]):
-                for aa in range(4):
-                    T4[jj, aa, ii] = SP[jj, ii, aa]
-    hv_stamp = np.full((hsets, G), -1, np.int64)
-    for ti in range(t0, tri_sel.shape[0]):
-        # line 29 (A): rebuild when enough points of the hierarchy are in umbra
-        if optA and st[ST_POINTS] > 2 * leaf_size and st[ST_UMBRA] > rebuild_frac * st[ST_POINTS]:
-            return ti
-        if st[ST_POINTS] == 0:
-            return tri_sel.shape[0]
-        k = tri_sel[ti]
-        nL = nVL[k]
-        tri = tris[k]
-        nb = nverts[k]
-        kc = bsolid[k] if hidden else np.int64(-1)
-        triangle_plane(tri, nb, tn)
-        st[ST_STAMP] += 1
-        stamp = st[ST_STAMP]
-        vol_built = False
-        if not optC:
-            # basic algorithm, lines 2-3: every V_Gk and V_li up front
-            for g in range(G):
-                nVG[g] = max(0, penumbra_volume(tri, nb, DVg[g], nvg[g], DEg[g], neg[g], eps, VG[g]))
-            if planes:
-                for j in range(nsets):
-                    for i in range(S):
-                        hv_ok[j, i] = hard_volume(tri, nb, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
-                                                  SP[j, i, 3], HV[j, i])
-                    for g in range(G):
-                        hv_stamp[j, g] = stamp
-                st[ST_HARD_BUILT] += nsets * S
-            vol_built = True
-            st[ST_GROUP_VOLUMES] += 1
-        # lines 32-34
-        PLv[0] = ALLP
-        anyface = False
-        for g in range(G):
-            act[0, g] = ALLP
-            act_on[0, g] = gface[k, g]
-            if gface[k, g]:
-                anyface = True
-        if not anyface:
-            continue
-        sp = 1
-        st_node[0] = 0
-        st_lev[0] = 0
-        st_state[0] = 0
-        first = True
-        while sp > 0:
-            sp -= 1
-            node = st_node[sp]
-            lev = st_lev[sp]
-            if st_state[sp] == 1:
-                # lines 50-54 (A): AND of the children's umbra bits
-                ca = left[node]
-                cb = right[node]
+    def cast_chunk(t0, blk, grp, smp, rec, hier, umb, masks, st, opt):
+        """Cast ``blk.tri_sel[t0:]`` against one chunk; returns where it stopped.
+
+        blk: Blockers; grp: LightGroups; smp: light.LightSamples; rec: Receivers
+        (the chunk's, in leaf order); hier: Hierarchy; umb: UmbraBits (A);
+        masks: Masks (D); st: counters (``ST_*``); opt: CastSwitches."""
+        tri_sel, tris, nverts, VL, nVL = blk.tri_sel, blk.tris, blk.nverts, blk.VL, blk.nVL
+        bsolid, solids, disks, gface = blk.solid, blk.solids, blk.disks, blk.gface
+        DVg, nvg, DEg, neg, g_start = grp.DVg, grp.nvg, grp.DEg, grp.neg, grp.g_start
+        mode, SP, Q, centre, bit2s = smp.mode, smp.SP, smp.Q, smp.centre, smp.bit2s
+        pts, set_id, M = rec.pts, rec.set_id, rec.M
+        perm, bb, left, right = hier.perm, hier.bb, hier.left, hier.right
+        start, count, depth = hier.start, hier.count, hier.depth
+        fu, gu, node_gu, node_fu = umb.fu, umb.gu, umb.node_gu, umb.node_fu
+        slot, pool, free = masks.slot, masks.pool, masks.free
+        optA, optB, optC, optD = opt.optA, opt.optB, opt.optC, opt.optD
+        rebuild_frac, leaf_size, tol, eps = opt.rebuild_frac, opt.leaf_size, opt.tol, opt.eps
+        hidden = opt.hidden
+        G = g_start.shape[0] - 1
+        planes = PLANES                                     # the paper's V_li planes per (set, sample)
+        S = bit2s.shape[0]
+        nsets = SP.shape[0]
+        nwords = pool.shape[1]
+        L = depth + 3
+        PLv = np.empty(L, np.int64)
+        act = np.empty((L, G), np.int64)
+        act_on = np.zeros((L, G), np.uint8)
+        st_node = np.empty(2 * L + 4, np.int64)
+        st_lev = np.empty(2 * L + 4, np.int64)
+        st_state = np.empty(2 * L + 4, np.int64)
+        VG = np.zeros((G, 4, MAXP))
+        nVG = np.zeros(G, np.int64)
+        hsets = nsets if planes else 1
+        HV = np.zeros((hsets, S if planes else 1, MAXB + 1, 4))
+        hv_ok = np.zeros((hsets, S if planes else 1), np.bool_)
+        tn = np.zeros(4)
+        ef = np.zeros((MAXB, 4))
+        co = np.zeros(4 * MAXB + 4)
+        # samples as structure of arrays (x, y, z, w rows): fixed points, or the
+        # sphere's disk offsets with w = 1 (the per-receiver rotation goes into
+        # the coefficients)
+        if mode == MODE_SPHERE:
+            T4 = np.ones((Q.shape[0], 4, S))
+            for jj in range(Q.shape[0]):
+                for ii in range(S):
+                    for aa in range(3):
+                        T4[jj, aa, ii] = Q[jj, ii, aa]
+        else:
+            T4 = np.zeros((SP.shape[0], 4, SP.shape[1]))
+            for jj in range(SP.shape[0]):
+                for ii in range(SP.shape[1]):
+                    for aa in range(4):
+                        T4[jj, aa, ii] = SP[jj, ii, aa]
+        hv_stamp = np.full((hsets, G), -1, np.int64)
+        for ti in range(t0, tri_sel.shape[0]):
+            # line 29 (A): rebuild when enough points of the hierarchy are in umbra
+            if optA and st[ST_POINTS] > 2 * leaf_size and st[ST_UMBRA] > rebuild_frac * st[ST_POINTS]:
+                return ti
+            if st[ST_POINTS] == 0:
+                return tri_sel.shape[0]
+            k = tri_sel[ti]
+            nL = nVL[k]
+            tri = tris[k]
+            nb = nverts[k]
+            kc = bsolid[k] if hidden else np.int64(-1)
+            triangle_plane(tri, nb, tn)
+            st[ST_STAMP] += 1
+            stamp = st[ST_STAMP]
+            vol_built = False
+            if not optC:
+                # basic algorithm, lines 2-3: every V_Gk and V_li up front
                 for g in range(G):
-                    node_gu[node, g] = node_gu[ca, g] & node_gu[cb, g]
-                node_fu[node] = node_fu[ca] & node_fu[cb]
-                continue
-            st[ST_NODES] += 1
-            if optA and node_fu[node]:                                   # line 35
-                continue
-            ok, pl = box_vs_volume(bb, node, VL, k, nL, PLv[lev], optB, tol)  # line 36
-            if first:
-                first = False
-                if not ok:
-                    st[ST_ROOT_CULLED] += 1
-            if not ok:
-                continue
-            if kc >= 0 and count[node] <= 4 * leaf_size and _box_hidden(bb, node, tris, k, nb, solids, disks, kc):
-                st[ST_HIDDEN_NODES] += 1
-                continue
-            nl = lev + 1
-            anyg = False
-            for g in range(G):                                           # lines 37-45
-                act_on[nl, g] = 0
-                if act_on[lev, g] == 0:
-                    continue
-                if optA and node_gu[node, g]:                            # line 39
-                    continue
-                if vol_built:                                            # lines 40-43
-                    ok2, a2 = box_vs_volume(bb, node, VG, g, nVG[g], act[lev, g], optB, tol)
-                    if not ok2:
-                        continue
-                    act[nl, g] = a2
-                else:                                                    # line 44
-                    act[nl, g] = ALLP
-                act_on[nl, g] = 1
-                anyg = True
-            if not anyg:                                                 # line 46
-                continue
-            PLv[nl] = pl
-            if left[node] >= 0:                                          # lines 47-49
-                if optA:
-                    st_node[sp] = node
-                    st_lev[sp] = lev
-                    st_state[sp] = 1
-                    sp += 1
-                st_node[sp] = right[node]
-                st_lev[sp] = nl
-                st_state[sp] = 0
-                st_node[sp + 1] = left[node]
-                st_lev[sp + 1] = nl
-                st_state[sp + 1] = 0
-                sp += 2
-                continue
-            # leaf: lines 56-80
-            st[ST_LEAF_VISITS] += 1
-            for q in range(start[node], start[node] + count[node]):
-                r = perm[q]
-                if (optA or optD) and fu[r]:                             # line 57
-                    continue
-                x, y, z = pts[r, 0], pts[r, 1], pts[r, 2]
-                st[ST_POINT_TESTS] += 1
-                if not point_in_volume(VL, k, nL, PLv[nl], x, y, z, tol):  # line 58
-                    continue
-                st[ST_PAIRS] += 1
-                if kc >= 0 and _hidden_behind(tris, k, nb, solids, disks, kc, x, y, z):
-                    st[ST_HIDDEN] += 1
-                    continue
-                if slot[r] < 0:                                          # line 59 (D)
-                    if st[ST_FREE] > 0:
-                        st[ST_FREE] -= 1
-                        sl = free[st[ST_FREE]]
-                    else:
-                        sl = st[ST_SLOTS]
-                        st[ST_SLOTS] += 1
-                    for w in range(nwords):
-                        pool[sl, w] = np.uint64(0)
-                    slot[r] = sl
-                    st[ST_LIVE] += 1
-                    if st[ST_LIVE] > st[ST_PEAK]:
-                        st[ST_PEAK] = st[ST_LIVE]
-                if not vol_built:                                        # lines 60-64 (C)
-                    for g in range(G):
-                        nVG[g] = max(0, penumbra_volume(tri, nb, DVg[g], nvg[g], DEg[g], neg[g],
-                                                        eps, VG[g]))
-                    vol_built = True
-                    st[ST_GROUP_VOLUMES] += 1
-                sl = slot[r]
-                j = set_id[r] if mode != MODE_SHARED else 0
-                rho = 0.0
-                have_ef = False
-                for g in range(G):                                       # line 65
-                    if act_on[nl, g] == 0:
-                        continue
-                    if optA and gu[r, g]:                                # line 66
-                        continue
-                    st[ST_GROUP_TESTS] += 1
-                    if not point_in_volume(VG, g, nVG[g], act[nl, g], x, y, z, tol):  # line 67
-                        continue
-                    if planes and hv_stamp[j, g] != stamp:
-                        # C: the hard volumes of this group of this set, on first need
-                        for i in range(g_start[g], g_start[g + 1]):
+                    nVG[g] = max(0, penumbra_volume(tri, nb, DVg[g], nvg[g], DEg[g], neg[g], eps, VG[g]))
+                if PLANES:
+                    for j in range(nsets):
+                        for i in range(S):
                             hv_ok[j, i] = hard_volume(tri, nb, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
                                                       SP[j, i, 3], HV[j, i])
-                        hv_stamp[j, g] = stamp
-                        st[ST_HARD_BUILT] += g_start[g + 1] - g_start[g]
-                    i0 = g_start[g]
-                    i1 = g_start[g + 1]
-                    if not planes and not have_ef:
-                        # per receiver and triangle, on the first group that needs it
-                        rho = receiver_edge_functions(tri, nb, tn, x, y, z, ef)
-                        if mode != MODE_SHARED and rho != 0.0:
-                            _coefficients(ef, tn, rho, mode, r, M, centre, co)
-                        have_ef = True
-                    if planes:                                           # lines 68-71
-                        for i in range(i0, i1):
-                            w = i >> 6
-                            b = np.uint64(1) << np.uint64(i & 63)
-                            if pool[sl, w] & b:
-                                continue
-                            st[ST_HARD_TESTS] += 1
-                            if hv_ok[j, i] and in_hard_volume(HV[j, i], nb, x, y, z):
-                                pool[sl, w] |= b
-                    elif mode == MODE_SHARED:
-                        for i in range(i0, i1):
-                            w = i >> 6
-                            b = np.uint64(1) << np.uint64(i & 63)
-                            if pool[sl, w] & b:
-                                continue
-                            st[ST_HARD_TESTS] += 1
-                            px, py, pz, pw = sample_point(smp, i, r, rec)
-                            if blocked_by_edges(ef, rho, tn, px, py, pz, pw):
-                                pool[sl, w] |= b
-                    elif rho != 0.0:
-                        # the same four plane tests, a word of samples at a time
-                        for w in range(i0 >> 6, ((i1 - 1) >> 6) + 1):
-                            a = max(i0, w << 6)
-                            e = min(i1, (w + 1) << 6)
-                            pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co, nb)
-                            st[ST_HARD_TESTS] += e - a
-                    if optA:                                             # line 72
-                        if _bits_full(pool, sl, g_start[g], g_start[g + 1]):
-                            gu[r, g] = 1
-                if optA:                                                 # line 74
-                    allg = True
+                        for g in range(G):
+                            hv_stamp[j, g] = stamp
+                    st[ST_HARD_BUILT] += nsets * S
+                vol_built = True
+                st[ST_GROUP_VOLUMES] += 1
+            # lines 32-34
+            PLv[0] = ALLP
+            anyface = False
+            for g in range(G):
+                act[0, g] = ALLP
+                act_on[0, g] = gface[k, g]
+                if gface[k, g]:
+                    anyface = True
+            if not anyface:
+                continue
+            sp = 1
+            st_node[0] = 0
+            st_lev[0] = 0
+            st_state[0] = 0
+            first = True
+            while sp > 0:
+                sp -= 1
+                node = st_node[sp]
+                lev = st_lev[sp]
+                if st_state[sp] == 1:
+                    # lines 50-54 (A): AND of the children's umbra bits
+                    ca = left[node]
+                    cb = right[node]
                     for g in range(G):
-                        if gu[r, g] == 0:
-                            allg = False
-                            break
-                    if allg:
-                        fu[r] = 1
-                        st[ST_UMBRA] += 1
-                if optD:                                                 # line 75
-                    full = fu[r] == 1 if optA else _bits_full(pool, sl, 0, S)
-                    if full:
-                        fu[r] = 1
-                        free[st[ST_FREE]] = sl
-                        st[ST_FREE] += 1
-                        slot[r] = -1
-                        st[ST_LIVE] -= 1
-            if optA:                                                     # lines 77-80
-                lf = np.uint8(1)
-                for g in range(G):
-                    node_gu[node, g] = 1
+                        node_gu[node, g] = node_gu[ca, g] & node_gu[cb, g]
+                    node_fu[node] = node_fu[ca] & node_fu[cb]
+                    continue
+                st[ST_NODES] += 1
+                if optA and node_fu[node]:                                   # line 35
+                    continue
+                ok, pl = box_vs_volume(bb, node, VL, k, nL, PLv[lev], optB, tol)  # line 36
+                if first:
+                    first = False
+                    if not ok:
+                        st[ST_ROOT_CULLED] += 1
+                if not ok:
+                    continue
+                if kc >= 0 and count[node] <= 4 * leaf_size and _box_hidden(bb, node, tris, k, nb, solids, disks, kc):
+                    st[ST_HIDDEN_NODES] += 1
+                    continue
+                nl = lev + 1
+                anyg = False
+                for g in range(G):                                           # lines 37-45
+                    act_on[nl, g] = 0
+                    if act_on[lev, g] == 0:
+                        continue
+                    if optA and node_gu[node, g]:                            # line 39
+                        continue
+                    if vol_built:                                            # lines 40-43
+                        ok2, a2 = box_vs_volume(bb, node, VG, g, nVG[g], act[lev, g], optB, tol)
+                        if not ok2:
+                            continue
+                        act[nl, g] = a2
+                    else:                                                    # line 44
+                        act[nl, g] = ALLP
+                    act_on[nl, g] = 1
+                    anyg = True
+                if not anyg:                                                 # line 46
+                    continue
+                PLv[nl] = pl
+                if left[node] >= 0:                                          # lines 47-49
+                    if optA:
+                        st_node[sp] = node
+                        st_lev[sp] = lev
+                        st_state[sp] = 1
+                        sp += 1
+                    st_node[sp] = right[node]
+                    st_lev[sp] = nl
+                    st_state[sp] = 0
+                    st_node[sp + 1] = left[node]
+                    st_lev[sp + 1] = nl
+                    st_state[sp + 1] = 0
+                    sp += 2
+                    continue
+                # leaf: lines 56-80
+                st[ST_LEAF_VISITS] += 1
                 for q in range(start[node], start[node] + count[node]):
                     r = perm[q]
-                    lf &= fu[r]
+                    if (optA or optD) and fu[r]:                             # line 57
+                        continue
+                    x, y, z = pts[r, 0], pts[r, 1], pts[r, 2]
+                    st[ST_POINT_TESTS] += 1
+                    if not point_in_volume(VL, k, nL, PLv[nl], x, y, z, tol):  # line 58
+                        continue
+                    st[ST_PAIRS] += 1
+                    if kc >= 0 and _hidden_behind(tris, k, nb, solids, disks, kc, x, y, z):
+                        st[ST_HIDDEN] += 1
+                        continue
+                    if slot[r] < 0:                                          # line 59 (D)
+                        if st[ST_FREE] > 0:
+                            st[ST_FREE] -= 1
+                            sl = free[st[ST_FREE]]
+                        else:
+                            sl = st[ST_SLOTS]
+                            st[ST_SLOTS] += 1
+                        for w in range(nwords):
+                            pool[sl, w] = np.uint64(0)
+                        slot[r] = sl
+                        st[ST_LIVE] += 1
+                        if st[ST_LIVE] > st[ST_PEAK]:
+                            st[ST_PEAK] = st[ST_LIVE]
+                    if not vol_built:                                        # lines 60-64 (C)
+                        for g in range(G):
+                            nVG[g] = max(0, penumbra_volume(tri, nb, DVg[g], nvg[g], DEg[g], neg[g],
+                                                            eps, VG[g]))
+                        vol_built = True
+                        st[ST_GROUP_VOLUMES] += 1
+                    sl = slot[r]
+                    j = set_id[r] if mode != MODE_SHARED else 0
+                    rho = 0.0
+                    have_ef = False
+                    for g in range(G):                                       # line 65
+                        if act_on[nl, g] == 0:
+                            continue
+                        if optA and gu[r, g]:                                # line 66
+                            continue
+                        st[ST_GROUP_TESTS] += 1
+                        if not point_in_volume(VG, g, nVG[g], act[nl, g], x, y, z, tol):  # line 67
+                            continue
+                        i0 = g_start[g]
+                        i1 = g_start[g + 1]
+                        if PLANES:                                           # lines 68-71
+                            if hv_stamp[j, g] != stamp:
+                                # C: the hard volumes of this group of this set, on first need
+                                for i in range(i0, i1):
+                                    hv_ok[j, i] = hard_volume(tri, nb, SP[j, i, 0], SP[j, i, 1], SP[j, i, 2],
+                                                              SP[j, i, 3], HV[j, i])
+                                hv_stamp[j, g] = stamp
+                                st[ST_HARD_BUILT] += i1 - i0
+                            for i in range(i0, i1):
+                                w = i >> 6
+                                b = np.uint64(1) << np.uint64(i & 63)
+                                if pool[sl, w] & b:
+                                    continue
+                                st[ST_HARD_TESTS] += 1
+                                if hv_ok[j, i] and in_hard_volume(HV[j, i], nb, x, y, z):
+                                    pool[sl, w] |= b
+                        elif SHARED:
+                            if not have_ef:
+                                rho = receiver_edge_functions(tri, nb, tn, x, y, z, ef)
+                                have_ef = True
+                            for i in range(i0, i1):
+                                w = i >> 6
+                                b = np.uint64(1) << np.uint64(i & 63)
+                                if pool[sl, w] & b:
+                                    continue
+                                st[ST_HARD_TESTS] += 1
+                                px, py, pz, pw = sample_point(smp, i, r, rec)
+                                if blocked_by_edges(ef, rho, tn, px, py, pz, pw):
+                                    pool[sl, w] |= b
+                        else:
+                            if not have_ef:
+                                # per receiver and triangle, on the first group that needs it
+                                rho = receiver_edge_functions(tri, nb, tn, x, y, z, ef)
+                                if rho != 0.0:
+                                    _coefficients(ef, tn, rho, mode, r, M, centre, co)
+                                have_ef = True
+                            if rho != 0.0:
+                                # the same four plane tests, a word of samples at a time
+                                for w in range(i0 >> 6, ((i1 - 1) >> 6) + 1):
+                                    a = max(i0, w << 6)
+                                    e = min(i1, (w + 1) << 6)
+                                    pool[sl, w] |= _word_tests(T4, j, a, e, w << 6, co, nb)
+                                    st[ST_HARD_TESTS] += e - a
+                        if optA:                                             # line 72
+                            if _bits_full(pool, sl, g_start[g], g_start[g + 1]):
+                                gu[r, g] = 1
+                    if optA:                                                 # line 74
+                        allg = True
+                        for g in range(G):
+                            if gu[r, g] == 0:
+                                allg = False
+                                break
+                        if allg:
+                            fu[r] = 1
+                            st[ST_UMBRA] += 1
+                    if optD:                                                 # line 75
+                        full = fu[r] == 1 if optA else _bits_full(pool, sl, 0, S)
+                        if full:
+                            fu[r] = 1
+                            free[st[ST_FREE]] = sl
+                            st[ST_FREE] += 1
+                            slot[r] = -1
+                            st[ST_LIVE] -= 1
+                if optA:                                                     # lines 77-80
+                    lf = np.uint8(1)
                     for g in range(G):
-                        node_gu[node, g] &= gu[r, g]
-                node_fu[node] = lf
-    return tri_sel.shape[0]
+                        node_gu[node, g] = 1
+                    for q in range(start[node], start[node] + count[node]):
+                        r = perm[q]
+                        lf &= fu[r]
+                        for g in range(G):
+                            node_gu[node, g] &= gu[r, g]
+                    node_fu[node] = lf
+        return tri_sel.shape[0]
+
+    cast_chunk.__name__ = cast_chunk.__qualname__ = f"cast_chunk_{variant}"
+    return njit(cache=True, nogil=True)(cast_chunk)
+
+
+cast_chunk_words = _make_cast_chunk("words")
+cast_chunk_planes = _make_cast_chunk("planes")
+cast_chunk_shared = _make_cast_chunk("shared")
+
+
+def cast_chunk_for(mode: int, materialize: bool):
+    """The ``cast_chunk`` kernel of a light setup's sample ``mode`` and
+    ``materialize_hard_volumes``."""
+    if mode == MODE_SHARED:
+        return cast_chunk_shared
+    if materialize and mode == MODE_FIXED:
+        return cast_chunk_planes
+    return cast_chunk_words

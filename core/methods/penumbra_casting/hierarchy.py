@@ -25,10 +25,87 @@ def _area(x0, y0, z0, x1, y1, z1):
 
 @njit(cache=True)
 def _grow(a, cap):
-    shape = (cap,) + a.shape[1:]
-    b = np.empty(shape, a.dtype)
-    b[:a.shape[0]] = a
+    """``a`` (1-D) in a new array of length ``cap``. Element by element: a
+    slice assignment compiles Numba's shape-mismatch error message (string
+    formatting: about 4 s of compile per array kind, issue 15)."""
+    b = np.empty(cap, a.dtype)
+    for i in range(a.shape[0]):
+        b[i] = a[i]
     return b
+
+
+@njit(cache=True)
+def _grow_boxes(a, cap):
+    """``_grow`` for the (m, 6) node boxes."""
+    b = np.empty((cap, 6), a.dtype)
+    for i in range(a.shape[0]):
+        for j in range(6):
+            b[i, j] = a[i, j]
+    return b
+
+
+_RUN = 16          # ``_stable_order``: runs insertion-sorted before the merges
+
+
+@njit(cache=True)
+def _stable_order(keys, c, order, tmp, kb, kt):
+    """``order[:c]`` = the stable ascending order of ``keys[:c]`` (what
+    ``np.argsort(keys[:c], kind="mergesort")`` gives: ties keep their index
+    order): insertion-sorted runs of ``_RUN``, then bottom-up merges, the
+    keys carried along in ``kb`` / ``kt`` (buffers of at least ``c``). Its own
+    few lines compile in a fraction of Numba's argsort (issue 15)."""
+    for k in range(c):
+        order[k] = k
+        kb[k] = keys[k]
+    for lo in range(0, c, _RUN):
+        hi = min(lo + _RUN, c)
+        for i in range(lo + 1, hi):
+            kv = kb[i]
+            ov = order[i]
+            j = i - 1
+            while j >= lo and kb[j] > kv:           # strictly greater: ties stay in order
+                kb[j + 1] = kb[j]
+                order[j + 1] = order[j]
+                j -= 1
+            kb[j + 1] = kv
+            order[j + 1] = ov
+    width = _RUN
+    src, dst, ks, kd = order, tmp, kb, kt
+    in_tmp = False
+    while width < c:
+        lo = 0
+        while lo < c:
+            mid = min(lo + width, c)
+            hi = min(lo + 2 * width, c)
+            i, j, o = lo, mid, lo
+            while i < mid and j < hi:
+                if ks[j] < ks[i]:                  # strictly less: the left run wins ties
+                    dst[o] = src[j]
+                    kd[o] = ks[j]
+                    j += 1
+                else:
+                    dst[o] = src[i]
+                    kd[o] = ks[i]
+                    i += 1
+                o += 1
+            while i < mid:
+                dst[o] = src[i]
+                kd[o] = ks[i]
+                i += 1
+                o += 1
+            while j < hi:
+                dst[o] = src[j]
+                kd[o] = ks[j]
+                j += 1
+                o += 1
+            lo = hi
+        src, dst = dst, src
+        ks, kd = kd, ks
+        in_tmp = not in_tmp
+        width *= 2
+    if in_tmp:
+        for k in range(c):
+            order[k] = tmp[k]
 
 
 @njit(cache=True, nogil=True)
@@ -55,6 +132,12 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
     sp = 1
     max_depth = 0
     keys = np.empty(max(1, min(n, midpoint_limit)))
+    order = np.empty(keys.shape[0], np.int64)
+    otmp = np.empty(keys.shape[0], np.int64)
+    kb = np.empty(keys.shape[0])
+    kt = np.empty(keys.shape[0])
+    best_order = np.empty(keys.shape[0], np.int64)
+    suf = np.empty(keys.shape[0] + 1)
     while sp > 0:
         sp -= 1
         node = st_node[sp]
@@ -118,9 +201,8 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
             for ax in range(3):
                 for k in range(c):
                     keys[k] = pts[perm[s + k], ax]
-                order = np.argsort(keys[:c], kind="mergesort")
+                _stable_order(keys, c, order, otmp, kb, kt)
                 # suffix areas
-                suf = np.empty(c + 1)
                 sx0 = sy0 = sz0 = np.inf
                 sx1 = sy1 = sz1 = -np.inf
                 suf[c] = 0.0
@@ -149,16 +231,17 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
                         best = cost
                         best_ax = ax
                         best_k = k + 1
+                if best_ax == ax:                   # this axis's order is the split's (no fourth sort)
+                    for k in range(c):
+                        best_order[k] = order[k]
             for k in range(c):
-                keys[k] = pts[perm[s + k], best_ax]
-            order = np.argsort(keys[:c], kind="mergesort")
-            tmpp = perm[s:s + c].copy()
+                otmp[k] = perm[s + best_order[k]]
             for k in range(c):
-                perm[s + k] = tmpp[order[k]]
+                perm[s + k] = otmp[k]
             split = s + best_k
         if m + 2 > bb.shape[0]:
             nc = 2 * bb.shape[0]
-            bb = _grow(bb, nc)
+            bb = _grow_boxes(bb, nc)
             left = _grow(left, nc)
             right = _grow(right, nc)
             start = _grow(start, nc)
