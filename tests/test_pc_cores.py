@@ -181,6 +181,7 @@ def test_merge_on_the_solids_mesh_equals_the_merge_from_scratch():
 #: warm-up), then a frame of a closed sphere
 _CLOSED_SOLID_COMPILES = _COMPILES_OUTSIDE_WARM_UP.split(_REGISTER)[0] + _REGISTER + r"""
 from penumbra.bench.scaling import smooth_sphere_scene
+from penumbra.core.frame import render_frame
 render_frame(smooth_sphere_scene(2000, (16, 16)), ["penumbra_casting"], overrides={"samples": 4})
 print(json.dumps({"inside": inside, "outside": outside}))
 """
