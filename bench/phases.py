@@ -12,6 +12,8 @@ from __future__ import annotations
 import csv
 import json
 import os
+import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -24,12 +26,14 @@ import numpy as np
 from ..core import pixel_rays, raycast
 from ..core.buffers import FrameBuffers
 from ..core.methods import producer_of
-from .harness import TESTS, load_sample, machine, median_run, median_runs, open_sample
+from .harness import TESTS, load_sample, machine, median_run, open_sample
 
 #: the columns of skeleton.csv / skeleton.md
 COLUMNS = ["scene", "size", "phase", "method", "threads", "samples", "seconds", "rays_per_s"]
-#: the columns of buffers.csv / buffers.md (issue 15: buffers at Embree's cost)
-BUFFER_COLUMNS = ["scene", "size", "buffer", "rays", "threads", "embree_1t_s", "seconds", "ratio", "target"]
+#: the columns of buffers.csv / buffers.md (issue 15: buffers at Embree's cost): wall seconds and
+#: their ratio, and the same in CPU seconds (user + sys of the process: robust on a loaded machine)
+BUFFER_COLUMNS = ["scene", "size", "buffer", "rays", "threads", "embree_1t_s", "seconds", "ratio", "target",
+                  "embree_1t_cpu_s", "cpu_s", "cpu_ratio", "load"]
 #: the scenes of the 1080p buffer table
 BUFFER_SCENES = ("grids", "sphere_plane")
 
@@ -88,10 +92,38 @@ def raw_embree_call(tri_scene, params, width: int, height: int, bounded: bool):
     return lambda: tri_scene._scene.run(org, dirs, output=1, **kw)
 
 
-def raw_embree_seconds(tri_scene, params, width: int, height: int, bounded: bool, repeats: int) -> float:
-    """Median seconds of ``raw_embree_call``."""
-    t, _ = median_run(raw_embree_call(tri_scene, params, width, height, bounded), repeats)
-    return t
+def raw_embree_seconds(tri_scene, params, width: int, height: int, bounded: bool, repeats: int):
+    """(median wall, median CPU seconds) of ``raw_embree_call``."""
+    (t, c), = wall_cpu_runs([raw_embree_call(tri_scene, params, width, height, bounded)], repeats)
+    return t, c
+
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def wall_cpu_runs(fns, repeats: int):
+    """[(median wall, median CPU seconds)] of each of ``fns``, measured
+    interleaved after one warm call each (``harness.median_runs``), CPU as
+    the process's user + sys time."""
+    for fn in fns:
+        fn()
+    wall = [[] for _ in fns]
+    cpu = [[] for _ in fns]
+    for _ in range(repeats):
+        for k, fn in enumerate(fns):
+            c, t = _cpu(), time.perf_counter()
+            fn()
+            wall[k].append(time.perf_counter() - t)
+            cpu[k].append(_cpu() - c)
+    return [(statistics.median(w), statistics.median(c)) for w, c in zip(wall, cpu)]
+
+
+def _ratios(raw, own):
+    """The row fields of a figure ``own`` (wall, CPU) beside raw embreex's ``raw``."""
+    return dict(embree_1t_s=raw[0], seconds=own[0], ratio=own[0] / raw[0], embree_1t_cpu_s=raw[1], cpu_s=own[1],
+                cpu_ratio=own[1] / raw[1], load=f"{os.getloadavg()[0]:.1f}")
 
 
 def bench_buffers(repeats: int, quick: bool):
@@ -99,7 +131,8 @@ def bench_buffers(repeats: int, quick: bool):
     light's view beside raw embreex on one thread for the same rays (the
     ratio's target: 1.5), and ``pcf``'s whole time from a fresh frame
     (buffers, BVHs and filter) against the raw primary-ray time (target 4);
-    each figure measured interleaved with its raw one (``median_runs``)."""
+    each figure measured interleaved with its raw one (``wall_cpu_runs``),
+    in wall and CPU seconds."""
     rows = []
     res = (480, 270) if quick else (1920, 1080)
     size = f"{res[0]}x{res[1]}"
@@ -110,10 +143,10 @@ def bench_buffers(repeats: int, quick: bool):
         fb = FrameBuffers(scene, *res)
         cs = fb.camera_scene
         cam_params = raycast.camera_params(scene.camera, *res)
-        raw, t = median_runs([raw_embree_call(cs, cam_params, *res, True),
-                              lambda: raycast.camera_gbuffer(scene, *res, cs)], repeats)
+        raw, t = wall_cpu_runs([raw_embree_call(cs, cam_params, *res, True),
+                                lambda: raycast.camera_gbuffer(scene, *res, cs)], repeats)
         rows.append(dict(scene=name, size=size, buffer="camera G-buffer", rays=res[0] * res[1], threads=threads,
-                         embree_1t_s=raw, seconds=t, ratio=t / raw, target="<= 1.5"))
+                         target="<= 1.5", **_ratios(raw, t)))
         for light in scene.lights:
             if not light.casts_shadow:
                 continue
@@ -122,22 +155,20 @@ def bench_buffers(repeats: int, quick: bool):
             if occ._scene is None or not lv.faces:
                 continue
             calls = [raw_embree_call(occ, raycast.face_params(f), f.width, f.height, False) for f in lv.faces]
-            lraw, t = median_runs([lambda: [c() for c in calls],
-                                   lambda: fb.light_view(light, key=str(time.perf_counter()))], repeats)
+            lraw, t = wall_cpu_runs([lambda: [c() for c in calls],
+                                     lambda: fb.light_view(light, key=str(time.perf_counter()))], repeats)
             rays = sum(f.width * f.height for f in lv.faces)
             rows.append(dict(scene=name, size=size, buffer=f"light view {light.name} ({len(lv.faces)} face(s))",
-                             rays=rays, threads=threads, embree_1t_s=lraw, seconds=t, ratio=t / lraw,
-                             target="<= 1.5"))
+                             rays=rays, threads=threads, target="<= 1.5", **_ratios(lraw, t)))
         light = scene.lights[0]
 
         def whole_pcf():
             return pcf.run(FrameBuffers(scene, *res), light, pcf.make_params({"NumSamples": 16}))
 
         raw_call = raw_embree_call(cs, cam_params, *res, True)
-        raw, t = median_runs([raw_call, whole_pcf], repeats)
+        raw, t = wall_cpu_runs([raw_call, whole_pcf], repeats)
         rows.append(dict(scene=name, size=size, buffer=f"pcf whole ({light.name}: BVHs, buffers, filter)",
-                         rays=res[0] * res[1], threads=threads, embree_1t_s=raw, seconds=t, ratio=t / raw,
-                         target="<= 4"))
+                         rays=res[0] * res[1], threads=threads, target="<= 4", **_ratios(raw, t)))
     return rows
 
 
@@ -174,7 +205,7 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
                 if moved:
                     light.location.x += 0.05 * sign[0]
                     sign[0] = -sign[0]
-                t0 = time.perf_counter()
+                c0, t0 = _cpu(), time.perf_counter()
                 job = prepare_frame(scene, FrameRequest(resolution=res, fast=True, methods=[method], references=(),
                                                         threads=threads))
                 t1 = time.perf_counter()
@@ -184,19 +215,19 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
                 show_preview(combine(result, job.captured))
                 t3 = time.perf_counter()
                 phases = dict(result.lights[0].record[method]["time_s"])
-                runs.append((t3 - t0, t1 - t0, phases, t3 - t2, job.reused))
+                runs.append((t3 - t0, t1 - t0, phases, t3 - t2, job.reused, _cpu() - c0))
 
             median_run(preview, repeats)
             runs = sorted(runs[1:], key=lambda r: r[0])
-            total, capture, phases, write, reused = runs[len(runs) // 2]
+            total, capture, phases, write, reused, cpu = runs[len(runs) // 2]
             parts = [f"capture {capture:.3f}"] + [f"{k} {v:.3f}" for k, v in phases.items() if k != "total"]
             parts.append(f"image {write:.3f}")
             what = "light moved" if moved else "nothing changed"
             rows.append(dict(scene=name, size=f"{res[0]}x{res[1]}",
                              buffer=f"Preview {method}, {what}{'' if reused else ' (buffers NOT reused)'}: "
                                     f"{', '.join(parts)} s",
-                             rays=res[0] * res[1], threads=threads, embree_1t_s=raw, seconds=total,
-                             ratio=total / raw, target=f"<= {PREVIEW_TARGET_S} s"))
+                             rays=res[0] * res[1], threads=threads, target=f"<= {PREVIEW_TARGET_S} s",
+                             **_ratios(raw, (total, cpu))))
     buffer_cache.unwatch()                # prepare_frame installed the depsgraph handler
     return rows
 
@@ -269,7 +300,7 @@ def write_results(rows, out_dir, name, columns=COLUMNS):
             v = r[k]
             if k in ("seconds", "embree_1t_s") or k.endswith("_s") and isinstance(v, float):
                 v = f"{v:.4f}"
-            elif k == "ratio":
+            elif k in ("ratio", "cpu_ratio"):
                 v = f"{v:.2f}x"
             elif k == "rays_per_s" and v != "":
                 v = f"{v / 1e6:.2f} M/s"

@@ -26,11 +26,16 @@ PREVIEW_MAP_SCALE = 0.5
 #: the preview's settings of the fast methods, under a light's own knobs (which
 #: win): ``single_sample`` as the paper has it (the nearest blocker, object ids;
 #: issue 17's ``blocker="sum"``, ``surfaces="mesh"`` defaults cost 20-80x at
-#: 1080p), ``pcf`` with a quarter of the samples of its light-sized region
-#: (the Compute keeps the accurate defaults). Said in the Preview's report.
+#: 1080p), ``pcf`` with a quarter of the samples of its light-sized region,
+#: V at one pixel in each 2 x 2 block (``pixel_step``: the block's other
+#: pixels on the same surface share it) and no pixel footprint (``ResFactor``
+#: 0: the region's floor is MinSize texels; the light's extent sets it
+#: anyway): issue 15, the filter's per-pixel cost was most of a moved light's
+#: Preview at 1080p. The Compute keeps the accurate defaults. Said in the
+#: Preview's report.
 PREVIEW_PARAMS: Dict[str, Dict[str, object]] = {
     "single_sample": {"blocker": "nearest", "surfaces": "object"},
-    "pcf": {"BlockerSamples": 8, "PenumbraSamples": 16},
+    "pcf": {"BlockerSamples": 8, "PenumbraSamples": 16, "pixel_step": 2, "ResFactor": 0.0},
 }
 
 

@@ -21,6 +21,13 @@ MAX_SINGLE_VIEW_HALF_ANGLE = math.radians(60.0)
 FIT_MARGIN = 0.03
 
 
+def _rows(m: np.ndarray) -> np.ndarray:
+    """``m[:3, :3].T`` as a contiguous array: ``points @`` it is NumPy's
+    BLAS product (a transposed view of a 4x4's corner is not, and took
+    50 ms for 64K points; the same bits, checked on the sample scenes)."""
+    return np.ascontiguousarray(np.asarray(m, np.float64)[:3, :3].T)
+
+
 # --------------------------------------------------------------------------
 # camera
 def camera_viewplane(cam: Camera, width: int, height: int) -> Tuple[float, float, float, float]:
@@ -79,7 +86,7 @@ def world_to_camera_pixels(cam: Camera, width: int, height: int, points: np.ndar
     xmin, xmax, ymin, ymax = camera_viewplane(cam, width, height)
     m = np.asarray(cam.world_from_camera, np.float64)
     inv = np.linalg.inv(m)
-    p = np.asarray(points, np.float64) @ inv[:3, :3].T + inv[:3, 3]
+    p = np.asarray(points, np.float64) @ _rows(inv) + inv[:3, 3]
     depth = -p[..., 2]
     if cam.kind == "ORTHO":
         x, y = p[..., 0], p[..., 1]
@@ -116,7 +123,7 @@ def project_to_face(face: ViewFace, points: np.ndarray):
     """World points -> (u, v, depth): u, v in map pixels (float, centre at +0.5),
     depth = -z in view space. Points behind a perspective eye get depth <= 0."""
     m = np.asarray(face.view_from_world, np.float64)
-    p = np.asarray(points, np.float64) @ m[:3, :3].T + m[:3, 3]
+    p = np.asarray(points, np.float64) @ _rows(m) + m[:3, 3]
     depth = -p[..., 2]
     l, r, b, t = face.bounds
     if face.ortho:
@@ -171,7 +178,7 @@ def fit_perspective_face(eye, forward, receivers, map_size, margin=FIT_MARGIN,
     in front of it; None if no receiver is in front."""
     rot = look_rotation(forward)
     vfw = view_from_world(rot, eye)
-    p = receivers @ vfw[:3, :3].T + vfw[:3, 3]
+    p = receivers @ _rows(vfw) + vfw[:3, 3]
     depth = -p[:, 2]
     ok = depth > 1e-12 * max(1.0, float(np.abs(receivers).max(initial=1.0)))
     if not ok.any():
@@ -245,7 +252,7 @@ def light_view_faces(light: Light, receivers: np.ndarray, scene_bounds, map_size
         center = 0.5 * (lo + hi)
         origin = center - fwd * (diag + 1e-6 * diag)   # every caster lies in front
         vfw = view_from_world(rot, origin)
-        p = receivers @ vfw[:3, :3].T + vfw[:3, 3]
+        p = receivers @ _rows(vfw) + vfw[:3, 3]
         pad = light.sun_spread * diag if sun_pad is None else float(sun_pad)
         l, r = _padded(p[:, 0].min() - pad, p[:, 0].max() + pad, FIT_MARGIN)
         b, t = _padded(p[:, 1].min() - pad, p[:, 1].max() + pad, FIT_MARGIN)

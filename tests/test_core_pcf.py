@@ -225,18 +225,170 @@ def _centre_texel(face, p):
 def test_tile_tables_give_the_min_and_max_of_any_block_of_tiles():
     """The tile test's sparse tables: the min / max over any block of tiles
     in four lookups equal a loop over the tiles, on maps of odd sizes with
-    empty (+inf) texels, one and several faces."""
+    empty (+inf) texels, one and several faces; with ``span``, over any
+    block of at most that many tiles a side."""
     from penumbra.core.methods.pcf import tile_minmax, tile_range, tile_tables
     rng = np.random.default_rng(3)
     for shape in ((1, 8, 8), (1, 37, 101), (3, 64, 17)):
         depth = rng.uniform(1.0, 5.0, shape).astype(np.float32)
         depth[rng.random(shape) < 0.2] = np.inf
         lo, hi = tile_minmax(depth)
-        tlo, thi = tile_tables(lo, hi)
+        tt = tile_tables(lo, hi)
         F, th, tw = lo.shape
         for _ in range(200):
             f = rng.integers(F)
             y0, y1 = sorted(rng.integers(0, th, 2))
             x0, x1 = sorted(rng.integers(0, tw, 2))
-            dmin, dmax = tile_range(tlo[f], thi[f], y0, y1, x0, x1)
+            dmin, dmax = tile_range(tt[f], y0, y1, x0, x1)
             assert dmin == lo[f, y0:y1 + 1, x0:x1 + 1].min() and dmax == hi[f, y0:y1 + 1, x0:x1 + 1].max()
+        span = 5                                    # blocks of at most 5 tiles a side: fewer levels
+        st = tile_tables(lo, hi, span)
+        assert st.shape[1:3] == (min(3, tt.shape[1]), min(3, tt.shape[2]))
+        for _ in range(200):
+            f = rng.integers(F)
+            y0, x0 = rng.integers(0, th), rng.integers(0, tw)
+            y1, x1 = min(th - 1, y0 + rng.integers(0, span)), min(tw - 1, x0 + rng.integers(0, span))
+            dmin, dmax = tile_range(st[f], y0, y1, x0, x1)
+            assert dmin == lo[f, y0:y1 + 1, x0:x1 + 1].min() and dmax == hi[f, y0:y1 + 1, x0:x1 + 1].max()
+
+
+def _slanted_map(rng, h=64, w=72, boxes=8):
+    """A perspective face's map of the plane 1 / depth = a u + b v + c (at
+    texel centres) with a few nearer boxes and an empty corner: (depth
+    float32[1, h, w], (a, b, c))."""
+    a, b, c = 2e-3, -1.5e-3, 0.25
+    v, u = np.mgrid[0:h, 0:w] + 0.5
+    depth = (1.0 / (a * u + b * v + c))[None].astype(np.float32)
+    for _ in range(boxes):
+        y0, x0 = rng.integers(0, h - 12), rng.integers(0, w - 12)
+        depth[0, y0:y0 + rng.integers(1, 12), x0:x0 + rng.integers(1, 12)] *= np.float32(rng.uniform(0.5, 0.97))
+    depth[0, :5, :7] = np.inf
+    return depth, (a, b, c)
+
+
+def test_tile_planes_fit_a_plane_exactly():
+    """tile_planes: on a perspective map of a plane, every full block's
+    plane is 1 / depth (a u + b v + c at the block's centre) within float32
+    rounding; blocks with an empty texel or past the map get r = inf; on an
+    orthographic face the depth itself is fitted."""
+    from penumbra.core.methods.pcf import TILE, tile_planes
+    depth, (a, b, c) = _slanted_map(np.random.default_rng(0), boxes=0)
+    pl = tile_planes(depth, np.array([False]))[0]
+    th, tw = pl.shape[:2]
+    for ty in range(th):
+        for tx in range(tw):
+            full = (ty + 1) * TILE <= 64 and (tx + 1) * TILE <= 72 and not (ty == 0 and tx == 0)
+            if not full:
+                assert pl[ty, tx, 3] == np.inf
+                continue
+            cu, cv = tx * TILE + TILE / 2, ty * TILE + TILE / 2
+            np.testing.assert_allclose(pl[ty, tx, :3], [a, b, a * cu + b * cv + c], rtol=1e-5)
+            assert pl[ty, tx, 3] < 1e-6 * c
+    ortho = tile_planes(np.full((1, 16, 16), 3.0, np.float32), np.array([True]))[0]
+    np.testing.assert_allclose(ortho[..., :3], [[[0.0, 0.0, 3.0]] * 2] * 2, atol=1e-12)
+
+
+def test_region_decided_lit_holds_for_every_texel():
+    """The tile test with the blocks' planes (planar_lit) is exact: where it
+    says lit, no texel centre of the region has the receiver (on the map's
+    slanted plane, or in front of it) behind it by more than Bias0; where
+    it says shadow, every one is behind by more than Bias1. And the planes
+    decide regions the min / max cannot (a receiver on the slanted plane
+    with no box nearby)."""
+    from penumbra.core.methods.pcf import (DEPTH_REL_EPS, _texel_box, plane_depth, region_decided, tile_minmax,
+                                          tile_planes, tile_range, tile_tables)
+    rng = np.random.default_rng(5)
+    decided_by_planes = 0
+    for trial in range(6):
+        depth, (a, b, c) = _slanted_map(rng)
+        lo, hi = tile_minmax(depth)
+        tt = tile_tables(lo, hi)
+        planes = tile_planes(depth, np.array([False]))
+        h, w = depth.shape[1:]
+        for _ in range(300):
+            s, t = rng.uniform(0, w), rng.uniform(0, h)
+            lift = rng.choice([1.0, 1.0, 1.02])          # on the plane, or in front of it
+            plane = (1.0, 0.0, a * lift, b * lift, c * lift, 1.0)
+            z = plane_depth(plane, s, t, -1.0)
+            sres, tres = rng.uniform(0.5, 12.0, 2)
+            bias0 = rng.choice([0.0, 1e-3, 0.02])
+            known = region_decided(tt[0], planes[0], False, w, h, s, t, z, sres, tres, plane, bias0, bias0)
+            u0, u1, v0, v1 = (int(x) for x in _texel_box(w, h, s, t, sres, tres))
+            vv, uu = np.mgrid[v0:v1, u0:u1] + 0.5
+            zs = np.array([plane_depth(plane, x, y, z) for x, y in zip(uu.ravel(), vv.ravel())])
+            d = depth[0, v0:v1, u0:u1].ravel().astype(np.float64)
+            if known == 0.0:
+                assert np.all(zs <= d * DEPTH_REL_EPS + bias0)
+                dmin, _ = tile_range(tt[0], v0 // 8, (v1 - 1) // 8, u0 // 8, (u1 - 1) // 8)
+                decided_by_planes += max(zs.max(), z) > dmin * DEPTH_REL_EPS + bias0
+            elif known == 1.0:
+                assert np.all(zs > d * DEPTH_REL_EPS + bias0)
+    assert decided_by_planes > 50
+
+
+def test_tiles_search_region_holds_every_blocker_and_is_exact_with_the_face_one():
+    """search="tiles": the blocker search region narrowed by the tiles'
+    nearest depths is inside the face's one and still holds every texel
+    that can block a ray from the receiver to the light (depth d nearer than
+    the receiver, within the light's reach at d); on the half-plane scene
+    both searches give the same pass where the region's only blocker is the
+    occluder (a straight edge)."""
+    from penumbra.core.methods.pcf import light_halfwidth, search_region, tile_minmax, tile_tables
+    rng = np.random.default_rng(9)
+    depth, _ = _slanted_map(rng, boxes=6)
+    lo, hi = tile_minmax(depth)
+    tt = tile_tables(lo, hi)
+    h, w = depth.shape[1:]
+    zmin = float(depth.min())
+    lsize = np.array([40.0, 30.0, 0.0])
+    for _ in range(300):
+        s, t = rng.uniform(0, w), rng.uniform(0, h)
+        z = float(depth[0, min(int(t), h - 1), min(int(s), w - 1)])
+        if not np.isfinite(z):
+            continue
+        z *= 1.001
+        ws, wt = search_region(tt[0], w, h, s, t, z, lsize, zmin, 2.0, 2.0, 64.0, 2)
+        fs, ft = search_region(tt[0], w, h, s, t, z, lsize, zmin, 2.0, 2.0, 64.0, 0)
+        assert ws <= fs and wt <= ft
+        vv, uu = np.mgrid[0:h, 0:w] + 0.5
+        d = depth[0].astype(np.float64)
+        near = np.isfinite(d) & (d < z)
+        reach = np.array([light_halfwidth(lsize, z, x) for x in d[near]])
+        inside = ((np.abs(uu[near] - s) <= np.minimum(reach[:, 0], fs))
+                  & (np.abs(vv[near] - t) <= np.minimum(reach[:, 1], ft)))
+        blockers = np.flatnonzero(inside)
+        assert np.all(np.abs(uu[near][blockers] - s) <= ws)
+        assert np.all(np.abs(vv[near][blockers] - t) <= wt)
+    scene = half_plane_scene(area_light(1.0), res=48)
+    a, _ = run_pcf(scene)
+    b, _ = run_pcf(scene, search="face")
+    assert _rmse(a.passes["pcf"], b.passes["pcf"]) < 0.02
+    with pytest.raises(ValueError, match="search"):
+        run_pcf(scene, search="all")
+
+
+def test_pixel_step_shares_a_blocks_first_pixel_on_one_surface_only():
+    """pixel_step=2 (the Preview's): the first pixel of each 2 x 2 block has
+    the full pass's V (the same bits: its own stream); another pixel of the
+    block on the same object with a near normal has that V, one on another
+    object (or whose block starts on empty sky) its own full-pass V. A step
+    that does not divide the tile is an error."""
+    from synthetic import box
+    tris = quad(-10, 10, -10, 10, 0.0) + box(-0.7, 0.45, -0.3, 0.8, 0.0, 1.2)
+    scene = make_scene(tris, [0, 0] + [1] * 12, [area_light(1.5, z=4.0)], res=62,
+                       camera=persp_camera((0.5, -4.0, 3.5), (0.0, 0.0, 0.3)), names=("ground", "box"))
+    full, fb = run_pcf(scene)
+    step, _ = run_pcf(scene, pixel_step=2)
+    a, b = full.passes["pcf"], step.passes["pcf"]
+    g = fb.gbuffer
+    np.testing.assert_array_equal(b[::2, ::2], a[::2, ::2])
+    rows, cols = np.nonzero(g.hit)
+    r0, c0 = rows - rows % 2, cols - cols % 2
+    shared = g.hit[r0, c0] & (g.object_id[rows, cols] == g.object_id[r0, c0]) & (
+        np.sum(g.normal[rows, cols] * g.normal[r0, c0], axis=1) >= 0.95)
+    np.testing.assert_array_equal(b[rows[shared], cols[shared]], a[r0[shared], c0[shared]])
+    np.testing.assert_array_equal(b[rows[~shared], cols[~shared]], a[rows[~shared], cols[~shared]])
+    assert (~shared).sum() > 20 and ((rows % 2 + cols % 2) > 0)[shared].sum() > 1000
+    assert ((a > 0.0) & (a < 1.0)).sum() > 200            # a shadow with a penumbra
+    with pytest.raises(ValueError, match="pixel_step"):
+        run_pcf(scene, pixel_step=3)

@@ -40,13 +40,22 @@ planar light of half extent L (in the map's view plane) seen from a receiver
 at depth z_r covers, at depth z_b, L (z_r - z_b) / (z_r z_b) view-plane
 units around the receiver's own projection (exact for a light parallel to
 the view's image plane, as an area light's view is; a sun's orthographic
-view: tan(half angle) (z_r - z_b) scene units); the search uses the face's
-nearest depth for z_b. The samples nearer than the receiver (the same
-comparison as the filter's, bias and ``receiver_plane`` included) give the
+view: tan(half angle) (z_r - z_b) scene units); the search takes for z_b
+the face's nearest depth, then (``search="tiles"``, the default; "face":
+the first version) the nearest depth the tiles hold in the region so far,
+twice: a texel of depth d can block only within the reach at d, so the
+narrowed region still holds every blocker. The samples nearer than the
+receiver (the same comparison as the filter's, bias and ``receiver_plane``
+included) give the
 mean blocker depth, the filter region is the light's extent at that depth
 (at least the figure-4 region), and it is sampled like figure 4 with
 ``PenumbraSamples`` samples. No blocker found: lit. The tile test runs on the
-search region, which holds the filter region, so it stays exact.
+search region, and again on the filter region; both exact.
+
+The tile test (3.3's tiles, a min / max depth per 8 x 8 block) also keeps a
+plane per block (``tile_planes``): a receiver on a surface slanted to the
+light is behind the tiles' min depth but on their plane, which decides it
+lit without samples (``planar_lit``; the same pass, issue 15).
 """
 from __future__ import annotations
 
@@ -58,8 +67,8 @@ from typing import Optional
 import numpy as np
 from numba import njit, prange
 
-from .. import cancel, views
-from ..kernels import face_project, finite_bbox, parallel_chunks, pick_face
+from .. import views
+from ..kernels import borrowed, each_dealt_chunk, face_project, finite_bbox, pick_face
 from ..sampling import stream_next, stream_start
 from .registry import register
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
@@ -92,6 +101,11 @@ class PCFParams:
                                   # depths (PCSS, Fernando 2005; module doc) | "figure4": the paper's
     BlockerSamples: int = 16      # region="light": samples of the blocker search
     PenumbraSamples: int = 64     # region="light": samples of the filter region (NumSamples' role)
+    search: str = "tiles"         # region="light": the blocker search region is the light's reach at the
+                                  # nearest depth the tiles hold in it ("tiles") | at the face's ("face")
+    pixel_step: int = 1           # beyond the paper, a Preview's knob: V at the pixels whose row and column
+                                  # are multiples of it, shared by the block's pixels on the same surface
+                                  # (others computed themselves); 1 = every pixel (the paper's shading regions)
     seed: int = 0
 
 
@@ -113,34 +127,43 @@ def _grid(sres, tres, NumSamples, MinSamples):
     return ns, nt
 
 
-@njit(cache=True, inline="always")
-def _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st, Bias0, Bias1, plane):
-    """Cell (i, j) of the region's ns x nt grid, jittered over the whole cell
-    (section 2's method (c)): (stream, map depth there, whether the receiver
-    is behind it by more than a bias drawn in [Bias0, Bias1]). Samples past
-    the map's border read the border texel; outside the map's box of finite
-    depths nothing is behind (3.3)."""
+@njit(cache=True, error_model="numpy")
+def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
+    """The region's ns x nt grid, each cell sampled once with jitter over the
+    whole cell (section 2's method (c)) from pixel ``pixel``'s stream: (the
+    samples the receiver is behind by more than a bias drawn in [Bias0,
+    Bias1], the sum of their map depths). Samples past the map's border
+    read the border texel; outside the map's box of finite depths nothing is
+    behind (3.3). One loop for ``sample_shadow`` and ``blocker_depth``."""
     ds = 2.0 * sres / ns
     dt = 2.0 * tres / nt
     smin = s - sres + 0.5 * ds
     tmin = t - tres + 0.5 * dt
-    st, r0 = stream_next(st)
-    st, r1 = stream_next(st)
-    st, r2 = stream_next(st)
-    iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
-    iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
-    bias = r2 * (Bias1 - Bias0) + Bias0
-    # the map's window is fitted to the receivers, not the light's field
-    # of view: samples past its border read the border texel
-    iu = min(max(iu, 0), depth_f.shape[1] - 1)
-    iv = min(max(iv, 0), depth_f.shape[0] - 1)
-    d = depth_f[iv, iu]
-    if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
-        zs = z
-        if plane[0] != 0.0:
-            zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
-        return st, d, zs > d * DEPTH_REL_EPS + bias
-    return st, d, False
+    h, w = depth_f.shape
+    st = stream_start(seed, pixel)
+    n = 0
+    acc = 0.0
+    for i in range(ns):
+        for j in range(nt):
+            st, r0 = stream_next(st)
+            st, r1 = stream_next(st)
+            st, r2 = stream_next(st)
+            iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
+            iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
+            bias = r2 * (Bias1 - Bias0) + Bias0
+            # the map's window is fitted to the receivers, not the light's field
+            # of view: samples past its border read the border texel
+            iu = min(max(iu, 0), w - 1)
+            iv = min(max(iv, 0), h - 1)
+            if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
+                d = depth_f[iv, iu]
+                zs = z
+                if plane[0] != 0.0:
+                    zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
+                if zs > d * DEPTH_REL_EPS + bias:
+                    n += 1
+                    acc += d
+    return n, acc
 
 
 @njit(cache=True)
@@ -159,14 +182,7 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     if lu > bbox_f[1] or hu < bbox_f[0] or lv > bbox_f[3] or hv < bbox_f[2]:
         return 0.0
     ns, nt = _grid(sres, tres, NumSamples, MinSamples)
-    inshadow = 0
-    st = stream_start(seed, pixel)
-    for i in range(ns):
-        for j in range(nt):
-            st, _, behind = _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st,
-                                         Bias0, Bias1, plane)
-            if behind:
-                inshadow += 1
+    inshadow, _ = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
     return inshadow / (ns * nt)
 
 
@@ -190,16 +206,7 @@ def blocker_depth(depth_f, bbox_f, s, t, z, sres, tres, BlockerSamples, Bias0, B
     on the region) that the receiver is behind (``sample_shadow``'s test);
     0.0 when there is none."""
     ns, nt = _grid(sres, tres, BlockerSamples, 1)
-    st = stream_start(seed, pixel)
-    acc = 0.0
-    n = 0
-    for i in range(ns):
-        for j in range(nt):
-            st, d, behind = _cell_sample(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, i, j, st,
-                                         Bias0, Bias1, plane)
-            if behind:
-                acc += d
-                n += 1
+    n, acc = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
     return acc / n if n else 0.0
 
 
@@ -345,35 +352,41 @@ def plane_depth(pl, uc, vc, z):
 
 
 TILE = 8
-PIXEL_CHUNK = 4096   # pixels per scheduling chunk in pcf_kernel
-CANCEL_CHUNK = 1 << 18   # pixels per pcf_kernel call: the job's cancel token is checked between calls
+PLANAR_BLOCKS = 16   # blocks a region may span for ``planar_lit``
+SEARCH_STEPS = 2     # search="tiles": narrowing steps of the blocker search region (``search_region``)
+PIXEL_TILE = 32      # camera pixels per side of a tile of ``pcf_kernel`` (``filter_pixels``)
+PIXEL_STEP_COS = 0.95   # ``pixel_step``: normals at most ~18 degrees apart share a V
+PIXEL_BLOCK = 1024   # entries of a packed G-buffer dealt together to a chunk of ``pcf_kernel``
 
 # argument groups of ``pcf_kernel``
-CameraPixels = namedtuple("CameraPixels", "P Nrm hit width rays pixel")
-"""G-buffer positions, normals and hit flags (row-major, ``width`` wide), the
+CameraPixels = namedtuple("CameraPixels", "P Nrm hit obj width rays pixel")
+"""G-buffer positions, normals, hit flags and object ids (row-major, ``width`` wide), the
 camera's per-pixel ray terms (``pixel_ray_terms``) and, for a packed G-buffer
 (``GBuffer.pixel``), each entry's camera pixel (int64[N]; empty: entry i is
 pixel i)."""
-ShadowMap = namedtuple("ShadowMap", "faces depth bbox tlo thi lsize zmin")
+ShadowMap = namedtuple("ShadowMap", "faces depth bbox tiles planes lsize zmin")
 """Packed light-view faces, their depth maps, finite-depth boxes, the
-per-tile depth min / max as sparse tables (``tile_tables``), per face the light's reach
+per-tile depth min / max as sparse tables (``tile_tables``) and planes
+(``tile_planes``), per face the light's reach
 (``light_reach``: float64[F, 3]) and nearest depth (float64[F])."""
 Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles "
-                              "light_region BlockerSamples PenumbraSamples")
+                              "light_region BlockerSamples PenumbraSamples search_steps pixel_step")
 """The filter's parameters (the paper's names), ``receiver_plane``, ``tiles``
-and ``region="light"``'s switch and sample counts."""
+and ``region="light"``'s switch, sample counts and search-region steps
+(``search``: SEARCH_STEPS, or 0 for "face"), and ``pixel_step``."""
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def tile_minmax(depth):
     """Per face, per TILE x TILE block: min and max map depth (Reeves et al.
-    3.3's tile scheme, "a maximum z value with each tile")."""
+    3.3's tile scheme, "a maximum z value with each tile"). Serial: a few ms
+    for a 1920 map, less than a parfor's compile."""
     F, h, w = depth.shape
     th = (h + TILE - 1) // TILE
     tw = (w + TILE - 1) // TILE
     lo = np.full((F, th, tw), np.inf, np.float32)
     hi = np.full((F, th, tw), -np.inf, np.float32)
-    for k in prange(F * th):
+    for k in range(F * th):
         f = k // th
         ty = k % th
         for tx in range(tw):
@@ -388,48 +401,111 @@ def tile_minmax(depth):
     return lo, hi
 
 
+@njit(cache=True, nogil=True)
+def tile_planes(depth, ortho):
+    """Per face, per full TILE x TILE block: the least-squares plane through
+    its texels, float64[F, th, tw, 4] (a, b, c, r): at texel centre (u, v)
+    the map holds w = a (u - cu) + b (v - cv) + c within r, (cu, cv) the
+    block's centre, w = 1 / depth on a perspective face (a plane's 1 / depth
+    is affine in the texel position), w = depth on an orthographic one
+    (``ortho[f]``). r = inf for blocks that hold an empty texel or run past
+    the map (``region_decided``'s planar test skips them)."""
+    F, h, w = depth.shape
+    th = (h + TILE - 1) // TILE
+    tw = (w + TILE - 1) // TILE
+    out = np.empty((F, th, tw, 4), np.float64)
+    sxx = 0.0
+    for k in range(TILE):
+        x = k + 0.5 - 0.5 * TILE
+        sxx += x * x
+    sxx *= TILE
+    for f in range(F):
+        for ty in range(th):
+            for tx in range(tw):
+                out[f, ty, tx, 0], out[f, ty, tx, 1], out[f, ty, tx, 2], out[f, ty, tx, 3] = 0.0, 0.0, 0.0, np.inf
+                if (ty + 1) * TILE > h or (tx + 1) * TILE > w:
+                    continue
+                sw = 0.0
+                sxw = 0.0
+                syw = 0.0
+                full = True
+                for r in range(TILE):
+                    for c in range(TILE):
+                        d = np.float64(depth[f, ty * TILE + r, tx * TILE + c])
+                        if not (d > 0.0 and d < np.inf):
+                            full = False
+                            break
+                        v = d if ortho[f] else 1.0 / d
+                        sw += v
+                        sxw += (c + 0.5 - 0.5 * TILE) * v
+                        syw += (r + 0.5 - 0.5 * TILE) * v
+                    if not full:
+                        break
+                if not full:
+                    continue
+                a = sxw / sxx
+                b = syw / sxx
+                c0 = sw / (TILE * TILE)
+                res = 0.0
+                for r in range(TILE):
+                    for c in range(TILE):
+                        d = np.float64(depth[f, ty * TILE + r, tx * TILE + c])
+                        v = d if ortho[f] else 1.0 / d
+                        res = max(res, abs(v - (a * (c + 0.5 - 0.5 * TILE) + b * (r + 0.5 - 0.5 * TILE) + c0)))
+                out[f, ty, tx, 0], out[f, ty, tx, 1], out[f, ty, tx, 2], out[f, ty, tx, 3] = a, b, c0, res
+    return out
+
+
 def _levels(n: int) -> int:
     """Sparse-table levels over n tiles: 2^k <= n for k < levels."""
     return max(1, int(n).bit_length())
 
 
-def tile_tables(lo, hi):
+def tile_tables(lo, hi, span=None):
     """Sparse tables of the per-tile min / max (``tile_minmax``): float32[F,
-    KY, KX, th, tw], entry [f, ky, kx, y, x] the min (max) over the tiles
+    KY, KX, th, tw, 2], entry [f, ky, kx, y, x] the (min, max) over the tiles
     [y, y + 2^ky) x [x, x + 2^kx), so ``tile_range`` reads the min / max over
     any block of tiles in four lookups (the same values as a loop over the
-    tiles: min and max are exact)."""
+    tiles: min and max are exact); blocks of at most ``span`` tiles a side
+    (default: any). Each entry's min sits beside its max, so a lookup reads
+    one cache line for both (issue 15: the lookups missed the cache, 28 % of
+    the filter's time)."""
     F, th, tw = lo.shape
     ky, kx = _levels(th), _levels(tw)
-    tlo = np.empty((F, ky, kx, th, tw), np.float32)
-    thi = np.empty((F, ky, kx, th, tw), np.float32)
-    _fill_tables(lo, hi, tlo, thi)
-    return tlo, thi
+    if span is not None:
+        ky, kx = min(ky, _levels(span)), min(kx, _levels(span))
+    tt = np.empty((F, ky, kx, th, tw, 2), np.float32)
+    _fill_tables(lo, hi, tt)
+    return tt
 
 
 @njit(cache=True, nogil=True)
-def _fill_tables(lo, hi, tlo, thi):
+def _fill_tables(lo, hi, tt):
     """``tile_tables``' levels: along x, then along y (entries whose block
-    runs past the grid repeat the last valid one; ``tile_range`` never reads them)."""
-    F, KY, KX, th, tw = tlo.shape
+    runs past the grid repeat the last valid one; ``tile_range`` never reads
+    them). Scalar loops only: a slice assignment here compiled Numba's
+    broadcasting machinery, 3 s of pcf's cold start (issue 15)."""
+    F, KY, KX, th, tw, _ = tt.shape
     for f in range(F):
-        tlo[f, 0, 0] = lo[f]
-        thi[f, 0, 0] = hi[f]
+        for y in range(th):
+            for x in range(tw):
+                tt[f, 0, 0, y, x, 0] = lo[f, y, x]
+                tt[f, 0, 0, y, x, 1] = hi[f, y, x]
         for kx in range(1, KX):
             step = 1 << (kx - 1)
             for y in range(th):
                 for x in range(tw):
                     x2 = min(x + step, tw - 1)
-                    tlo[f, 0, kx, y, x] = min(tlo[f, 0, kx - 1, y, x], tlo[f, 0, kx - 1, y, x2])
-                    thi[f, 0, kx, y, x] = max(thi[f, 0, kx - 1, y, x], thi[f, 0, kx - 1, y, x2])
+                    tt[f, 0, kx, y, x, 0] = min(tt[f, 0, kx - 1, y, x, 0], tt[f, 0, kx - 1, y, x2, 0])
+                    tt[f, 0, kx, y, x, 1] = max(tt[f, 0, kx - 1, y, x, 1], tt[f, 0, kx - 1, y, x2, 1])
         for ky in range(1, KY):
             step = 1 << (ky - 1)
             for kx in range(KX):
                 for y in range(th):
                     y2 = min(y + step, th - 1)
                     for x in range(tw):
-                        tlo[f, ky, kx, y, x] = min(tlo[f, ky - 1, kx, y, x], tlo[f, ky - 1, kx, y2, x])
-                        thi[f, ky, kx, y, x] = max(thi[f, ky - 1, kx, y, x], thi[f, ky - 1, kx, y2, x])
+                        tt[f, ky, kx, y, x, 0] = min(tt[f, ky - 1, kx, y, x, 0], tt[f, ky - 1, kx, y2, x, 0])
+                        tt[f, ky, kx, y, x, 1] = max(tt[f, ky - 1, kx, y, x, 1], tt[f, ky - 1, kx, y2, x, 1])
 
 
 @njit(cache=True, inline="always")
@@ -441,7 +517,7 @@ def _floor_log2(n):
 
 
 @njit(cache=True)
-def tile_range(tlo, thi, ty0, ty1, tx0, tx1):
+def tile_range(tt, ty0, ty1, tx0, tx1):
     """(min, max) map depth over the tiles [ty0, ty1] x [tx0, tx1] of one
     face's sparse tables (``tile_tables``): four overlapping power-of-two
     blocks that cover the range exactly."""
@@ -449,19 +525,15 @@ def tile_range(tlo, thi, ty0, ty1, tx0, tx1):
     kx = _floor_log2(tx1 - tx0 + 1)
     ya, yb = ty0, ty1 - (1 << ky) + 1
     xa, xb = tx0, tx1 - (1 << kx) + 1
-    dmin = min(min(tlo[ky, kx, ya, xa], tlo[ky, kx, ya, xb]), min(tlo[ky, kx, yb, xa], tlo[ky, kx, yb, xb]))
-    dmax = max(max(thi[ky, kx, ya, xa], thi[ky, kx, ya, xb]), max(thi[ky, kx, yb, xa], thi[ky, kx, yb, xb]))
+    dmin = min(min(tt[ky, kx, ya, xa, 0], tt[ky, kx, ya, xb, 0]), min(tt[ky, kx, yb, xa, 0], tt[ky, kx, yb, xb, 0]))
+    dmax = max(max(tt[ky, kx, ya, xa, 1], tt[ky, kx, ya, xb, 1]), max(tt[ky, kx, yb, xa, 1], tt[ky, kx, yb, xb, 1]))
     return dmin, dmax
 
 
-@njit(cache=True)
-def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
-    """The tile test: 0.0 when every sample of the region must be lit, 1.0
-    when every one must be in shadow, -1.0 when samples must be taken. Exact:
-    the receiver's depth over the region lies between its values at the
-    region's corners (a linear-fractional function of the texel position).
-    ``tlo``, ``thi``: one face's sparse tables (``tile_tables``), so the
-    test costs the same for a region of any size."""
+@njit(cache=True, inline="always")
+def _texel_box(w, h, s, t, sres, tres):
+    """The texels [u0, u1) x [v0, v1) a region's samples can read (clamped
+    to the map; at least one texel)."""
     u0 = max(0.0, math.floor(s - sres))
     u1 = min(float(w), math.ceil(s + sres))
     v0 = max(0.0, math.floor(t - tres))
@@ -470,6 +542,20 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
         u0, u1 = min(u0, w - 1.0), min(u0, w - 1.0) + 1.0
     if v1 <= v0:
         v0, v1 = min(v0, h - 1.0), min(v0, h - 1.0) + 1.0
+    return u0, u1, v0, v1
+
+
+@njit(cache=True)
+def region_decided(tt, planes, ortho, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
+    """The tile test: 0.0 when every sample of the region must be lit, 1.0
+    when every one must be in shadow, -1.0 when samples must be taken. Exact:
+    the receiver's depth over the region lies between its values at the
+    region's corners (a linear-fractional function of the texel position).
+    ``tt``: one face's sparse tables (``tile_tables``), so the
+    test costs the same for a region of any size; ``planes``: its blocks'
+    planes (``tile_planes``) for ``planar_lit`` where the min / max do not
+    decide (a receiver on a surface slanted to the light)."""
+    u0, u1, v0, v1 = _texel_box(w, h, s, t, sres, tres)
     zlo, zhi = z, z
     if plane[0] != 0.0:
         for cu in (u0, u1):
@@ -479,33 +565,157 @@ def region_decided(tlo, thi, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
                     return -1.0
                 zlo = min(zlo, zc)
                 zhi = max(zhi, zc)
-    dmin, dmax = tile_range(tlo, thi, int(v0) // TILE, (int(v1) - 1) // TILE,
+    dmin, dmax = tile_range(tt, int(v0) // TILE, (int(v1) - 1) // TILE,
                             int(u0) // TILE, (int(u1) - 1) // TILE)
     if zhi <= dmin * DEPTH_REL_EPS + Bias0:
         return 0.0
     if dmax < np.inf and zlo > dmax * DEPTH_REL_EPS + Bias1:
         return 1.0
+    if planar_lit(tt, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
+        return 0.0
     return -1.0
 
 
-@njit(cache=True, parallel=True)
-def pcf_kernel(cam, smap, flt, out, start, stop):
-    """Every camera pixel i in [start, stop) (row-major, ``cam.width`` wide;
-    or entry i of a packed G-buffer, pixel ``cam.pixel[i]``) where
-    ``cam.hit[i]``: out[i] = V; other pixels are left as they are.
-    Pixels are handed to the threads in chunks of a few rows (dynamic), not
-    in one contiguous half each: sky and ground rows differ widely in cost
-    (the caller sets the chunk size with ``kernels.parallel_chunks``).
-    cam: CameraPixels; smap: ShadowMap; flt: Filter."""
-    for i in prange(start, stop):
-        _pcf_pixel(i, cam, smap, flt, out)
+@njit(cache=True, error_model="numpy")
+def planar_lit(tt, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
+    """Whether no sample of texels [u0, u1) x [v0, v1) can be behind the map
+    (``region_decided``'s lit case), block by block (at most PLANAR_BLOCKS):
+    a block passes its min depth test, or its plane (``tile_planes``) stays
+    within half the smallest margin (Bias0 + the relative epsilon) of the
+    receiver's tangent plane (``plane``; ``z`` everywhere without one) over
+    the texel centres it shares with the region. On a perspective face both
+    1 / depth are affine in the texel position, so their difference peaks at
+    a corner, and zs - d = zs d (1/d - 1/zs) <= zhi dmax (that peak + r);
+    on an orthographic one the depths themselves are affine. Exact, as the
+    min / max test: only a receiver on (or in front of) the blocks' surfaces
+    passes, where every sample would be lit."""
+    ty0, ty1 = int(v0) // TILE, (int(v1) - 1) // TILE
+    tx0, tx1 = int(u0) // TILE, (int(u1) - 1) // TILE
+    if (ty1 - ty0 + 1) * (tx1 - tx0 + 1) > PLANAR_BLOCKS:
+        return False
+    if plane[0] == 0.0:
+        ra, rb, rc = 0.0, 0.0, (z if ortho else 1.0 / z)
+    elif plane[1] == 1.0:
+        ra, rb, rc = plane[2], plane[3], plane[4]
+    else:
+        ra, rb, rc = plane[2] / plane[5], plane[3] / plane[5], plane[4] / plane[5]
+    half = 0.5 * TILE
+    for ty in range(ty0, ty1 + 1):
+        for tx in range(tx0, tx1 + 1):
+            dmin = tt[0, 0, ty, tx, 0]
+            if zhi <= dmin * DEPTH_REL_EPS + Bias0:
+                continue
+            pa, pb, pc, pr = planes[ty, tx, 0], planes[ty, tx, 1], planes[ty, tx, 2], planes[ty, tx, 3]
+            if not (pr < np.inf):
+                return False
+            cu0 = max(u0, float(tx * TILE)) + 0.5
+            cu1 = min(u1, float(tx * TILE + TILE)) - 0.5
+            cv0 = max(v0, float(ty * TILE)) + 0.5
+            cv1 = min(v1, float(ty * TILE + TILE)) - 0.5
+            peak = -np.inf
+            for cu in (cu0, cu1):
+                for cv in (cv0, cv1):
+                    fit = pa * (cu - tx * TILE - half) + pb * (cv - ty * TILE - half) + pc
+                    rec = ra * cu + rb * cv + rc
+                    peak = max(peak, rec - fit if ortho else fit - rec)
+            peak += pr
+            excess = peak if ortho else zhi * np.float64(tt[0, 0, ty, tx, 1]) * max(peak, 0.0)
+            if not (excess <= 0.5 * (Bias0 + dmin * (DEPTH_REL_EPS - 1.0))):
+                return False
+    return True
+
+
+@njit(cache=True)
+def search_region(tt, w, h, s, t, z, lsize, zmin, sres, tres, MaxSize, steps):
+    """region="light"'s blocker search region (half sizes, texels): the
+    light's reach (``light_halfwidth``) at the nearest depth ``zmin`` of the
+    face, at least the figure-4 region (``sres``, ``tres``), at most
+    ``MaxSize``; then ``steps`` times (``search="tiles"``) the reach at the
+    nearest depth the tiles hold inside the region so far. Exact: a texel of
+    depth d blocks a ray from the receiver to the light only within the
+    reach at d, which shrinks as d grows, so every such texel stays inside."""
+    zs = zmin
+    ws, wt = light_halfwidth(lsize, z, zs)
+    ws = min(max(ws, sres), MaxSize)
+    wt = min(max(wt, tres), MaxSize)
+    for _ in range(steps):
+        u0, u1, v0, v1 = _texel_box(w, h, s, t, ws, wt)
+        dmin, _ = tile_range(tt, int(v0) // TILE, (int(v1) - 1) // TILE,
+                             int(u0) // TILE, (int(u1) - 1) // TILE)
+        if not (dmin > zs):
+            break
+        zs = dmin
+        ws2, wt2 = light_halfwidth(lsize, z, min(zs, z))
+        ws = min(max(ws2, sres), ws)
+        wt = min(max(wt2, tres), wt)
+    return ws, wt
+
+
+def filter_pixels(cam, smap, flt, out, height, threads=None) -> None:
+    """V into ``out`` for every camera pixel (``pcf_kernel``) on Numba's
+    thread count, the job's cancel token checked before each chunk
+    (``kernels.each_dealt_chunk``): a dense G-buffer (``height`` rows of
+    ``cam.width``) in tiles of PIXEL_TILE x PIXEL_TILE pixels, whose regions
+    lie close together in the map (rows of a 1080p frame sweep the whole
+    map: samples then miss the cache), dealt over the chunks (sky and ground
+    differ widely in cost); a packed one in blocks of PIXEL_BLOCK entries."""
+    if cam.pixel.shape[0]:
+        each_dealt_chunk(lambda idx: pcf_kernel(idx, 0, height, cam, smap, flt, out), out.shape[0], threads,
+                         block=PIXEL_BLOCK)
+        return
+    tiles = -(-cam.width // PIXEL_TILE) * -(-height // PIXEL_TILE)
+    each_dealt_chunk(lambda idx: pcf_kernel(idx, PIXEL_TILE, height, cam, smap, flt, out), tiles, threads)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pcf_kernel(idx, tile, height, cam, smap, flt, out):
+    """V into out[i] for every camera pixel i (row-major, ``cam.width`` wide)
+    in the tiles ``idx`` of ``tile`` x ``tile`` pixels (row-major over the
+    ``height``-row image), or, with ``tile`` 0, every entry i in ``idx`` (a
+    packed G-buffer: entry i is pixel ``cam.pixel[i]``), where
+    ``cam.hit[i]``; other pixels are left as they are. A serial ``nogil``
+    kernel with ``kernels.borrowed`` arguments (issue 15: no parfor to
+    compile), run on worker threads by ``filter_pixels``; each pixel's V is
+    its own, so the result does not depend on the order, the chunks or the
+    thread count. cam: CameraPixels; smap: ShadowMap; flt: Filter."""
+    cam, smap, flt, out = borrowed((cam, smap, flt, out))
+    W = cam.width
+    tw = (W + tile - 1) // tile if tile else 1
+    step = flt.pixel_step
+    for k in idx:
+        if tile:
+            ra, ca = (k // tw) * tile, (k % tw) * tile
+            rb, cb = min(ra + tile, height), min(ca + tile, W)
+        else:                         # a packed entry: one "row" of one
+            ra, rb, ca, cb = 0, 1, k, k + 1
+        for r in range(ra, rb):
+            for c in range(ca, cb):
+                i = r * W + c if tile else c
+                if step > 1 and cam.hit[i] and (r % step or c % step):
+                    j = (r - r % step) * W + (c - c % step)     # the block's first pixel: done before
+                    if _same_surface(cam, i, j):
+                        out[i] = out[j]
+                        continue
+                _pcf_pixel(i, cam, smap, flt, out)     # one call site: inlined once
+
+
+@njit(cache=True, inline="always")
+def _same_surface(cam, i, j):
+    """``pixel_step``: pixel j's V stands for pixel i's (both hit the same
+    object, normals within PIXEL_STEP_COS)."""
+    if not cam.hit[j] or cam.obj[i] != cam.obj[j]:
+        return False
+    dot = cam.Nrm[i, 0] * cam.Nrm[j, 0] + cam.Nrm[i, 1] * cam.Nrm[j, 1] + cam.Nrm[i, 2] * cam.Nrm[j, 2]
+    return dot >= PIXEL_STEP_COS
 
 
 @njit(cache=True, inline="always")
 def _pcf_pixel(i, cam, smap, flt, out):
-    """``pcf_kernel``'s body for pixel i."""
+    """``pcf_kernel``'s body for pixel i (inlined: a call costs 15-25 % of
+    the filter; ``pcf_kernel`` calls it from one place, as Numba compiles
+    an inlined body once per call site)."""
     P, Nrm, hit, width, rays = cam.P, cam.Nrm, cam.hit, cam.width, cam.rays
-    faces, depth, bbox, tlo, thi = smap.faces, smap.depth, smap.bbox, smap.tlo, smap.thi
+    faces, depth, bbox, tiles = smap.faces, smap.depth, smap.bbox, smap.tiles
     ResFactor, MinSize, MaxSize, NumSamples = flt.ResFactor, flt.MinSize, flt.MaxSize, flt.NumSamples
     MinSamples, Bias0, Bias1, seed = flt.MinSamples, flt.Bias0, flt.Bias1, flt.seed
     use_plane, use_tiles = flt.use_plane, flt.use_tiles
@@ -534,15 +744,14 @@ def _pcf_pixel(i, cam, smap, flt, out):
     lsize = smap.lsize[f]
     light = flt.light_region and z > 0.0 and (lsize[0] > 0.0 or lsize[1] > 0.0)
     if light:
-        # the blocker search region (PCSS): the light's reach at the face's nearest depth
-        ws, wt = light_halfwidth(lsize, z, smap.zmin[f])
-        ws = min(max(ws, sres), MaxSize)
-        wt = min(max(wt, tres), MaxSize)
+        # the blocker search region (PCSS): the light's reach at the nearest depth it can hold
+        ws, wt = search_region(tiles[f], depth.shape[2], depth.shape[1], s, t, z, lsize, smap.zmin[f],
+                               sres, tres, MaxSize, flt.search_steps)
     else:
         ws, wt = sres, tres
     if use_tiles and z >= 0.0:
-        known = region_decided(tlo[f], thi[f], depth.shape[2], depth.shape[1], s, t, z, ws, wt,
-                               plane, Bias0, Bias1)
+        known = region_decided(tiles[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
+                               depth.shape[1], s, t, z, ws, wt, plane, Bias0, Bias1)
         if known >= 0.0:
             out[i] = 1.0 - known
             return
@@ -556,6 +765,12 @@ def _pcf_pixel(i, cam, smap, flt, out):
         sres = min(max(ps, sres), MaxSize)
         tres = min(max(pt, tres), MaxSize)
         NumSamples = flt.PenumbraSamples
+        if use_tiles:     # the filter region's own tile test (exact, as the search region's)
+            known = region_decided(tiles[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
+                                   depth.shape[1], s, t, z, sres, tres, plane, Bias0, Bias1)
+            if known >= 0.0:
+                out[i] = 1.0 - known
+                return
     out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
                                  MinSamples, Bias0, Bias1, seed, j, plane)
 
@@ -612,25 +827,29 @@ class PercentageCloserFiltering(Method):
                 if light.is_zero_size:   # hard shadows only (DESIGN.md)
                     res, minsize, minsamp = 0.0, 0.0, 1
                 tlo, thi = tile_minmax(lv.depth)
-                tlo_t, thi_t = tile_tables(tlo, thi)
+                tt = tile_tables(tlo, thi, int(2.0 * params.MaxSize + 2.0) // TILE + 2)
                 if params.region not in ("light", "figure4"):
                     raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
+                if params.search not in ("tiles", "face"):
+                    raise ValueError(f"pcf: unknown search {params.search!r} (tiles | face)")
+                if params.pixel_step < 1 or PIXEL_TILE % int(params.pixel_step):
+                    raise ValueError(f"pcf: pixel_step {params.pixel_step!r} must divide {PIXEL_TILE}")
                 lsize = light_reach(light, lv.faces)
                 if light.is_zero_size:
                     lsize[:] = 0.0
                 zmin = np.array([float(np.min(lo, initial=np.inf)) for lo in tlo], np.float64)
-                with parallel_chunks(PIXEL_CHUNK):
-                    pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
-                    cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1), W,
-                                       pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H)), pixel)
-                    smap = ShadowMap(lv.packed_faces(), lv.depth, finite_bbox(lv.depth), tlo_t, thi_t, lsize,
-                                     zmin)
-                    flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
-                                 b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
-                                 params.region == "light", max(1, int(params.BlockerSamples)),
-                                 max(1, int(params.PenumbraSamples)))
-                    for a in range(0, n, CANCEL_CHUNK):   # each pixel's V is its own
-                        cancel.check()
-                        pcf_kernel(cam, smap, flt, out, a, min(n, a + CANCEL_CHUNK))
+                pixel = np.zeros(0, np.int64) if g.pixel is None else np.ascontiguousarray(g.pixel, np.int64)
+                rays = pixel_ray_terms(views.pack_camera(buffers.scene.camera, W, H))
+                cam = CameraPixels(g.position.reshape(-1, 3), g.normal.reshape(-1, 3), g.hit.reshape(-1),
+                                   g.object_id.reshape(-1), W, rays, pixel)
+                faces = lv.packed_faces()
+                planes = tile_planes(lv.depth, faces[:, 16] == 1.0)
+                smap = ShadowMap(faces, lv.depth, finite_bbox(lv.depth), tt, planes, lsize, zmin)
+                flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
+                             b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
+                             params.region == "light", max(1, int(params.BlockerSamples)),
+                             max(1, int(params.PenumbraSamples)), SEARCH_STEPS if params.search == "tiles" else 0,
+                             max(1, int(params.pixel_step)) if g.pixel is None else 1)
+                filter_pixels(cam, smap, flt, out, n // W if g.pixel is None else 1)
         return MethodResult(passes={"pcf": out.reshape(g.shape)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
