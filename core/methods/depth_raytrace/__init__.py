@@ -228,7 +228,8 @@ def _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, o
         ws = TraceScratch(ws_line, ws_order, ws_key, U, U2)
         _tile_points(tile_ptr[ti], tile_ptr[ti + 1], pts, noff, smp, blo, bhi, refs, sw, ts, ws,
                      out_avg, out_irr)
-        rays[ti, :] = misc[:]
+        for j in range(M_SIZE):     # not rays[ti, :] = misc: a slice copy compiles Numba's shape-error message
+            rays[ti, j] = misc[j]
 
 
 @njit(cache=True, error_model="numpy")
