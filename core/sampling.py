@@ -14,8 +14,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from .kernels import each_range
 from .scene import KIND_AREA, KIND_SPHERE, KIND_SUN, Light  # noqa: F401 (kernels' kind codes)
 
 # packed light layout (float64[24]) for kernels
@@ -55,23 +56,24 @@ def strata(n):
     return nx, n // nx
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def stratum_uv(seed, key, s, nx, ny):
     """A jittered point of stratum s (row-major, nx x ny) of the unit
-    square, the jitter from rand01(seed, key, s, 0 / 1)."""
-    return ((s % nx) + rand01(seed, key, s, 0)) / nx, ((s // nx) + rand01(seed, key, s, 1)) / ny
+    square, the jitter from rand01(seed, key, s, 0 / 1) (np.int64: a
+    literal argument would compile rand01 once per value)."""
+    return ((s % nx) + rand01(seed, key, s, np.int64(0))) / nx, ((s // nx) + rand01(seed, key, s, np.int64(1))) / ny
 
 
 # --------------------------------------------------------------------------
 # counter-based random numbers
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _pcg(v):
     v = (v * np.uint32(747796405) + np.uint32(2891336453)) & np.uint32(0xFFFFFFFF)
     word = (((v >> ((v >> np.uint32(28)) + np.uint32(4))) ^ v) * np.uint32(277803737)) & np.uint32(0xFFFFFFFF)
     return ((word >> np.uint32(22)) ^ word) & np.uint32(0xFFFFFFFF)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def rand01(seed, pixel, sample, dim):
     """Uniform in [0, 1) from four counters."""
     h = _pcg(np.uint32(seed & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel & 0xFFFFFFFF)
@@ -80,14 +82,14 @@ def rand01(seed, pixel, sample, dim):
     return np.float64(h >> np.uint32(8)) * (1.0 / 16777216.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def stream_start(seed, pixel):
     """A 32-bit state for one pixel's stream of cheap random numbers
     (``stream_next``): one hash per pixel instead of one per number."""
     return _pcg(np.uint32(seed & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel >> 32))))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def stream_next(state):
     """(next state, uniform in [0, 1)): PCG's output permutation of an LCG step."""
     state = (state * np.uint32(747796405) + np.uint32(2891336453)) & np.uint32(0xFFFFFFFF)
@@ -96,7 +98,7 @@ def stream_next(state):
     return state, np.float64(word >> np.uint32(8)) * (1.0 / 16777216.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def concentric_disk(u, v):
     """Shirley-Chiu concentric map of [0,1)^2 to the unit disk (area-preserving,
     keeps strata compact)."""
@@ -113,7 +115,7 @@ def concentric_disk(u, v):
     return r * math.cos(phi), r * math.sin(phi)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def orthonormal_basis(nx, ny, nz):
     """Duff et al. 2017 branchless ONB around a unit vector."""
     s = 1.0 if nz >= 0.0 else -1.0
@@ -173,7 +175,7 @@ def light_sample(lp, px, py, pz, u, v):
     return x, y, z, True, 1.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def reference_sample(lp, seed, pixel, s, nx, ny, px, py, pz, ox, oy, oz, n0, n1, n2):
     """The ``embree`` reference's sample ``s`` of ``pixel`` (stratum s of an
     nx x ny grid, jittered by the counter hash), seen from origin (ox, oy, oz).
@@ -206,7 +208,7 @@ def reference_sample(lp, seed, pixel, s, nx, ny, px, py, pz, ox, oy, oz, n0, n1,
 # --------------------------------------------------------------------------
 # self-intersection offset
 OFFSET_ULPS = 32.0
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _nudge(p, of_i):
     """Move float32 ``p`` by ``of_i`` units in the last place, away from zero
     when ``of_i`` has p's sign."""
@@ -218,7 +220,7 @@ def _nudge(p, of_i):
     return np.float64(np.int32(b).view(np.float32))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def offset_origin(px, py, pz, nx, ny, nz, scale):
     """Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection"
     (Ray Tracing Gems, ch. 6): move the hit point off its surface along the
@@ -243,20 +245,28 @@ def offset_origin(px, py, pz, nx, ny, nz, scale):
     return ox, oy, oz
 
 
-@njit(cache=True, parallel=True)
-def offset_points(P, Nrm, scale, to_float32):
+def offset_points(P, Nrm, scale, to_float32, threads=None):
     """``offset_origin`` for every point P[i] with normal Nrm[i] (float64[n,3]);
     ``to_float32``: rounded to float32, as the Embree reference's own ray
-    origins are (methods that must meet its rays exactly)."""
+    origins are (methods that must meet its rays exactly). Ranges of points
+    on Numba's thread count (``kernels.each_range``)."""
+    P = np.ascontiguousarray(P, np.float64)
+    Nrm = np.ascontiguousarray(Nrm, np.float64)
     out = np.empty((P.shape[0], 3), np.float64)
-    for i in prange(P.shape[0]):
+    each_range(lambda i0, i1: _offset_points(i0, i1, P, Nrm, float(scale), bool(to_float32), out), P.shape[0], threads)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _offset_points(i0, i1, P, Nrm, scale, to_float32, out):
+    """``offset_points`` for points i0..i1-1 into ``out``."""
+    for i in range(i0, i1):
         ox, oy, oz = offset_origin(P[i, 0], P[i, 1], P[i, 2], Nrm[i, 0], Nrm[i, 1], Nrm[i, 2], scale)
         if to_float32:
             ox, oy, oz = np.float64(np.float32(ox)), np.float64(np.float32(oy)), np.float64(np.float32(oz))
         out[i, 0] = ox
         out[i, 1] = oy
         out[i, 2] = oz
-    return out
 
 
 def scene_scale(lo, hi) -> float:
@@ -272,5 +282,5 @@ def light_sample_set(lp, n, seed):
     nx, ny = strata(n)
     out = np.empty((n, 2))
     for s in range(n):
-        out[s, 0], out[s, 1] = stratum_uv(seed, 0, s, nx, ny)
+        out[s, 0], out[s, 1] = stratum_uv(seed, np.int64(0), s, nx, ny)
     return out

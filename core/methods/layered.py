@@ -595,10 +595,12 @@ def ldi_insert(ldi_depth, ldi_span, ldi_count, ldi_last, ldi_n, wf, wx, wy, wz, 
                     ns = np.zeros((ldi_depth.shape[0], 2 * K), ldi_span.dtype)
                     nc = np.zeros((ldi_depth.shape[0], 2 * K), ldi_count.dtype)
                     nl = np.full((ldi_depth.shape[0], 2 * K), -1, ldi_last.dtype)
-                    nd[:, :K] = ldi_depth
-                    ns[:, :K] = ldi_span
-                    nc[:, :K] = ldi_count
-                    nl[:, :K] = ldi_last
+                    for q in range(ldi_depth.shape[0]):   # element loops: a slice copy compiles
+                        for L in range(K):                # Numba's shape-error formatting (issue 15)
+                            nd[q, L] = ldi_depth[q, L]
+                            ns[q, L] = ldi_span[q, L]
+                            nc[q, L] = ldi_count[q, L]
+                            nl[q, L] = ldi_last[q, L]
                     ldi_depth, ldi_span, ldi_count, ldi_last = nd, ns, nc, nl
                 pos = 0
                 while pos < n and ldi_depth[pix, pos] < zc:

@@ -127,7 +127,7 @@ import numpy as np
 from numba import njit, prange
 
 from ... import sampling, views
-from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
+from ...kernels import borrowed, each_dealt_chunk, each_range, face_project, pick_face
 from ...sampling import strata
 from ...scene import Light
 from ..registry import register
@@ -177,7 +177,7 @@ class DepthRaytraceParams:
 
 
 # ---------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _slab(o, d, lo, hi, tmin, tmax):
     """One axis of the slab test: [tmin, tmax] restricted to lo <= o + t d <= hi
     (empty: tmin > tmax)."""
@@ -196,7 +196,7 @@ def _slab(o, d, lo, hi, tmin, tmax):
     return tmin, tmax
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _segment_end(ox, oy, oz, ex, ey, ez, lo, hi):
     """t where o + t (E - o) leaves the casters' box (<= 1 - 1e-7); 0 if the
     segment misses the box. (Axes unrolled: half the time of a loop over
@@ -248,7 +248,8 @@ def _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, o
         ws = TraceScratch(ws_line, ws_order, ws_key, U, U2)
         _tile_points(tile_ptr[ti], tile_ptr[ti + 1], pts, noff, smp, blo, bhi, refs, sw, ts, ws,
                      out_avg, out_irr)
-        rays[ti, :] = misc[:]
+        for j in range(M_SIZE):     # not rays[ti, :] = misc: a slice copy compiles Numba's shape-error message
+            rays[ti, j] = misc[j]
 
 
 @njit(cache=True, error_model="numpy")
@@ -295,20 +296,25 @@ def _trace_tiles(tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr,
                                                 out_avg, out_irr, rays), len(tile_ptr) - 1, threads)
 
 
-@njit(cache=True, parallel=True)
-def normal_offsets(P, Nrm, lp, faces, factor):
+def normal_offsets(P, Nrm, lp, faces, factor, threads=None):
     """Normal offset per point: ``factor`` texel footprints (of the first
     reference face holding the point, at its depth) x (1 - cos theta), theta
     the angle between the normal and the direction to the light's centre. A point on a surface
     seen edge-on from the light shares its texel with whatever the texel shows
     (the top of a thin bar, for a point on the bar's side); moving it off the
     surface by about a texel takes it out of that texel. Surfaces facing the
-    light move little."""
-    n = P.shape[0]
-    out = np.zeros(n)
+    light move little. Ranges of points on Numba's thread count (``kernels.each_range``)."""
+    out = np.zeros(P.shape[0])
     if factor == 0.0 or faces.shape[0] == 0:
         return out
-    for i in prange(n):
+    each_range(lambda i0, i1: _normal_offsets(i0, i1, P, Nrm, lp, faces, factor, out), P.shape[0], threads)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _normal_offsets(i0, i1, P, Nrm, lp, faces, factor, out):
+    """``normal_offsets`` for points i0..i1-1 into ``out``."""
+    for i in range(i0, i1):
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         f = pick_face(faces, px, py, pz)
         if f < 0:
@@ -329,7 +335,6 @@ def normal_offsets(P, Nrm, lp, faces, factor):
         s = 1.0 - min(1.0, abs(c))
         if foot > 0.0:
             out[i] = factor * foot * s
-    return out
 
 
 # ---------------------------------------------------------------------------

@@ -29,7 +29,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from ...kernels import each_range
 
 SHAPE_DISK = 0      # unit disk (disk, ellipse, sphere and sun lights)
 SHAPE_SQUARE = 1    # [-1, 1]^2 (square and rectangle area lights)
@@ -83,7 +85,7 @@ def minor_segment_area(ax, ay, bx, by):
     return v if v > 0.0 else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _square_exit(x, y):
     """Where the ray from the origin along (x, y) leaves [-1,1]^2, and the
     side: 0 (x = 1), 1 (y = 1), 2 (x = -1), 3 (y = -1)."""
@@ -133,7 +135,7 @@ def rect_segment_area(ax, ay, bx, by):
 
 # --------------------------------------------------------------------------
 # clipping a homogeneous 2D segment H(t) = H0 + t (H1 - H0), H = (x, y, w)
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _lb(f0, f1, t0, t1):
     """Liang-Barsky step for the constraint f(t) = f0 + t (f1 - f0) <= 0."""
     if f0 <= 0.0 and f1 <= 0.0:
@@ -234,7 +236,7 @@ def clipped_edge(shape, x0, y0, w0, x1, y1, w1, wmax):
     return True, ax, ay, bx, by
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def segment_area(shape, ax, ay, bx, by):
     """Equation 3 (disk) or the rectangle kernel of a clipped segment."""
     if shape == SHAPE_SQUARE:
@@ -273,7 +275,7 @@ def light_samples(shape: int, m: int):
     return np.array(rows, np.float64).reshape(-1, 3), np.array(first, np.int64)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _half_line(a, b, lo, hi):
     """Intersect the interval [lo, hi] with {x : a x + b >= 0}."""
     if a > 0.0:
@@ -316,23 +318,27 @@ def count_beyond(ax, ay, bx, by, sign, ls, s):
             counts[s, i] += sign
 
 
-@njit(cache=True, parallel=True)
-def overlap_from_counts(umbra, counts):
+def overlap_from_counts(umbra, counts, threads=None):
     """Equation 5's C per receiver: the mean over the light samples of the
-    occluders counted beyond the first, max(U + count_j - 1, 0)."""
-    n = counts.shape[0]
+    occluders counted beyond the first, max(U + count_j - 1, 0). Ranges of
+    receivers on Numba's thread count (``kernels.each_range``)."""
+    C = np.zeros(counts.shape[0])
+    if counts.shape[1]:
+        each_range(lambda i0, i1: _overlap_from_counts(i0, i1, umbra, counts, C), counts.shape[0], threads)
+    return C
+
+
+@njit(cache=True, nogil=True)
+def _overlap_from_counts(i0, i1, umbra, counts, C):
+    """``overlap_from_counts`` for receivers i0..i1-1 into ``C``."""
     m = counts.shape[1]
-    C = np.zeros(n)
-    if m == 0:
-        return C
-    for s in prange(n):
+    for s in range(i0, i1):
         acc = 0
         for j in range(m):
             d = umbra[s] + counts[s, j] - 1
             if d > 0:
                 acc += d
         C[s] = acc / m
-    return C
 
 
 @njit(cache=True)
@@ -344,7 +350,7 @@ def clip_and_occlude_2d(shape, ax, ay, bx, by):
 
 # --------------------------------------------------------------------------
 # watertight orientation tests
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def edge_side(px, py, pz, dx, dy, dz, ax, ay, az, bx, by, bz):
     """Sign (+1/-1) of d . ((a - p) x (b - p)): which side of the directed
     edge a->b the line from p along d passes. The product is always computed
@@ -365,7 +371,7 @@ def edge_side(px, py, pz, dx, dy, dz, ax, ay, az, bx, by, bz):
     return flip if val >= 0.0 else -flip
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def tri_side_of_receiver(px, py, pz, tv, nv, t):
     """Sign of D_p = (v0 - p) . N_T (0 when p lies in the triangle's plane)."""
     dp = ((tv[t, 0, 0] - px) * nv[t, 0] + (tv[t, 0, 1] - py) * nv[t, 1]
@@ -377,7 +383,7 @@ def tri_side_of_receiver(px, py, pz, tv, nv, t):
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def blocks_centre(px, py, pz, dx, dy, dz, tv, nv, side_light, t, is_sun):
     """Hard irregular shadow mapping test: does triangle t lie on the segment
     from p to the light centre (local lights: d = c - p, ``side_light`` =
@@ -400,7 +406,7 @@ def blocks_centre(px, py, pz, dx, dy, dz, tv, nv, side_light, t, is_sun):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s, ls):
     """Signed term of edge k of triangle t at receiver p (section 2.3):
     + minor-segment area when p is outside the edge, - when inside.

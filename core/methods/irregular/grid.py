@@ -110,7 +110,7 @@ def _assign_faces(idx, P, faces, fu, fv, fz, face):
             fz[i] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def slice_of(z, zlo, zhi, gd, logz):
     if not (zhi > zlo):
         return 0
@@ -175,7 +175,7 @@ def counting_sort_cells(face, fu, fv, fz, faces, col_base, gd, zlo, zhi, logz, n
 
 # --------------------------------------------------------------------------
 # face-plane helpers
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def to_view(fp, x, y, z):
     vx = fp[0] * x + fp[1] * y + fp[2] * z + fp[3]
     vy = fp[4] * x + fp[5] * y + fp[6] * z + fp[7]
@@ -183,7 +183,7 @@ def to_view(fp, x, y, z):
     return vx, vy, -vz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _cell_span(edge0, edge1, n, lo, hi):
     """Cells 0..n-1 of an axis whose cell 0 starts at ``edge0`` and cell n
     ends at ``edge1`` that cover [lo, hi] measured from ``edge0`` (clamped;
@@ -195,19 +195,19 @@ def _cell_span(edge0, edge1, n, lo, hi):
     return int(math.floor(max(a, 0.0))), int(math.floor(min(b, n - 1.0)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def col_range(fp, xmin, xmax):
     """Columns covering face-plane x in [xmin, xmax] (clamped; c0 > c1 if none)."""
     return _cell_span(fp[17], fp[18], fp[21], xmin, xmax)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def row_range(fp, ymin, ymax):
     """Rows covering face-plane y in [ymin, ymax]; row 0 is the top (y = t)."""
     return _cell_span(fp[20], fp[19], fp[22], ymax, ymin)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def col_rect(fp, c0, c1, r0, r1):
     """Face-plane rectangle (x0, x1, y0, y1) of columns c0..c1, rows r0..r1."""
     l, r, bt, tp, gw, gh = fp[17], fp[18], fp[19], fp[20], fp[21], fp[22]
@@ -218,7 +218,7 @@ def col_rect(fp, c0, c1, r0, r1):
     return x0, x1, y0, y1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def rect_k(x0, x1, y0, y1):
     """sqrt(1 + max |p'|^2) over a face-plane rectangle."""
     mx = max(abs(x0), abs(x1))
@@ -274,7 +274,7 @@ def seg_rect_dist(ax, ay, bx, by, x0, x1, y0, y1):
     return math.sqrt(best)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def seg_x_in_band(ax, ay, bx, by, y0, y1):
     """x-extent of the part of segment AB with y in [y0, y1] (xa > xb: none)."""
     t0, t1 = 0.0, 1.0
@@ -584,7 +584,7 @@ def _edge_quads(rs, tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near
             rng[r, f, 3] = r1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _bin_quad(ep, r, f, fp, persp, rL, rho, tan_a, Zb, kb):
     za = ep[r, f, 2]
     zb = ep[r, f, 5]
