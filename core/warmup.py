@@ -262,10 +262,12 @@ def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable
     kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
     spec = json.dumps(pixel_filter.to_json(), sort_keys=True, default=str)
     passes = sorted(set(passes))
+    # the warm-up frame's own notices (a method's kernels compiled inside it) reach the caller
+    progress = None if notify is None else (lambda msg, frac: notify(msg) if isinstance(msg, CompileNotice) else None)
     spent = 0.0
     for kind, light in kinds:
         def work(light=light):
             render_filtered(warmup_scene(light, mattes), passes, None, pixel_filter,
-                            overrides={"samples": 4, "seed": 0})
+                            overrides={"samples": 4, "seed": 0}, progress=progress)
         spent += _warm_once(("filter", kind, mattes, spec, tuple(passes)), "pixel_filter", notify, work)
     return spent
