@@ -70,7 +70,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     W, H = scene.resolution
     progress = options.get("progress")
     compile_s = ensure_filter_compiled(scene, flt, render_filtered,
-                                       None if progress is None else (lambda msg: progress(msg, 0.0)))
+                                       None if progress is None else (lambda msg: progress(msg, 0.0)),
+                                       _warmup_passes(passes))
     buffers = FrameBuffers(scene, W, H, options.get("map_size"))
     base = render_frame(scene, passes, light_names, buffers=buffers, **options)
     base.compile_s += compile_s           # the filter's kernels: compiled before anything was timed
@@ -135,6 +136,16 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     base.pixel_filter = flt.to_json()
     base.total_s += time.perf_counter() - t0
     return base
+
+
+def _warmup_passes(passes: Sequence[str]) -> list:
+    """The passes the filter's warm-up renders: the frame's own core passes
+    (their kernels are compiled for the frame anyway), ``embree`` and
+    ``embree_irr`` when the frame has none or asks for ``auto`` (whose
+    method is chosen per light of the real scene)."""
+    own = [p for p in passes if p != "auto" and not method_registry.is_external(p)
+           and p in method_registry.pass_ids(external=False)]
+    return own if own and "auto" not in passes else ["embree", "embree_irr"]
 
 
 def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool):

@@ -51,7 +51,9 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from .kernels import each_range
 
 KINDS = ("box", "gaussian", "blackman-harris", "eevee")
 NONE = "none"
@@ -261,9 +263,8 @@ def from_render_settings(engine: str, cycles_type: Optional[str], cycles_width: 
 # --------------------------------------------------------------------------
 # which pixels need sub-pixel samples
 
-@njit(cache=True, parallel=True)
 def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out,
-                sharp, full, geo_v):
+                sharp, full, geo_v, threads=None):
     """out[r, c] = True where pixel (r, c)'s neighbours within ``reach``
     differ from it in hit, or in object id, depth (relative ``depth_jump``)
     or normal (cosine below ``normal_cos``) with one of ``values[k]`` (the
@@ -280,8 +281,19 @@ def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, n
     beyond ``threshold``. ``full[r, c]``: the pixel needs the full sub-pixel
     grid: an edge of the geometry, or V's test beyond ``sharp`` (a hard
     shadow edge); the others only V's mild kinks and noise."""
+    each_range(lambda r0, r1: _refine_rows(r0, r1, hit, obj, depth, normal, values, int(reach), float(threshold),
+                                           float(depth_jump), float(normal_cos), bool(curvature), out,
+                                           float(sharp), full, float(geo_v)), hit.shape[0], threads, grain=8)
+
+
+@njit(cache=True, nogil=True)
+def _refine_rows(r0, r1, hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out,
+                 sharp, full, geo_v):
+    """``refine_mask`` for rows r0 .. r1 - 1 (a serial ``nogil`` kernel on
+    worker threads, ``kernels.each_range``: issue 15, a parfor's compile
+    cost more than the loop takes)."""
     H, W = hit.shape
-    for r in prange(H):
+    for r in range(r0, r1):
         for c in range(W):
             geo = False
             vflag = False

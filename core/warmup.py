@@ -27,7 +27,7 @@ import os
 import sys
 import threading
 from dataclasses import replace
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -247,22 +247,27 @@ def ensure_buffers_compiled(scene: Scene, notify: Optional[Callable[[str], None]
 
 
 def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable,
-                           notify: Optional[Callable[[str], None]] = None) -> float:
+                           notify: Optional[Callable[[str], None]] = None,
+                           passes: Sequence[str] = ("embree", "embree_irr")) -> float:
     """Compile the pixel filter's kernels (refine mask, sub-pixel G-buffer,
-    resolve of an average and an irradiance pass, coverage) on the warm-up
-    scene filtered by ``pixel_filter`` (``embree`` passes; one run per light
-    kind of ``scene``, with a matte when it has mattes), before the real
-    frame is timed; returns the seconds Numba spent compiling. The methods'
-    own kernels are warmed by ``render_frame`` as always.
-    ``render_filtered``: ``filtered_frame.render_filtered`` (handed in: that
-    module imports this one)."""
+    resolve, the unshadowed irradiance of an irradiance pass, coverage) on
+    the warm-up scene filtered by ``pixel_filter``, rendering ``passes``
+    (the frame's own core passes: no method's kernels compiled that the
+    frame does not need; an irradiance pass's E0 only when one is asked
+    for), one run per light kind of ``scene``, with a matte when it has
+    mattes, before the real frame is timed; returns the seconds Numba spent
+    compiling. ``render_filtered``: ``filtered_frame.render_filtered``
+    (handed in: that module imports this one)."""
     mattes = has_mattes(scene)
     kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
     spec = json.dumps(pixel_filter.to_json(), sort_keys=True, default=str)
+    passes = sorted(set(passes))
+    # the warm-up frame's own notices (a method's kernels compiled inside it) reach the caller
+    progress = None if notify is None else (lambda msg, frac: notify(msg) if isinstance(msg, CompileNotice) else None)
     spent = 0.0
     for kind, light in kinds:
         def work(light=light):
-            render_filtered(warmup_scene(light, mattes), ["embree", "embree_irr"], None, pixel_filter,
-                            overrides={"samples": 4, "seed": 0})
-        spent += _warm_once(("filter", kind, mattes, spec), "pixel_filter", notify, work)
+            render_filtered(warmup_scene(light, mattes), passes, None, pixel_filter,
+                            overrides={"samples": 4, "seed": 0}, progress=progress)
+        spent += _warm_once(("filter", kind, mattes, spec, tuple(passes)), "pixel_filter", notify, work)
     return spent

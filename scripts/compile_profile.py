@@ -9,7 +9,7 @@ than one signature (a literal argument compiles a callee once per value).
     python scripts/compile_profile.py METHODS [--scene sphere_plane] [--size 128x128] [--top 40]
 
 METHODS as ``render --methods`` (e.g. ``layered`` or ``pcf,embree``);
-``--pixel-filter none``.
+``--pixel-filter`` as ``render``'s (default ``scene``, render's own default).
 """
 from __future__ import annotations
 
@@ -68,6 +68,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", default="sphere_plane")
     ap.add_argument("--size", default="128x128")
     ap.add_argument("--top", type=int, default=40)
+    ap.add_argument("--pixel-filter", default="scene", help="as render's (default scene)")
     a = ap.parse_args(argv)
     root = tempfile.mkdtemp(prefix="penumbra-cold-")
     os.environ["PENUMBRA_NUMBA_CACHE_ROOT"] = root
@@ -91,7 +92,7 @@ def _profile(a) -> int:
     with tempfile.TemporaryDirectory() as out:
         rc = cli_main(["render", os.path.join(HERE, "sample_blends", f"{a.scene}.blend"), "--out", out,
                        "--methods", a.methods, "--resolution", a.size, "--samples", "64", "--seed", "0",
-                       "--no-previews", "--quiet", "--force", "--pixel-filter", "none"])
+                       "--no-previews", "--quiet", "--force", "--pixel-filter", a.pixel_filter])
     r1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     total = sum(r[0] for r in lst.rows.values())

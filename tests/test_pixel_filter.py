@@ -317,6 +317,22 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
     assert np.array_equal(packed.coverage, dense.coverage)
 
 
+def test_pcf_pixel_step_leaves_sub_pixel_receivers_their_own_v():
+    """pcf's ``pixel_step`` (a Preview knob over a dense image's 2 x 2
+    blocks) does not touch the packed sub-pixel receivers: with every pixel
+    refined (threshold < 0) the filtered pass comes from them alone and is
+    the same bits with pixel_step 2 as with 1 (a packed list's neighbouring
+    entry is not its pixel's block: sharing V with it would blur the
+    sub-pixel detail the refinement is for)."""
+    sc = _box_scene(24)
+    flt = dataclasses.replace(PixelFilter("blackman-harris", 1.5), threshold=-1.0)
+    one = render_filtered(sc, ["pcf"], pixel_filter=flt)
+    two = render_filtered(sc, ["pcf"], pixel_filter=flt, method_overrides={"pcf": {"pixel_step": 2}})
+    a, b = one.lights[0].passes["pcf"], two.lights[0].passes["pcf"]
+    assert ((a > 0.05) & (a < 0.95)).sum() > 20              # a penumbra to get wrong
+    np.testing.assert_array_equal(a, b)
+
+
 def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
     """refine_mask's ``full``: pixels beside another object (where V differs
     across it by more than ``geo_v``: an edge V does not see changes no
