@@ -93,7 +93,7 @@ class FrameBuffers:
         self._bvh_key: Dict[str, str] = {}        # light -> key of the BVH its shadow rays use
         self.culling: Dict[str, Dict[str, int]] = {}
         self._results: Dict[tuple, object] = {}   # ``result_key`` -> a method's MethodResult
-        self._memo: Dict[tuple, object] = {}      # ``frame_memo``: shared with the sub-pixel stage
+        self._memo: Optional[Dict[tuple, object]] = None   # ``frame_memo`` (``share_frame_memo``)
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
@@ -128,12 +128,23 @@ class FrameBuffers:
                 sub.culling = dict(self.culling)
         return sub
 
+    def share_frame_memo(self) -> None:
+        """From now on ``frame_memo`` keeps what it builds, for this frame's
+        sub-pixel stage (``filtered_frame``; ``supersampled`` hands it on).
+        Off by default: buffers that time several runs of a method (the
+        study, the benchmark) rebuild its precompute every run."""
+        if self._memo is None:
+            self._memo = {}
+
     def frame_memo(self, tag: str, light: Light, params, build: Callable[[], object]):
         """A method's own light-space precompute (layered's LDI,
-        depth_raytrace's reference maps) for ``light`` and ``params``: built
-        once per frame, from the pixel-centre stage's receivers, and shared
-        with its sub-pixel stage (``supersampled``), which shades other
-        receivers with the same maps: billed where it was built."""
+        depth_raytrace's reference maps) for ``light`` and ``params``: with
+        ``share_frame_memo``, built once per frame, from the pixel-centre
+        stage's receivers, and shared with its sub-pixel stage
+        (``supersampled``), which shades other receivers with the same maps:
+        billed where it was built; else ``build()`` every call."""
+        if self._memo is None:
+            return build()
         key = (tag,) + self.result_key(light, tag, params_dict(params))
         if key not in self._memo:
             self._memo[key] = build()

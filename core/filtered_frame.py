@@ -73,6 +73,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                                        None if progress is None else (lambda msg: progress(msg, 0.0)),
                                        _warmup_passes(passes))
     buffers = FrameBuffers(scene, W, H, options.get("map_size"))
+    buffers.share_frame_memo()            # layered's LDI, depth_raytrace's maps: built once for both stages
     base = render_frame(scene, passes, light_names, buffers=buffers, **options)
     base.compile_s += compile_s           # the filter's kernels: compiled before anything was timed
     t0 = time.perf_counter()

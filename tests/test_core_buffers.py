@@ -180,3 +180,26 @@ def test_buffers_of_another_camera_or_resolution_are_refused():
         render_frame(other, ["pcf"], reuse=first.buffers)
     with pytest.raises(ValueError, match="resolution"):
         FrameBuffers(scene, RES + 1, RES).adopt(first.buffers)
+
+
+def test_frame_memo_is_kept_only_when_a_filtered_frame_shares_it():
+    """``frame_memo`` (layered's LDI, depth_raytrace's maps) builds every
+    call on plain buffers, so runs timed on one set of buffers (the study,
+    the benchmark) each pay their precompute; after ``share_frame_memo``
+    (``render_filtered``) it builds once per light and params, and the
+    sub-pixel stage's buffers (``supersampled``) see the same memo."""
+    sc = _scene()
+    light = sc.lights[0]
+    fb = FrameBuffers(sc, *sc.resolution)
+    builds = []
+    build = lambda: builds.append(1) or len(builds)
+    params = registry.producers()["layered"].make_params({})
+    assert fb.frame_memo("layered.ldi", light, params, build) == 1
+    assert fb.frame_memo("layered.ldi", light, params, build) == 2
+    fb.share_frame_memo()
+    assert fb.frame_memo("layered.ldi", light, params, build) == 3
+    assert fb.frame_memo("layered.ldi", light, params, build) == 3
+    sub = fb.supersampled(sc, 2 * sc.resolution[0], 2 * sc.resolution[1], fb.gbuffer, 0.0)
+    assert sub.frame_memo("layered.ldi", light, params, build) == 3
+    other = registry.producers()["layered"].make_params({"samples": 16})
+    assert fb.frame_memo("layered.ldi", light, other, build) == 4
