@@ -26,7 +26,9 @@ PREVIEW_MAP_SCALE = 0.5
 #: the preview's settings of the fast methods, under a light's own knobs (which
 #: win): ``single_sample`` as the paper has it (the nearest blocker, object ids;
 #: issue 17's ``blocker="sum"``, ``surfaces="mesh"`` defaults cost 20-80x at
-#: 1080p), ``pcf`` with a quarter of the samples of its light-sized region,
+#: 1080p; section 4.3's adaptive groups every 8th pixel instead of 4th: a
+#: moved light's Preview at 1080p 0.52 -> 0.40 s, RMSE against embree within 0.002 of the
+#: 4-pixel groups at 960x540 on four scenes), ``pcf`` with a quarter of the samples of its light-sized region,
 #: V at one pixel in each 2 x 2 block (``pixel_step``: the block's other
 #: pixels on the same surface share it) and no pixel footprint (``ResFactor``
 #: 0: the region's floor is MinSize texels; the light's extent sets it
@@ -34,7 +36,7 @@ PREVIEW_MAP_SCALE = 0.5
 #: Preview at 1080p. The Compute keeps the accurate defaults. Said in the
 #: Preview's report.
 PREVIEW_PARAMS: Dict[str, Dict[str, object]] = {
-    "single_sample": {"blocker": "nearest", "surfaces": "object"},
+    "single_sample": {"blocker": "nearest", "surfaces": "object", "block": 8},
     "pcf": {"BlockerSamples": 8, "PenumbraSamples": 16, "pixel_step": 2, "ResFactor": 0.0},
 }
 
