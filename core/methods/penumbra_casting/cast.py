@@ -41,6 +41,7 @@ from numba import njit
 
 from .geometry import MAXB, MAXP, blocked_by_edges, box_vs_volume, hard_volume, in_hard_volume, \
     penumbra_volume, point_in_volume, receiver_edge_functions, triangle_plane
+from .hierarchy import leaf_umbra_bits
 from .light import MODE_FIXED, MODE_SHARED, MODE_SPHERE, sample_point
 
 ALLP = np.int64(-1)
@@ -572,15 +573,7 @@ def _make_cast_chunk(variant: str):
                             slot[r] = -1
                             st[ST_LIVE] -= 1
                 if optA:                                                     # lines 77-80
-                    lf = np.uint8(1)
-                    for g in range(G):
-                        node_gu[node, g] = 1
-                    for q in range(start[node], start[node] + count[node]):
-                        r = perm[q]
-                        lf &= fu[r]
-                        for g in range(G):
-                            node_gu[node, g] &= gu[r, g]
-                    node_fu[node] = lf
+                    leaf_umbra_bits(node, start, count, perm, gu, fu, node_gu, node_fu)
         return tri_sel.shape[0]
 
     cast_chunk.__name__ = cast_chunk.__qualname__ = f"cast_chunk_{variant}"

@@ -271,6 +271,22 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
         count[:m].copy(), max_depth
 
 
+@njit(cache=True, forceinline=True)
+def leaf_umbra_bits(node, start, count, perm, gu, fu, node_gu, node_fu):
+    """A leaf's umbra bits (optimization A, lines 77-80): the AND of its
+    receivers' per-group bits ``gu`` and whole-light bits ``fu``."""
+    G = gu.shape[1]
+    f = np.uint8(1)
+    for k in range(G):
+        node_gu[node, k] = 1
+    for q in range(start[node], start[node] + count[node]):
+        r = perm[q]
+        f &= fu[r]
+        for k in range(G):
+            node_gu[node, k] &= gu[r, k]
+    node_fu[node] = f
+
+
 @njit(cache=True, nogil=True)
 def node_umbra_bits(left, right, start, count, perm, gu, fu, node_gu, node_fu):
     """Umbra bits of every node from its receivers' (optimization A, lines
@@ -279,15 +295,7 @@ def node_umbra_bits(left, right, start, count, perm, gu, fu, node_gu, node_fu):
     G = gu.shape[1]
     for node in range(m - 1, -1, -1):
         if left[node] < 0:
-            f = 1
-            for k in range(G):
-                node_gu[node, k] = 1
-            for q in range(start[node], start[node] + count[node]):
-                r = perm[q]
-                f &= fu[r]
-                for k in range(G):
-                    node_gu[node, k] &= gu[r, k]
-            node_fu[node] = f
+            leaf_umbra_bits(node, start, count, perm, gu, fu, node_gu, node_fu)
         else:
             a = left[node]
             b = right[node]
