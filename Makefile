@@ -11,7 +11,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 VENV_DEPS := pyproject.toml scripts/setup_system.sh scripts/find_python.sh scripts/make_venv.sh
 
-.PHONY: demo test bench setup clean samples wheels extension
+.PHONY: demo test bench setup clean samples wheels extension kernel-plan
 .DEFAULT_GOAL := demo
 
 setup: $(STAMP)
@@ -42,6 +42,12 @@ bench: $(STAMP)
 
 samples: $(STAMP)
 	$(PY) sample_blends/make_samples.py
+
+# core/kernel_plan.json: what a cold frame compiles, in order, for the helper
+# processes of core/compile_ahead.py (re-record after changing a kernel's
+# signature; tests/test_compile_ahead.py fails when it is stale)
+kernel-plan: $(STAMP)
+	$(PY) scripts/record_kernel_plan.py --jobs 2
 
 # The Blender extension: PyPI wheels for every platform in blender_manifest.toml
 # into ./wheels/, then one zip per platform into dist/ (scripts/build_extension.py).

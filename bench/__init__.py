@@ -22,7 +22,7 @@ from .phases import (BUFFER_COLUMNS, STARTUP_COLUMNS, bench_buffers, bench_previ
 
 
 def run_bench(args) -> int:
-    """The ``bench`` command: ``args.part`` (all, skeleton, methods, study),
+    """The ``bench`` command: ``args.part`` (all, skeleton, startup, methods, scaling, study, filter),
     ``args.out``, ``args.repeats``, ``args.quick``."""
     repeats = max(1, args.repeats)
     print(f"machine: {json.dumps(machine())}")
@@ -35,6 +35,7 @@ def run_bench(args) -> int:
         md = write_results(rows, args.out, "buffers", BUFFER_COLUMNS)
         print(f"buffers and the Preview beside raw embreex (one thread, same rays), medians of {repeats} warm runs")
         print(md)
+    if args.part in ("all", "skeleton", "startup"):
         md = write_results(bench_startup(args.quick), args.out, "startup", STARTUP_COLUMNS)
         print("start-up: penumbra render from a fresh Numba cache (cold) and again (warm), one process each")
         print(md)

@@ -233,7 +233,8 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
 
 
 #: the columns of startup.csv / startup.md (issue 15's start-up table)
-STARTUP_COLUMNS = ["scene", "size", "methods", "cold_s", "warm_s", "cold_minus_warm_s", "cold_cpu_s", "warm_cpu_s",
+STARTUP_COLUMNS = ["scene", "size", "methods", "cold_s", "warm_s", "cold_minus_warm_s", "one_process_cold_minus_warm_s",
+                   "cold_cpu_s", "warm_cpu_s",
                    "compile_s", "target_s", "met", "load"]
 #: the core methods of the start-up table and their targets (issue 15: cold minus warm wall time)
 STARTUP_TARGETS = {"pcf": 10.0, "single_sample": 10.0, "layered": 10.0, "penumbra_casting": 15.0,
@@ -258,8 +259,10 @@ def bench_startup(quick: bool = False, scene: str = "sphere_plane", size: str = 
     """Issue 15's start-up table: per core method, and all seven in one run,
     ``penumbra render`` at ``size`` from a fresh Numba cache folder (cold)
     and again on the cache it left (warm), each in a new process; wall and
-    CPU (user + sys, robust on a loaded machine) with the load average, and
-    the JSON's ``compile_s`` of the cold run."""
+    CPU (user + sys, robust on a loaded machine; the helper processes'
+    included) with the load average, the JSON's ``compile_s`` of the cold
+    run, and the same run's baseline: cold with one compiling process
+    (``PENUMBRA_COMPILE_PROCESSES=1``: no helper, ``core/compile_ahead.py``)."""
     methods = ["pcf", "embree"] if quick else list(STARTUP_TARGETS)
     runs = [[m] for m in methods] + ([list(STARTUP_TARGETS)] if not quick else [])
     rows = []
@@ -276,9 +279,14 @@ def bench_startup(quick: bool = False, scene: str = "sphere_plane", size: str = 
             with open(os.path.join(tmp, "out", sidecar)) as f:
                 compile_s = json.load(f).get("compile_s", 0.0)
             warm, warm_cpu = _cli_run(args, env)
+        with tempfile.TemporaryDirectory() as tmp:        # the same run's baseline: no helper process
+            env1 = dict(env, PENUMBRA_NUMBA_CACHE_ROOT=os.path.join(tmp, "cache"), PENUMBRA_COMPILE_PROCESSES="1")
+            args1 = args[:args.index("--out") + 1] + [os.path.join(tmp, "out")] + args[args.index("--out") + 2:]
+            cold1, _ = _cli_run(args1, env1)
         target = STARTUP_TARGETS[ms[0]] if len(ms) == 1 else STARTUP_ALL_TARGET
         rows.append(dict(scene=scene, size=size, methods="all seven" if len(ms) > 1 else ms[0], cold_s=cold,
-                         warm_s=warm, cold_minus_warm_s=cold - warm, cold_cpu_s=cold_cpu, warm_cpu_s=warm_cpu,
+                         warm_s=warm, cold_minus_warm_s=cold - warm,
+                         one_process_cold_minus_warm_s=cold1 - warm, cold_cpu_s=cold_cpu, warm_cpu_s=warm_cpu,
                          compile_s=compile_s, target_s="" if target is None else f"<= {target:g}",
                          met="" if target is None else ("yes" if cold - warm <= target else "no"),
                          load=f"{load:.1f}-{os.getloadavg()[0]:.1f}"))

@@ -344,9 +344,12 @@ def warm_up(methods: Optional[Sequence[str]] = None, stop: Optional[threading.Ev
     import numpy as np
     from ..core import methods as registry
     from ..core.scene import Light
+    from ..core.compile_ahead import plan_key, prefetch
     from ..core.warmup import ensure_compiled
     light = Light("warm-up", "area", np.eye(4), blender_type="AREA", size=1.0)
-    for mid in methods or default_methods():
+    methods = list(methods or default_methods())
+    prefetch([plan_key(mid, "area", False) for mid in methods])    # helper processes compile from the end
+    for mid in methods:
         if stop is not None and stop.is_set():
             return
         m = registry.producer_of(mid)

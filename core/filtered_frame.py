@@ -38,6 +38,7 @@ from .metrics import errors, reach_mask
 from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, V_TESTS, PixelFilter, coverage, footprint_flat,
                            refine_mask, resolve_samples)
 from .scene import GBuffer, Scene
+from .compile_ahead import frame_keys, prefetch
 from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
@@ -69,6 +70,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
         raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
     W, H = scene.resolution
     progress = options.get("progress")
+    prefetch(frame_keys(scene, _warmup_passes(passes), True))   # helper processes compile from the end
     compile_s = ensure_filter_compiled(scene, flt, render_filtered,
                                        None if progress is None else (lambda msg: progress(msg, 0.0)),
                                        _warmup_passes(passes))

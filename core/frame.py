@@ -13,6 +13,7 @@ import numpy as np
 
 from . import methods as method_registry
 from .buffers import FrameBuffers
+from .compile_ahead import frame_keys, prefetch
 from .methods.base import AVERAGE, IRRADIANCE, params_dict
 from .metrics import errors
 from .planner import Plan, plan_frame
@@ -118,8 +119,11 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     if reuse is not None:
         buffers.adopt(reuse)
     notify = None if progress is None else (lambda msg: progress(msg, 0.0))
+    prefetch(frame_keys(scene, passes, False))            # helper processes compile from the end
     compile_s = ensure_buffers_compiled(scene, notify)   # before the real buffers are built (and timed)
     plan, reach = plan_frame(scene, passes, light_names, error_budget, buffers)
+    if "auto" in passes:                                 # auto's methods, now chosen
+        prefetch(frame_keys(scene, [p for lp in plan.lights if lp.action != "skip" for p in lp.passes], False))
     compile_s += _compile(plan, scene, overrides, method_overrides, progress)
     registry = method_registry.producers()
     results = []

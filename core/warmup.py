@@ -32,6 +32,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from .alpha import LINEAR, REPEAT, AlphaMattes
+from .compile_ahead import waited_s
 from .scene import Camera, Light, ObjectInfo, Scene
 from .views import look_rotation
 
@@ -187,11 +188,12 @@ def ensure_compiled(method, light: Light, params,
         from .buffers import FrameBuffers
         before = _overload_counts()
         scene = warmup_scene(light, mattes)
-        spent: List[float] = []
+        spent: List[float] = [-waited_s()]     # + the time spent waiting for helpers' kernels
         with install_timer("numba:compile", spent.append):
             buffers = FrameBuffers(scene, WARMUP_SIZE, WARMUP_SIZE, WARMUP_SIZE)
             with buffers.view(method.needs, method.id) as view:   # as render_frame runs it
                 method.run(view, scene.lights[0], params)
+        spent.append(waited_s())
         after = _overload_counts()
         _write_marker(method.id, [k for k, n in after.items() if n > before.get(k, 0)])
         _warm.add(key)
@@ -213,12 +215,13 @@ def _warm_once(key: Tuple, marker: str, notify, work: Callable[[], None]) -> flo
             notify(CompileNotice(marker))
         from numba.core.event import install_timer
         before = _overload_counts()
-        spent: List[float] = []
+        spent: List[float] = [-waited_s()]     # + the time spent waiting for helpers' kernels
         try:
             with install_timer("numba:compile", spent.append):
                 work()
         finally:
             _busy.discard(key)
+        spent.append(waited_s())
         after = _overload_counts()
         _write_marker(marker, [k for k, n in after.items() if n > before.get(k, 0)])
         _warm.add(key)

@@ -1,0 +1,116 @@
+"""Record ``core/kernel_plan.json`` (``core/compile_ahead.py``): for each core
+pass, light kind and pixel model, the top-level Numba dispatchers and
+signatures a cold frame compiles, in its order. Each list is recorded in
+its own process on an empty cache, rendering the warm-up scene
+(``core/warmup.py``) as a real frame does (its warm-ups first).
+
+    python scripts/record_kernel_plan.py [--jobs 2]
+
+Run it after a change to a kernel's signature or to what a method compiles
+(``tests/test_compile_ahead.py`` says when the plan no longer matches).
+"""
+from __future__ import annotations
+
+import argparse
+import base64
+import concurrent.futures
+import json
+import os
+import pickle
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+KINDS = ("area", "sphere", "sun")
+
+
+def _light(kind: str):
+    import numpy as np
+    from penumbra.core.scene import Light
+    if kind == "area":
+        return Light("warm-up", "area", np.eye(4), blender_type="AREA", shape="SQUARE", size=1.0, size_y=1.0)
+    if kind == "sphere":
+        return Light("warm-up", "sphere", np.eye(4), blender_type="POINT", radius=0.25)
+    return Light("warm-up", "sun", np.eye(4), blender_type="SUN", angle=0.05)
+
+
+def record_one(pass_id: str, kind: str, filtered: bool) -> list:
+    """[[dispatcher, sig_b64], ...]: the top-level compiles of one cold frame,
+    in order (this process must start on an empty cache)."""
+    import threading
+
+    from numba.core import event
+
+    from penumbra.core.filtered_frame import render_filtered
+    from penumbra.core.pixel_filter import PixelFilter
+    from penumbra.core.warmup import warmup_scene
+    local = threading.local()
+    out = []
+
+    class Listener(event.Listener):
+        def on_start(self, ev):
+            depth = getattr(local, "depth", 0)
+            if depth == 0:
+                d = ev.data["dispatcher"]
+                name = f"{d.py_func.__module__}:{d.py_func.__qualname__}"
+                if name.startswith("penumbra."):
+                    out.append([name, base64.b64encode(pickle.dumps(tuple(ev.data["args"]))).decode()])
+            local.depth = depth + 1
+
+        def on_end(self, ev):
+            local.depth -= 1
+
+    event.register("numba:compile", Listener())
+    flt = PixelFilter("blackman-harris", 1.5) if filtered else PixelFilter()
+    render_filtered(warmup_scene(_light(kind)), [pass_id], None, flt, overrides={"samples": 64, "seed": 0})
+    return out
+
+
+def _run_one(args):
+    pass_id, kind, filtered = args
+    with tempfile.TemporaryDirectory(prefix="penumbra-plan-") as root:
+        env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=root, PENUMBRA_COMPILE_PROCESSES="1")
+        env.pop("NUMBA_CACHE_DIR", None)
+        r = subprocess.run([sys.executable, __file__, "--one", pass_id, kind, "1" if filtered else "0"],
+                           env=env, capture_output=True, text=True, cwd=HERE)
+        if r.returncode != 0:
+            raise RuntimeError(f"{pass_id} {kind} {filtered}: {r.stderr[-2000:]}")
+        return args, json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--one", nargs=3, metavar=("PASS", "KIND", "FILTERED"))
+    ap.add_argument("--passes", default="", help="comma list (default: every core pass)")
+    a = ap.parse_args(argv)
+    if a.one:
+        print(json.dumps(record_one(a.one[0], a.one[1], a.one[2] == "1")))
+        return 0
+    from penumbra.core import methods as method_registry
+    from penumbra.core.compile_ahead import PLAN_FILE, plan_key
+    passes = a.passes.split(",") if a.passes else method_registry.pass_ids(external=False)
+    jobs = [(p, k, f) for p in passes for k in KINDS for f in (True, False)]
+    items, index, lists = [], {}, {}
+    with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
+        for (p, k, f), rows in pool.map(_run_one, jobs):
+            ids = []
+            for name, sig in rows:
+                if (name, sig) not in index:
+                    index[(name, sig)] = len(items)
+                    items.append([name, sig])
+                ids.append(index[(name, sig)])
+            lists[plan_key(p, k, f)] = ids
+            print(f"{plan_key(p, k, f)}: {len(ids)} kernels", file=sys.stderr)
+    import numba
+    with open(PLAN_FILE, "w") as f:
+        json.dump({"numba": numba.__version__, "items": items, "lists": dict(sorted(lists.items()))}, f,
+                  indent=0, separators=(",", ":"))
+        f.write("\n")
+    print(f"wrote {PLAN_FILE}: {len(items)} kernels, {len(lists)} lists", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
