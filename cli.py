@@ -292,7 +292,8 @@ def cmd_render(args) -> int:
     if err:
         raise UsageError(err)
     from .core.compile_ahead import start_helpers
-    start_helpers(passes)        # a cold cache: helpers start while the .blend opens (issue 15)
+    from .core.warmup import kernels_cached
+    start_helpers(passes, kernels_cached)   # a cold cache: helpers start while the .blend opens (issue 15)
     if args.threads:
         set_threads(args.threads)
     bpy_scene = open_blend(path)

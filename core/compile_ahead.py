@@ -195,17 +195,18 @@ def _spawn(n: int):
     return work, procs
 
 
-def start_helpers(pass_ids) -> bool:
+def start_helpers(pass_ids, kernels_cached) -> bool:
     """Start the helpers ahead of :func:`prefetch` when the kernels of a core
     pass in ``pass_ids`` (``auto``: every pass it may choose) are not in the
     on-disk cache, so their own start-up (about a second: Python, NumPy,
     Numba, the kernels' modules) overlaps the caller's (opening the .blend);
-    returns whether it started them. Idle helpers are stopped at exit."""
+    returns whether it started them. Idle helpers are stopped at exit.
+    ``kernels_cached(method_id)``: ``warmup.kernels_cached`` (handed in:
+    that module imports this one)."""
     n_proc = processes()
     if n_proc < 2 or _PKG is None or not load_plan():
         return False
     from . import methods as method_registry
-    from .warmup import kernels_cached
     core = method_registry.pass_ids(external=False)
     wanted = core if "auto" in pass_ids else [p for p in pass_ids if p in core]
     producers = {method_registry.producer_of(p).id for p in wanted}
