@@ -371,6 +371,9 @@ scene = bpy.context.scene
 scene.render.resolution_x, scene.render.resolution_y = 32, 24
 scene.render.resolution_percentage = 100
 out["op"] = sorted(bpy.ops.penumbra.compute_passes(samples=4, methods="pcf,embree"))
+ahead = sys.modules["bl_ext.user_default.penumbra.core.compile_ahead"]
+out["ahead_pkg"], out["ahead_done"] = ahead._PKG, ahead.helper_done()
+out["ahead_work"] = [w for w, _ in ahead._jobs]
 pcf = next(i for i in bpy.data.images if i.name.startswith("Penumbra") and i.name.endswith(" pcf"))
 px = np.empty(len(pcf.pixels), np.float32)
 pcf.pixels.foreach_get(px)
@@ -428,7 +431,8 @@ def test_zip_installs_and_runs_in_a_fresh_bpy_session(linux_zip, tmp_path):
            if k not in ("PENUMBRA_NUMBA_CACHE_ROOT", "NUMBA_CACHE_DIR", "PYTHONPATH")
            and not k.startswith("BLENDER_USER_")}
     env.update(HOME=str(home), BLENDER_USER_RESOURCES=str(res),
-               XDG_CONFIG_HOME=str(home / ".config"), XDG_CACHE_HOME=str(home / ".cache"))
+               XDG_CONFIG_HOME=str(home / ".config"), XDG_CACHE_HOME=str(home / ".cache"),
+               PENUMBRA_COMPILE_PROCESSES="2")      # one helper process, whatever the cores
 
     first, log = _run_bpy(_INSTALL, [linux_zip], env)
     user_ext = first["user_extensions"]
@@ -459,6 +463,10 @@ def test_zip_installs_and_runs_in_a_fresh_bpy_session(linux_zip, tmp_path):
     assert second["enable"] == ["FINISHED"] and second["registered"]
     assert second["op"] == ["FINISHED"], log
     assert [n for n in second["images"] if n.endswith(" pcf")]
+    # the first Compute on a cold cache shared its compilation with a helper process,
+    # which imported the extension under Blender's own name (bl_ext.user_default.penumbra)
+    assert second["ahead_pkg"] == "bl_ext.user_default.penumbra"
+    assert second["ahead_work"] and second["ahead_done"] > 0, log
     assert [n for n in second["images"] if n.endswith(" embree")]
     # Compute Passes: a 32 x 24 visibility image with shadow and light in it
     assert second["pcf_size"] == [32, 24]
