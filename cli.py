@@ -150,11 +150,23 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--study-scenes", type=_study_scenes, default=None,
                    help="comma-separated sample scenes for --part study (default: all); the other "
                         "scenes' rows are kept from --out's study.csv")
+    b.add_argument("--startup-methods", type=_startup_methods, default=None,
+                   help="comma-separated rows of the start-up table: method ids and 'all' (the seven in one "
+                        "run; default: every row)")
     b.add_argument("--part", choices=("all", "skeleton", "startup", "methods", "scaling", "study", "filter"),
                    default="all", help="pipeline phases (with buffers, Preview and start-up), the start-up table "
                    "alone, per-method tables, triangle-count scaling, the accuracy-versus-time study, or filtered passes")
     add_farm_parser(sub)
     return p
+
+
+def _startup_methods(text: str):
+    from .bench.phases import STARTUP_TARGETS
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n != "all" and n not in STARTUP_TARGETS]
+    if bad or not names:
+        raise UsageError(f"bad --startup-methods {text!r}: expected some of {','.join(STARTUP_TARGETS)},all")
+    return names
 
 
 def _study_scenes(text: str):

@@ -36,8 +36,11 @@ def run_bench(args) -> int:
         print(f"buffers and the Preview beside raw embreex (one thread, same rays), medians of {repeats} warm runs")
         print(md)
     if args.part in ("all", "skeleton", "startup"):
-        md = write_results(bench_startup(args.quick), args.out, "startup", STARTUP_COLUMNS)
-        print("start-up: penumbra render from a fresh Numba cache (cold) and again (warm), one process each")
+        md = write_results(bench_startup(args.quick, repeats=repeats,
+                                         methods=getattr(args, "startup_methods", None)),
+                           args.out, "startup", STARTUP_COLUMNS)
+        print(f"start-up: penumbra render from a fresh Numba cache (cold) and again (warm), one process each; "
+              f"medians of {repeats} runs")
         print(md)
     if args.part in ("all", "methods"):
         run_method_benchmarks(args.out, repeats, args.quick)

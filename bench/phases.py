@@ -233,7 +233,8 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
 
 
 #: the columns of startup.csv / startup.md (issue 15's start-up table)
-STARTUP_COLUMNS = ["scene", "size", "methods", "cold_s", "warm_s", "cold_minus_warm_s", "one_process_cold_minus_warm_s",
+STARTUP_COLUMNS = ["scene", "size", "methods", "runs", "cold_s", "warm_s", "cold_minus_warm_s", "cold_minus_warm_range",
+                   "one_process_cold_minus_warm_s",
                    "cold_cpu_s", "warm_cpu_s",
                    "compile_s", "target_s", "met", "load"]
 #: the core methods of the start-up table and their targets (issue 15: cold minus warm wall time)
@@ -255,40 +256,57 @@ def _cli_run(args, env):
     return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
-def bench_startup(quick: bool = False, scene: str = "sphere_plane", size: str = "128x128"):
+def bench_startup(quick: bool = False, scene: str = "sphere_plane", size: str = "128x128", repeats: int = 1,
+                  methods=None):
     """Issue 15's start-up table: per core method, and all seven in one run,
     ``penumbra render`` at ``size`` from a fresh Numba cache folder (cold)
     and again on the cache it left (warm), each in a new process; wall and
     CPU (user + sys, robust on a loaded machine; the helper processes'
     included) with the load average, the JSON's ``compile_s`` of the cold
     run, and the same run's baseline: cold with one compiling process
-    (``PENUMBRA_COMPILE_PROCESSES=1``: no helper, ``core/compile_ahead.py``)."""
-    methods = ["pcf", "embree"] if quick else list(STARTUP_TARGETS)
-    runs = [[m] for m in methods] + ([list(STARTUP_TARGETS)] if not quick else [])
+    (``PENUMBRA_COMPILE_PROCESSES=1``: no helper, ``core/compile_ahead.py``).
+    ``repeats`` cold / warm / baseline runs per row, interleaved, each cold
+    one on its own empty cache: the row gives their medians. ``methods``:
+    the rows to run (method ids, "all" for the seven together; default every row)."""
+    if methods is None:
+        methods = ["pcf", "embree"] if quick else list(STARTUP_TARGETS) + ["all"]
+    runs = [list(STARTUP_TARGETS) if m == "all" else [m] for m in methods]
     rows = []
     blend = os.path.join(os.path.dirname(TESTS), "sample_blends", f"{scene}.blend")
     for ms in runs:
-        with tempfile.TemporaryDirectory() as tmp:
-            env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=os.path.join(tmp, "cache"))
-            env.pop("NUMBA_CACHE_DIR", None)
-            args = ["render", blend, "--out", os.path.join(tmp, "out"), "--methods", ",".join(ms),
-                    "--resolution", size, "--samples", "64", "--seed", "0", "--no-previews", "--quiet", "--force"]
-            load = os.getloadavg()[0]
-            cold, cold_cpu = _cli_run(args, env)
-            sidecar = next(f for f in os.listdir(os.path.join(tmp, "out")) if f.endswith(".json"))
-            with open(os.path.join(tmp, "out", sidecar)) as f:
-                compile_s = json.load(f).get("compile_s", 0.0)
-            warm, warm_cpu = _cli_run(args, env)
-        with tempfile.TemporaryDirectory() as tmp:        # the same run's baseline: no helper process
-            env1 = dict(env, PENUMBRA_NUMBA_CACHE_ROOT=os.path.join(tmp, "cache"), PENUMBRA_COMPILE_PROCESSES="1")
-            args1 = args[:args.index("--out") + 1] + [os.path.join(tmp, "out")] + args[args.index("--out") + 2:]
-            cold1, _ = _cli_run(args1, env1)
+        load = os.getloadavg()[0]
+        cold, cold_cpu, warm, warm_cpu, compile_s, cold1 = ([] for _ in range(6))
+        for _ in range(max(1, repeats)):
+            with tempfile.TemporaryDirectory() as tmp:
+                env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=os.path.join(tmp, "cache"))
+                env.pop("NUMBA_CACHE_DIR", None)
+                env.pop("PENUMBRA_COMPILE_PROCESSES", None)
+                args = ["render", blend, "--out", os.path.join(tmp, "out"), "--methods", ",".join(ms),
+                        "--resolution", size, "--samples", "64", "--seed", "0", "--no-previews", "--quiet", "--force"]
+                w, c = _cli_run(args, env)
+                cold.append(w)
+                cold_cpu.append(c)
+                sidecar = next(f for f in os.listdir(os.path.join(tmp, "out")) if f.endswith(".json"))
+                with open(os.path.join(tmp, "out", sidecar)) as f:
+                    compile_s.append(json.load(f).get("compile_s", 0.0))
+                w, c = _cli_run(args, env)
+                warm.append(w)
+                warm_cpu.append(c)
+            with tempfile.TemporaryDirectory() as tmp:    # the same run's baseline: no helper process
+                env1 = dict(env, PENUMBRA_NUMBA_CACHE_ROOT=os.path.join(tmp, "cache"),
+                            PENUMBRA_COMPILE_PROCESSES="1")
+                args1 = args[:args.index("--out") + 1] + [os.path.join(tmp, "out")] + args[args.index("--out") + 2:]
+                cold1.append(_cli_run(args1, env1)[0])
+        med = statistics.median
         target = STARTUP_TARGETS[ms[0]] if len(ms) == 1 else STARTUP_ALL_TARGET
-        rows.append(dict(scene=scene, size=size, methods="all seven" if len(ms) > 1 else ms[0], cold_s=cold,
-                         warm_s=warm, cold_minus_warm_s=cold - warm,
-                         one_process_cold_minus_warm_s=cold1 - warm, cold_cpu_s=cold_cpu, warm_cpu_s=warm_cpu,
-                         compile_s=compile_s, target_s="" if target is None else f"<= {target:g}",
-                         met="" if target is None else ("yes" if cold - warm <= target else "no"),
+        gap = med(cold) - med(warm)
+        rows.append(dict(scene=scene, size=size, methods="all seven" if len(ms) > 1 else ms[0], runs=len(cold),
+                         cold_s=med(cold), warm_s=med(warm), cold_minus_warm_s=gap,
+                         cold_minus_warm_range=f"{min(cold) - med(warm):.1f}-{max(cold) - med(warm):.1f}",
+                         one_process_cold_minus_warm_s=med(cold1) - med(warm), cold_cpu_s=med(cold_cpu),
+                         warm_cpu_s=med(warm_cpu), compile_s=med(compile_s),
+                         target_s="" if target is None else f"<= {target:g}",
+                         met="" if target is None else ("yes" if gap <= target else "no"),
                          load=f"{load:.1f}-{os.getloadavg()[0]:.1f}"))
     return rows
 

@@ -114,3 +114,10 @@ def test_bench_study_scenes_bad_name_exits_2_with_one_line(capsys):
     assert main(["bench", "--part", "study", "--study-scenes", "grids,nosuch", "--out", "/nonexistent"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad --study-scenes" in err[0] and "leaf_cards" in err[0]
+
+
+def test_bench_startup_methods_bad_name_exits_2_with_one_line(capsys):
+    from penumbra.cli import main
+    assert main(["bench", "--part", "startup", "--startup-methods", "pcf,nosuch", "--out", "/nonexistent"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad --startup-methods" in err[0] and "penumbra_casting" in err[0]
