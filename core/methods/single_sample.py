@@ -144,7 +144,7 @@ from typing import Optional
 import numpy as np
 from numba import njit
 
-from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
+from ..kernels import borrowed, each_dealt_chunk, each_range, face_project
 from ..sampling import rand01
 from .registry import register
 from .horizon import scale_by_horizon
@@ -229,20 +229,33 @@ def _light_axes(prm, finfo, fp, pvx, pvy, pvz):
     return t, 0.0, 0.0, 0.0, t, 0.0
 
 
-@njit(cache=True)
-def _warp(P, Nrm, i, faces, depth, prm):
+@njit(cache=True, inline="always")
+def _face_of(faces, px, py, pz):
+    """``kernels.pick_face`` and the point's projection into that face:
+    (face, u, v, depth), face -1 (and zeros) outside every face."""
+    for f in range(faces.shape[0]):
+        u, v, d = face_project(faces[f], px, py, pz)
+        if u >= 0.0 and v >= 0.0 and u < faces[f, 21] and v < faces[f, 22] and (d > 0.0 or faces[f, 16] == 1.0):
+            return f, u, v, d
+    return -1, 0.0, 0.0, 0.0
+
+
+def _warp_py(P, Nrm, i, faces, depth, prm):
     """Warp pixel i into the light view (section 3.2) and run the hard test.
 
     Returns (face, u, v, zr, inner, z_map, planar, A, B, C, tol, pvx, pvy, pvz):
     the receiver's tangent plane over the map is 1/z (perspective) or z
     (orthographic) = A sc + B tc + C in texel coordinates (sc, tc); ``tol``
-    is the hard test's tolerance; face < 0 means "not in the light view"."""
+    is the hard test's tolerance; face < 0 means "not in the light view".
+    Compiled twice from this one source: ``_warp`` (a function of its own,
+    called per searched pixel) and ``_warp_inline`` (inlined into the hard
+    test over every pixel, ``_hard_range``: a call per pixel cost a third
+    of that loop)."""
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-    f = pick_face(faces, px, py, pz)
+    f, u, v, zr = _face_of(faces, px, py, pz)
     if f < 0:
         return -1, 0.0, 0.0, 0.0, False, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     fp = faces[f]
-    u, v, zr = face_project(fp, px, py, pz)
     if not (zr > 0.0) or not np.isfinite(u) or not np.isfinite(v) or not np.isfinite(zr):
         return -1, 0.0, 0.0, 0.0, False, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     w = int(fp[21])
@@ -299,6 +312,10 @@ def _warp(P, Nrm, i, faces, depth, prm):
     zmap = np.float64(depth[f, iv, iu])
     inner = zmap < zt - tol
     return f, u, v, zr, inner, zmap, planar, A, B, C, tol, pvx, pvy, pvz
+
+
+_warp = njit(cache=True)(_warp_py)
+_warp_inline = njit(inline="always")(_warp_py)
 
 
 @njit(cache=True)
@@ -736,24 +753,25 @@ def _shade_all(ks, P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map
 def hard_all(P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr, threads=None):
     """Section 4.3's first step on every pixel: the hard test and the id it
     carries (the blocker's where inner, the receiver's where lit).
-    ``_hard_all`` on Numba's thread count (``kernels.each_dealt_chunk``)."""
-    each_dealt_chunk(lambda idx: _hard_all(idx, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr),
-                     P.shape[0], threads, block=_BLOCK)
+    ``_hard_range`` over ranges of pixels (``kernels.each_range``, a few per
+    thread): no index arrays to build, ``_warp`` inlined."""
+    each_range(lambda i0, i1: _hard_range(i0, i1, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr),
+               P.shape[0], threads, grain=16384, per_worker=4)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _hard_all(idx, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
-    """``hard_all`` for pixels ``idx`` (as ``_shade_all``)."""
+def _hard_range(i0, i1, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
+    """``hard_all`` for pixels i0..i1-1."""
     P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr = borrowed(
         (P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr))
-    for i in idx:
+    for i in range(i0, i1):
         if not hit[i]:
             hface[i] = -2
             hinner[i] = 0
             hid[i] = -1
             continue
         (f, u, v, zr, inner, zb0, planar, A, B, C, tol, pvx, pvy,
-         pvz) = _warp(P, Nrm, i, faces, depth, prm)
+         pvz) = _warp_inline(P, Nrm, i, faces, depth, prm)
         hface[i] = f
         hinner[i] = 1 if inner else 0
         if f >= 0 and inner:
