@@ -851,15 +851,27 @@ def _marks(n: int, step: int) -> np.ndarray:
     return np.asarray(m, np.int64)
 
 
-@njit(cache=True)
-def adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, interpolate):
+def adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, interpolate, threads=None):
     """Section 4.3: every ``block``-th column first (groups along y, their
     ends searched), then every row between those columns (groups along x).
-    Serial: a few ns per pixel, cheaper than two more parallel barriers."""
-    for k in range(colmarks.shape[0]):
-        _walk(hface, hinner, hid, need, out, colmarks[k], W, rowmarks, True, interpolate)
-    for y in range(H):
-        _walk(hface, hinner, hid, need, out, y * W, 1, colmarks, False, interpolate)
+    Each phase over ranges of lines on Numba's thread count
+    (``kernels.each_range``, ``_walk_lines``): lines write disjoint pixels."""
+    each_range(lambda k0, k1: _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, True,
+                                          interpolate), colmarks.shape[0], threads, grain=16, per_worker=2)
+    each_range(lambda k0, k1: _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, False,
+                                          interpolate), H, threads, grain=64, per_worker=2)
+
+
+@njit(cache=True, nogil=True)
+def _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, columns, interpolate):
+    """``adaptive_walk``'s columns colmarks[k0:k1] (``columns``) or rows k0..k1-1."""
+    hface, hinner, hid, need, out, colmarks, rowmarks = borrowed((hface, hinner, hid, need, out, colmarks, rowmarks))
+    if columns:
+        for k in range(k0, k1):
+            _walk(hface, hinner, hid, need, out, colmarks[k], W, rowmarks, True, interpolate)
+    else:
+        for y in range(k0, k1):
+            _walk(hface, hinner, hid, need, out, y * W, 1, colmarks, False, interpolate)
 
 
 @njit(cache=True)
@@ -1040,14 +1052,15 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
     if params.horizon and prm[P_HARD] == 0.0:
         with timer("horizon"):
             scale_by_horizon(light, P, Nrm, hit, out)
-    out = np.where(np.isfinite(out), out, 1.0)
-    out = np.clip(out, 0.0, 1.0)
-    searched_rad = np.minimum(rad[hit & (rad > 0)], prm[P_MAXRAD])
+    out[~np.isfinite(out)] = 1.0
+    np.clip(out, 0.0, 1.0, out=out)
+    rad_sel = rad[sel]                # rad and vis are 0 but where searched (sel: hit pixels, in order)
+    searched_rad = np.minimum(rad_sel[rad_sel > 0], prm[P_MAXRAD])
     stats.update({
         "searched_fraction": float(stats["searched"] / n_hit) if n_hit else 0.0,
         "mean_search_radius_texels": float(searched_rad.mean()) if searched_rad.size else 0.0,
-        "clipped": int((rad > prm[P_MAXRAD]).sum()),
-        "texels_read": int(vis.sum()),
+        "clipped": int((rad_sel > prm[P_MAXRAD]).sum()),
+        "texels_read": int(vis[sel].sum()),
         "faces": len(lv.faces),
         "map": [int(s) for s in lv.depth.shape],
         "hard_only": bool(prm[P_HARD] == 1.0),
