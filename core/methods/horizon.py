@@ -123,14 +123,14 @@ def pack_light(light) -> np.ndarray:
     return lp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _disk_share_at(x):
     """``_disk_share`` of one x."""
     x = min(max(x, -1.0), 1.0)
     return (math.acos(x) - x * math.sqrt(1.0 - x * x)) / math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _share_at(lp, px, py, pz, nx, ny, nz):
     """The share of the light ``lp`` (``pack_light``) above the plane
     through (px, py, pz) with normal (nx, ny, nz): ``horizon_share_reference``
