@@ -834,7 +834,9 @@ def _walk(hface, hinner, hid, need, out, idx0, stride, marks, ends, interpolate)
                 need[idx0 + m * stride] = True
             if sp + 2 > stack.shape[0]:
                 grown = np.empty((2 * stack.shape[0], 2), np.int64)
-                grown[:sp] = stack[:sp]
+                for q in range(sp):    # element copy: a slice assignment's shape-error path costs 2.6 s to compile
+                    grown[q, 0] = stack[q, 0]
+                    grown[q, 1] = stack[q, 1]
                 stack = grown
             stack[sp, 0] = a
             stack[sp, 1] = m
@@ -866,12 +868,12 @@ def adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, inter
 def _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, columns, interpolate):
     """``adaptive_walk``'s columns colmarks[k0:k1] (``columns``) or rows k0..k1-1."""
     hface, hinner, hid, need, out, colmarks, rowmarks = borrowed((hface, hinner, hid, need, out, colmarks, rowmarks))
-    if columns:
-        for k in range(k0, k1):
-            _walk(hface, hinner, hid, need, out, colmarks[k], W, rowmarks, True, interpolate)
-    else:
-        for y in range(k0, k1):
-            _walk(hface, hinner, hid, need, out, y * W, 1, colmarks, False, interpolate)
+    marks = rowmarks if columns else colmarks
+    stride = W if columns else 1
+    for k in range(k0, k1):
+        idx0 = colmarks[k] if columns else k * W
+        # ``columns`` rather than a literal True / False: one compile of _walk, not one per value
+        _walk(hface, hinner, hid, need, out, idx0, stride, marks, columns, interpolate)
 
 
 @njit(cache=True)
