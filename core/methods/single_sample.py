@@ -516,6 +516,23 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
     return min(acc * n_ball / n_in, 1.0), nvis
 
 
+@njit(cache=True)
+def _tile_hopeless(tiles_f, tb, ta, inner, lv, ortho, tol, pid, pid_in_map, use_id):
+    """Under a constant layer ``lv``: no texel of tile (tb, ta) can be the
+    search's candidate, by the tile's depth range and id (``_nearer`` is
+    monotonic in the depth, so its nearest / farthest texel decides): an
+    outer search needs a nearer texel of another object, an inner one a
+    texel at or behind the layer of the receiver's own."""
+    oid = tiles_f[tb, ta, 2]
+    if inner:
+        if pid_in_map and oid != -2.0 and oid != pid:
+            return True
+        return _nearer(tiles_f[tb, ta, 1], lv, ortho, tol)      # its farthest texel is in front: all are
+    if use_id and oid == pid:
+        return True
+    return not _nearer(tiles_f[tb, ta, 0], lv, ortho, tol)      # its nearest texel is not in front: none is
+
+
 # argument groups of ``_search``
 SearchPoint = namedtuple("SearchPoint", "u v zr inner pid pid_in_map")
 """The receiver in the map: texel coordinates, depth, inner (own-object lit
@@ -530,13 +547,16 @@ Gauge = namedtuple("Gauge", "G00 G01 G10 G11 norm emax")
 
 
 @njit(cache=True)
-def _search(depth_f, id_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_max):
+def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_max):
     """Ring-ordered axis-aligned box scan (sections 4.2, 4.3, figure 4).
 
     Returns (found, rho, z) of the selected texel: the nearest in the gauge
     (``blocker="nearest"``), or for outer searches with ``blocker="ratio"``
     the one with the least rho / r_max(z). pt: SearchPoint; layer: Layer;
-    gauge: Gauge."""
+    gauge: Gauge. With ``tile_skip`` and the constant layer, texels of a
+    tile that cannot hold a candidate (``_tile_hopeless``) are passed over
+    unread: the same texels are candidates, in the same order (issue 15:
+    failed searches read most of the texels)."""
     u, v, zr, inner, pid, pid_in_map = pt.u, pt.v, pt.zr, pt.inner, pt.pid, pt.pid_in_map
     A, B, C, ortho, tol = layer.A, layer.B, layer.C, layer.ortho, layer.tol
     G00, G01, G10, G11, norm, emax = gauge.G00, gauge.G01, gauge.G10, gauge.G11, gauge.norm, gauge.emax
@@ -549,6 +569,9 @@ def _search(depth_f, id_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_ma
     use_id = prm[P_IDTEST] == 1.0
     auto = prm[P_AUTO] == 1.0
     ratio = prm[P_RATIO] == 1.0 and not inner
+    tskip = prm[P_TILES] == 1.0 and A == 0.0 and B == 0.0    # the layer is C at every texel
+    cb0, ca0, ch0 = -1, -1, False
+    cb1, ca1, ch1 = -1, -1, False
     off = (1.0 if edge else 0.5) + 0.5 * jit
     best = np.inf
     best_key = np.inf
@@ -577,9 +600,30 @@ def _search(depth_f, id_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_ma
             if full:
                 s0 = max(s0, 0)
                 s1 = min(s1, w - 1)
-            for s in range(s0, s1 + 1, step):
+            tb = t // TILE
+            s_next = s0
+            while s_next <= s1:
+                s = s_next
+                s_next = s + step
                 if s < 0 or s >= w:
                     continue
+                if tskip:
+                    # two cached tiles: the ring's left and right side (or the row's current tile)
+                    ta = s // TILE
+                    if s < iu:
+                        if tb != cb0 or ta != ca0:
+                            cb0, ca0 = tb, ta
+                            ch0 = _tile_hopeless(tiles_f, tb, ta, inner, C, ortho, tol, pid, pid_in_map, use_id)
+                        hopeless = ch0
+                    else:
+                        if tb != cb1 or ta != ca1:
+                            cb1, ca1 = tb, ta
+                            ch1 = _tile_hopeless(tiles_f, tb, ta, inner, C, ortho, tol, pid, pid_in_map, use_id)
+                        hopeless = ch1
+                    if hopeless:
+                        if full:
+                            s_next = (ta + 1) * TILE    # the rest of the tile's texels on this row
+                        continue
                 nvis += 1
                 d = depth_f[t, s]
                 # the layer at this texel: z_l = lv (ortho) or 1 / lv (perspective,
@@ -702,7 +746,7 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
         zs_max = rho_max * prm[P_RSHRINK] * (zr - finfo[f, 6])
     rtex = rho_max * emax
     crad = int(math.ceil(min(rtex + off, maxrad)))
-    found, rho, zb, nvis = _search(depth[f], ids[f], f, SearchPoint(u, v, zr, inner, pid, pid_in_map),
+    found, rho, zb, nvis = _search(depth[f], ids[f], tiles[f], f, SearchPoint(u, v, zr, inner, pid, pid_in_map),
                                    Layer(A, B, C, ortho, tol), Gauge(G00, G01, G10, G11, norm, emax),
                                    rho_max, crad, prm, zs_max)
     rtex += off
