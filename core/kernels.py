@@ -85,15 +85,17 @@ def each_dealt_chunk(fn, n: int, threads=None, per_worker: int = 8, block: int =
     each_in_threads(fn, chunks, workers)
 
 
-def each_range(fn, n: int, threads=None, grain: int = 4096) -> None:
-    """``fn(i0, i1)`` for contiguous ranges that together cover 0..n-1, one
-    per thread (Numba's thread count, or ``threads``) of at least ``grain``
-    items, through ``each_in_threads``: for serial ``nogil`` kernels replacing
-    a ``prange`` loop of equal, independent iterations (issue 15: the
-    parfor's lowering costs more compile time than the loop takes)."""
+def each_range(fn, n: int, threads=None, grain: int = 4096, per_worker: int = 1) -> None:
+    """``fn(i0, i1)`` for contiguous ranges that together cover 0..n-1,
+    ``per_worker`` per thread (Numba's thread count, or ``threads``) of at
+    least ``grain`` items, through ``each_in_threads``: for serial ``nogil``
+    kernels replacing a ``prange`` loop of equal, independent iterations
+    (issue 15: the parfor's lowering costs more compile time than the loop
+    takes); ``per_worker`` > 1 lets a thread that finishes early take the
+    next range (iterations cheap in one part of the image, e.g. sky)."""
     workers = max(1, int(threads or numba.get_num_threads()))
     n = int(n)
-    k = max(1, min(workers, -(-n // max(1, int(grain)))))
+    k = max(1, min(workers * max(1, int(per_worker)), -(-n // max(1, int(grain)))))
     cuts = [n * j // k for j in range(k + 1)]
     each_in_threads(lambda j: fn(cuts[j], cuts[j + 1]), range(k), workers)
 

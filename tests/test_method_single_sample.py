@@ -638,3 +638,69 @@ def test_adaptive_from_text_is_a_boolean():
     assert P({"adaptive": "false"}).adaptive is False and P({"adaptive": "on"}).adaptive is True
     with pytest.raises(ValueError):
         P({"adaptive": "maybe"})
+
+
+def _leaf_scene(make):
+    from synthetic import leaf_cloud_scene
+    scene = leaf_cloud_scene(n_leaves=120, res=48)
+    return scene if make is None else with_light(scene, make())
+
+
+LEAF_LIGHTS = [None, lambda: sphere_light(0.3, z=3.0), lambda: sun_light(0.2)]   # rectangle, cube faces, sun
+
+
+@pytest.mark.parametrize("make", LEAF_LIGHTS)
+def test_the_hard_test_over_pixel_ranges_is_the_warp_of_each_pixel(make):
+    """Issue 15: ``hard_all`` (``_hard_range``, ``_warp`` inlined, ranges of
+    pixels on any thread count) gives every pixel the face, hard result and
+    id of the out-of-line ``_warp`` called on that pixel alone."""
+    from penumbra.core.methods import single_sample as ss
+    scene = _leaf_scene(make)
+    light = scene.lights[0]
+    fb = FrameBuffers(scene, *scene.resolution)
+    g = fb.gbuffer
+    lv = fb.light_view(light, None)
+    P = np.ascontiguousarray(g.position.reshape(-1, 3), np.float64)
+    Nrm = np.ascontiguousarray(g.normal.reshape(-1, 3))
+    hit = np.ascontiguousarray(g.hit.reshape(-1))
+    faces = lv.packed_faces()
+    depth = np.ascontiguousarray(lv.depth, np.float32)
+    ids = np.ascontiguousarray(lv.object_id, np.int32)
+    pid = np.ascontiguousarray(g.object_id.reshape(-1), np.int32)
+    prm = ss.pack_params(SingleSampleSoftShadows().make_params({}), light, False, ss._coord_mag(scene, light))
+    n = P.shape[0]
+    got = []
+    for threads in (1, 2):
+        arrs = np.empty(n, np.int32), np.empty(n, np.int8), np.empty(n, np.int32)
+        ss.hard_all(P, Nrm, hit, faces, depth, ids, prm, *arrs, pid, threads=threads)
+        got.append(arrs)
+    for a, b in zip(*got):
+        np.testing.assert_array_equal(a, b)
+    hface, hinner, hid = got[0]
+    assert (hinner[hit] == 1).any() and (hinner[hit] == 0).any()
+    assert (hface[~hit] == -2).all() and (hid[~hit] == -1).all()
+    for i in np.flatnonzero(hit):
+        f, u, v, zr, inner = ss._warp(P, Nrm, i, faces, depth, prm)[:5]
+        assert hface[i] == f and hinner[i] == (1 if inner else 0), i
+        if f >= 0 and inner:
+            assert hid[i] == ids[f, min(int(math.floor(v)), lv.depth.shape[1] - 1),
+                                 min(int(math.floor(u)), lv.depth.shape[2] - 1)]
+        else:
+            assert hid[i] == pid[i]
+
+
+@pytest.mark.parametrize("make", LEAF_LIGHTS)
+def test_passing_over_hopeless_tiles_changes_no_pixel(make):
+    """Issue 15: the ring search skips the texels of tiles whose depth range
+    and id rule out a candidate (``_tile_hopeless``); V is the same as with
+    every texel read (tile_skip off), for the nearest-blocker and ratio
+    searches, adaptive or not, and fewer texels are read."""
+    scene = _leaf_scene(make)
+    fb = FrameBuffers(scene, *scene.resolution)
+    for over in (dict(blocker="nearest", surfaces="object"), dict(blocker="ratio", adaptive=False),
+                 dict(blocker="nearest", jitter=0.5, adaptive=False)):
+        on, r_on, _ = run_ss(scene, fb, tile_skip=True, **over)
+        off, r_off, _ = run_ss(scene, fb, tile_skip=False, **over)
+        np.testing.assert_array_equal(on, off)
+        assert r_on.stats["searched"] == r_off.stats["searched"] > 0
+        assert r_on.stats["texels_read"] < r_off.stats["texels_read"], over

@@ -120,7 +120,7 @@ test keeps a receiver from shadowing itself, so a surface turned partly
 away from the light (a leaf at a steep angle, a curved object's
 terminator) got the light below its tangent plane as lit. V is multiplied
 by the share of the light above that plane (``horizon.horizon_share``,
-closed forms in NumPy: no kernel to compile), as if the blockers hid the light
+closed forms; computed only where V > 0), as if the blockers hid the light
 above and below it alike. On issue 17's foliage (256 x 256, against 1024-sample
 embree) 2 % of the pixels the light reaches do not see the whole light and
 held 79 % of the squared error: RMSE over every pixel the light reaches
@@ -144,10 +144,10 @@ from typing import Optional
 import numpy as np
 from numba import njit
 
-from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
+from ..kernels import borrowed, each_dealt_chunk, each_range, face_project
 from ..sampling import rand01
 from .registry import register
-from .horizon import horizon_share
+from .horizon import scale_by_horizon
 from .surfaces import mesh_pieces
 from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
@@ -229,20 +229,33 @@ def _light_axes(prm, finfo, fp, pvx, pvy, pvz):
     return t, 0.0, 0.0, 0.0, t, 0.0
 
 
-@njit(cache=True)
-def _warp(P, Nrm, i, faces, depth, prm):
+@njit(cache=True, inline="always")
+def _face_of(faces, px, py, pz):
+    """``kernels.pick_face`` and the point's projection into that face:
+    (face, u, v, depth), face -1 (and zeros) outside every face."""
+    for f in range(faces.shape[0]):
+        u, v, d = face_project(faces[f], px, py, pz)
+        if u >= 0.0 and v >= 0.0 and u < faces[f, 21] and v < faces[f, 22] and (d > 0.0 or faces[f, 16] == 1.0):
+            return f, u, v, d
+    return -1, 0.0, 0.0, 0.0
+
+
+def _warp_py(P, Nrm, i, faces, depth, prm):
     """Warp pixel i into the light view (section 3.2) and run the hard test.
 
     Returns (face, u, v, zr, inner, z_map, planar, A, B, C, tol, pvx, pvy, pvz):
     the receiver's tangent plane over the map is 1/z (perspective) or z
     (orthographic) = A sc + B tc + C in texel coordinates (sc, tc); ``tol``
-    is the hard test's tolerance; face < 0 means "not in the light view"."""
+    is the hard test's tolerance; face < 0 means "not in the light view".
+    Compiled twice from this one source: ``_warp`` (a function of its own,
+    called per searched pixel) and ``_warp_inline`` (inlined into the hard
+    test over every pixel, ``_hard_range``: a call per pixel cost a third
+    of that loop)."""
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-    f = pick_face(faces, px, py, pz)
+    f, u, v, zr = _face_of(faces, px, py, pz)
     if f < 0:
         return -1, 0.0, 0.0, 0.0, False, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     fp = faces[f]
-    u, v, zr = face_project(fp, px, py, pz)
     if not (zr > 0.0) or not np.isfinite(u) or not np.isfinite(v) or not np.isfinite(zr):
         return -1, 0.0, 0.0, 0.0, False, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     w = int(fp[21])
@@ -299,6 +312,10 @@ def _warp(P, Nrm, i, faces, depth, prm):
     zmap = np.float64(depth[f, iv, iu])
     inner = zmap < zt - tol
     return f, u, v, zr, inner, zmap, planar, A, B, C, tol, pvx, pvy, pvz
+
+
+_warp = njit(cache=True)(_warp_py)
+_warp_inline = njit(inline="always")(_warp_py)
 
 
 @njit(cache=True)
@@ -499,6 +516,23 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
     return min(acc * n_ball / n_in, 1.0), nvis
 
 
+@njit(cache=True)
+def _tile_hopeless(tiles_f, tb, ta, inner, lv, ortho, tol, pid, pid_in_map, use_id):
+    """Under a constant layer ``lv``: no texel of tile (tb, ta) can be the
+    search's candidate, by the tile's depth range and id (``_nearer`` is
+    monotonic in the depth, so its nearest / farthest texel decides): an
+    outer search needs a nearer texel of another object, an inner one a
+    texel at or behind the layer of the receiver's own."""
+    oid = tiles_f[tb, ta, 2]
+    if inner:
+        if pid_in_map and oid != -2.0 and oid != pid:
+            return True
+        return _nearer(tiles_f[tb, ta, 1], lv, ortho, tol)      # its farthest texel is in front: all are
+    if use_id and oid == pid:
+        return True
+    return not _nearer(tiles_f[tb, ta, 0], lv, ortho, tol)      # its nearest texel is not in front: none is
+
+
 # argument groups of ``_search``
 SearchPoint = namedtuple("SearchPoint", "u v zr inner pid pid_in_map")
 """The receiver in the map: texel coordinates, depth, inner (own-object lit
@@ -513,13 +547,16 @@ Gauge = namedtuple("Gauge", "G00 G01 G10 G11 norm emax")
 
 
 @njit(cache=True)
-def _search(depth_f, id_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_max):
+def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_max):
     """Ring-ordered axis-aligned box scan (sections 4.2, 4.3, figure 4).
 
     Returns (found, rho, z) of the selected texel: the nearest in the gauge
     (``blocker="nearest"``), or for outer searches with ``blocker="ratio"``
     the one with the least rho / r_max(z). pt: SearchPoint; layer: Layer;
-    gauge: Gauge."""
+    gauge: Gauge. With ``tile_skip`` and the constant layer, texels of a
+    tile that cannot hold a candidate (``_tile_hopeless``) are passed over
+    unread: the same texels are candidates, in the same order (issue 15:
+    failed searches read most of the texels)."""
     u, v, zr, inner, pid, pid_in_map = pt.u, pt.v, pt.zr, pt.inner, pt.pid, pt.pid_in_map
     A, B, C, ortho, tol = layer.A, layer.B, layer.C, layer.ortho, layer.tol
     G00, G01, G10, G11, norm, emax = gauge.G00, gauge.G01, gauge.G10, gauge.G11, gauge.norm, gauge.emax
@@ -532,6 +569,9 @@ def _search(depth_f, id_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_ma
     use_id = prm[P_IDTEST] == 1.0
     auto = prm[P_AUTO] == 1.0
     ratio = prm[P_RATIO] == 1.0 and not inner
+    tskip = prm[P_TILES] == 1.0 and A == 0.0 and B == 0.0    # the layer is C at every texel
+    cb0, ca0, ch0 = -1, -1, False
+    cb1, ca1, ch1 = -1, -1, False
     off = (1.0 if edge else 0.5) + 0.5 * jit
     best = np.inf
     best_key = np.inf
@@ -560,9 +600,30 @@ def _search(depth_f, id_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_ma
             if full:
                 s0 = max(s0, 0)
                 s1 = min(s1, w - 1)
-            for s in range(s0, s1 + 1, step):
+            tb = t // TILE
+            s_next = s0
+            while s_next <= s1:
+                s = s_next
+                s_next = s + step
                 if s < 0 or s >= w:
                     continue
+                if tskip:
+                    # two cached tiles: the ring's left and right side (or the row's current tile)
+                    ta = s // TILE
+                    if s < iu:
+                        if tb != cb0 or ta != ca0:
+                            cb0, ca0 = tb, ta
+                            ch0 = _tile_hopeless(tiles_f, tb, ta, inner, C, ortho, tol, pid, pid_in_map, use_id)
+                        hopeless = ch0
+                    else:
+                        if tb != cb1 or ta != ca1:
+                            cb1, ca1 = tb, ta
+                            ch1 = _tile_hopeless(tiles_f, tb, ta, inner, C, ortho, tol, pid, pid_in_map, use_id)
+                        hopeless = ch1
+                    if hopeless:
+                        if full:
+                            s_next = (ta + 1) * TILE    # the rest of the tile's texels on this row
+                        continue
                 nvis += 1
                 d = depth_f[t, s]
                 # the layer at this texel: z_l = lv (ortho) or 1 / lv (perspective,
@@ -685,7 +746,7 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
         zs_max = rho_max * prm[P_RSHRINK] * (zr - finfo[f, 6])
     rtex = rho_max * emax
     crad = int(math.ceil(min(rtex + off, maxrad)))
-    found, rho, zb, nvis = _search(depth[f], ids[f], f, SearchPoint(u, v, zr, inner, pid, pid_in_map),
+    found, rho, zb, nvis = _search(depth[f], ids[f], tiles[f], f, SearchPoint(u, v, zr, inner, pid, pid_in_map),
                                    Layer(A, B, C, ortho, tol), Gauge(G00, G01, G10, G11, norm, emax),
                                    rho_max, crad, prm, zs_max)
     rtex += off
@@ -736,24 +797,25 @@ def _shade_all(ks, P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map
 def hard_all(P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr, threads=None):
     """Section 4.3's first step on every pixel: the hard test and the id it
     carries (the blocker's where inner, the receiver's where lit).
-    ``_hard_all`` on Numba's thread count (``kernels.each_dealt_chunk``)."""
-    each_dealt_chunk(lambda idx: _hard_all(idx, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr),
-                     P.shape[0], threads, block=_BLOCK)
+    ``_hard_range`` over ranges of pixels (``kernels.each_range``, a few per
+    thread): no index arrays to build, ``_warp`` inlined."""
+    each_range(lambda i0, i1: _hard_range(i0, i1, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr),
+               P.shape[0], threads, grain=16384, per_worker=4)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _hard_all(idx, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
-    """``hard_all`` for pixels ``idx`` (as ``_shade_all``)."""
+def _hard_range(i0, i1, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
+    """``hard_all`` for pixels i0..i1-1."""
     P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr = borrowed(
         (P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr))
-    for i in idx:
+    for i in range(i0, i1):
         if not hit[i]:
             hface[i] = -2
             hinner[i] = 0
             hid[i] = -1
             continue
         (f, u, v, zr, inner, zb0, planar, A, B, C, tol, pvx, pvy,
-         pvz) = _warp(P, Nrm, i, faces, depth, prm)
+         pvz) = _warp_inline(P, Nrm, i, faces, depth, prm)
         hface[i] = f
         hinner[i] = 1 if inner else 0
         if f >= 0 and inner:
@@ -816,7 +878,9 @@ def _walk(hface, hinner, hid, need, out, idx0, stride, marks, ends, interpolate)
                 need[idx0 + m * stride] = True
             if sp + 2 > stack.shape[0]:
                 grown = np.empty((2 * stack.shape[0], 2), np.int64)
-                grown[:sp] = stack[:sp]
+                for q in range(sp):    # element copy: a slice assignment's shape-error path costs 2.6 s to compile
+                    grown[q, 0] = stack[q, 0]
+                    grown[q, 1] = stack[q, 1]
                 stack = grown
             stack[sp, 0] = a
             stack[sp, 1] = m
@@ -833,15 +897,27 @@ def _marks(n: int, step: int) -> np.ndarray:
     return np.asarray(m, np.int64)
 
 
-@njit(cache=True)
-def adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, interpolate):
+def adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, interpolate, threads=None):
     """Section 4.3: every ``block``-th column first (groups along y, their
     ends searched), then every row between those columns (groups along x).
-    Serial: a few ns per pixel, cheaper than two more parallel barriers."""
-    for k in range(colmarks.shape[0]):
-        _walk(hface, hinner, hid, need, out, colmarks[k], W, rowmarks, True, interpolate)
-    for y in range(H):
-        _walk(hface, hinner, hid, need, out, y * W, 1, colmarks, False, interpolate)
+    Each phase over ranges of lines on Numba's thread count
+    (``kernels.each_range``, ``_walk_lines``): lines write disjoint pixels."""
+    each_range(lambda k0, k1: _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, True,
+                                          interpolate), colmarks.shape[0], threads, grain=16, per_worker=2)
+    each_range(lambda k0, k1: _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, False,
+                                          interpolate), H, threads, grain=64, per_worker=2)
+
+
+@njit(cache=True, nogil=True)
+def _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, columns, interpolate):
+    """``adaptive_walk``'s columns colmarks[k0:k1] (``columns``) or rows k0..k1-1."""
+    hface, hinner, hid, need, out, colmarks, rowmarks = borrowed((hface, hinner, hid, need, out, colmarks, rowmarks))
+    marks = rowmarks if columns else colmarks
+    stride = W if columns else 1
+    for k in range(k0, k1):
+        idx0 = colmarks[k] if columns else k * W
+        # ``columns`` rather than a literal True / False: one compile of _walk, not one per value
+        _walk(hface, hinner, hid, need, out, idx0, stride, marks, columns, interpolate)
 
 
 @njit(cache=True)
@@ -1021,16 +1097,16 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
         stats["searched"] = int(len(sel))
     if params.horizon and prm[P_HARD] == 0.0:
         with timer("horizon"):
-            sel = np.flatnonzero(hit)
-            out[sel] *= horizon_share(light, P[sel], Nrm[sel])
-    out = np.where(np.isfinite(out), out, 1.0)
-    out = np.clip(out, 0.0, 1.0)
-    searched_rad = np.minimum(rad[hit & (rad > 0)], prm[P_MAXRAD])
+            scale_by_horizon(light, P, Nrm, hit, out)
+    out[~np.isfinite(out)] = 1.0
+    np.clip(out, 0.0, 1.0, out=out)
+    rad_sel = rad[sel]                # rad and vis are 0 but where searched (sel: hit pixels, in order)
+    searched_rad = np.minimum(rad_sel[rad_sel > 0], prm[P_MAXRAD])
     stats.update({
         "searched_fraction": float(stats["searched"] / n_hit) if n_hit else 0.0,
         "mean_search_radius_texels": float(searched_rad.mean()) if searched_rad.size else 0.0,
-        "clipped": int((rad > prm[P_MAXRAD]).sum()),
-        "texels_read": int(vis.sum()),
+        "clipped": int((rad_sel > prm[P_MAXRAD]).sum()),
+        "texels_read": int(vis[sel].sum()),
         "faces": len(lv.faces),
         "map": [int(s) for s in lv.depth.shape],
         "hard_only": bool(prm[P_HARD] == 1.0),
