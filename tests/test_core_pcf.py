@@ -91,7 +91,8 @@ def test_bias_scales_with_scene_size():
     assert b0 == pytest.approx(0.003 * 20) and b1 == pytest.approx(0.004 * 20)
 
 
-def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane():
+@pytest.mark.parametrize("sampler", ["fast", "figure4"])
+def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane(sampler):
     """A lone plane tilted 60 degrees to a light above: with the paper's
     constant z and zero bias the large regions shadow the plane itself
     (section 4.2's Moire); comparing with the tangent-plane depth per texel
@@ -104,21 +105,21 @@ def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane():
                      [[-5 * c, -5, -5 * s], [5 * c, 5, 5 * s], [-5 * c, 5, -5 * s]]], np.float32)
     cam = top_ortho_camera(1.5, height=8.0)
     sc = Scene(tris, np.zeros(2, np.int32), [ObjectInfo("p", 0)], cam, [area_light(1.0, z=10.0)], (48, 48))
-    on, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0)
-    off, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, receiver_plane=False)
+    on, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, sampler=sampler)
+    off, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, receiver_plane=False, sampler=sampler)
     assert on.passes["pcf"].min() == 1.0
     assert off.passes["pcf"].mean() < 0.95
 
 
-@pytest.mark.parametrize("region", ["light", "figure4"])
-def test_tile_early_out_changes_nothing(region):
+@pytest.mark.parametrize("region,sampler", [("light", "fast"), ("figure4", "fast"), ("light", "figure4")])
+def test_tile_early_out_changes_nothing(region, sampler):
     """Reeves et al. 3.3's tiles only skip regions whose result they decide:
     the pass is bit-identical with them off (region="light": the tiles test
     the blocker search's region, which holds the filter's)."""
     for make in (lambda: area_light(1.0), lambda: sphere_light(0.3), lambda: sun_light(0.1)):
         scene = half_plane_scene(make(), res=48)
-        a, _ = run_pcf(scene, tiles=True, region=region)
-        b, _ = run_pcf(scene, tiles=False, region=region)
+        a, _ = run_pcf(scene, tiles=True, region=region, sampler=sampler)
+        b, _ = run_pcf(scene, tiles=False, region=region, sampler=sampler)
         np.testing.assert_array_equal(a.passes["pcf"], b.passes["pcf"])
 
 
@@ -126,7 +127,8 @@ def _rmse(a, b):
     return float(np.sqrt(np.mean((np.asarray(a, np.float64) - b) ** 2)))
 
 
-def test_light_region_is_the_square_light_closed_form():
+@pytest.mark.parametrize("sampler", ["fast", "figure4"])
+def test_light_region_is_the_square_light_closed_form(sampler):
     """region="light" on the half-plane scene (a square light of side 1 at
     height 4, the occluder's edge at height 2): the blocker search finds the
     occluder's depth, the filter region is the light's extent there, and a
@@ -135,7 +137,7 @@ def test_light_region_is_the_square_light_closed_form():
     region follows the pixel footprint (a few texels): nearly a hard edge."""
     scene = half_plane_scene(area_light(1.0), res=64)
     exact = np.clip(0.5 + pixel_world_y(scene, np.arange(64)), 0.0, 1.0)[:, None] * np.ones(64)
-    v = run_pcf(scene, PenumbraSamples=256)[0].passes["pcf"]
+    v = run_pcf(scene, PenumbraSamples=256, sampler=sampler)[0].passes["pcf"]
     paper = run_pcf(scene, region="figure4")[0].passes["pcf"]
     assert _rmse(v, exact) < 0.03, _rmse(v, exact)
     assert _rmse(paper, exact) > 0.1
@@ -173,6 +175,43 @@ def test_light_reach_closed_forms():
 def test_unknown_region_is_an_error():
     with pytest.raises(ValueError, match="region"):
         run_pcf(half_plane_scene(area_light(1.0), res=8), region="pcss")
+    with pytest.raises(ValueError, match="sampler"):
+        run_pcf(half_plane_scene(area_light(1.0), res=8), sampler="sobol")
+
+
+@pytest.mark.parametrize("ortho", [False, True])
+def test_receiver_form_compares_as_plane_depth(ortho):
+    """The fast sampler's division-free test (``_receiver_form``) says
+    "behind" exactly where ``plane_depth`` does, texel by texel, for
+    tangent planes of random slopes (perspective and orthographic faces),
+    over boxes where the form holds (mode 1 / 2), and falls back (mode 3)
+    where ``plane_depth``'s own fallback is reached."""
+    from penumbra.core.methods.pcf import _receiver_form, plane_depth
+    rng = np.random.default_rng(3)
+    checked = fallback = 0
+    for _ in range(300):
+        a, b = rng.normal(0.0, 1e-3, 2)
+        if ortho:
+            plane = (1.0, 1.0, a, b, rng.uniform(-1.0, 20.0), 0.0)
+        else:
+            plane = (1.0, 0.0, a, b, rng.uniform(-0.3, 1.0), rng.choice([-5.0, 5.0]))
+        u0, v0 = rng.uniform(0.0, 400.0, 2) + 0.5
+        u1, v1 = u0 + rng.integers(0, 64), v0 + rng.integers(0, 64)
+        mode, fa, fb, fc, fk = _receiver_form(plane, 7.0, u0, u1, v0, v1)
+        us, vs = np.arange(u0, u1 + 1.0), np.arange(v0, v1 + 1.0)
+        if mode == 3:
+            fallback += 1
+            assert any(plane_depth(plane, u, v, -1.0) == -1.0 for u in (u0, u1) for v in (v0, v1))
+            continue
+        for u in us[::7]:
+            for v in vs[::7]:
+                zs = plane_depth(plane, u, v, -1.0)
+                assert zs > 0.0
+                for thr in (0.5 * zs, zs * (1 - 1e-9), zs * (1 + 1e-9), 2.0 * zs):
+                    fast = fk > thr * (fa * u + fb * v + fc) if mode == 2 else fa * u + fb * v + fc > thr
+                    assert fast == (zs > thr)
+                    checked += 1
+    assert checked > 1000 and fallback > 10
 
 
 @pytest.mark.parametrize("camera", [None, persp_camera((0.3, -3.0, 2.5), (0.0, 0.0, 0.0))])
