@@ -238,18 +238,20 @@ class FrameBuffers:
         return out
 
     # -- geometry ---------------------------------------------------------
+    def _bvh(self, key, phase, mask, other, other_key, other_mask) -> raycast.TriangleScene:
+        """The Embree BVH of the triangles ``mask`` selects, timed as ``key``:
+        the other BVH (``other``, built as ``other_key`` from ``other_mask``)
+        when it holds the same triangles (one build per frame, issue 15)."""
+        if other is not None and np.array_equal(mask, other_mask):
+            return self._timed(key, phase, lambda: other, built_from=(other_key,))
+        return self._timed(key, phase, lambda: raycast.TriangleScene.from_scene(self.scene, mask))
+
     @property
     def shadow_scene(self) -> raycast.TriangleScene:
         """Embree BVH of the triangles that cast shadows (SHADOW_GEOMETRY)."""
         if self._shadow is None:
-            casts = self.scene.tri_casts_shadow
-            if self._camera_scene is not None and np.array_equal(casts, self.scene.tri_visible_camera):
-                # the same triangles: the camera's BVH (one build per frame, issue 15)
-                self._shadow = self._timed("bvh_shadow", "bvh", lambda: self._camera_scene,
-                                           built_from=("bvh_camera",))
-            else:
-                self._shadow = self._timed(
-                    "bvh_shadow", "bvh", lambda: raycast.TriangleScene.from_scene(self.scene, casts))
+            self._shadow = self._bvh("bvh_shadow", "bvh", self.scene.tri_casts_shadow,
+                                     self._camera_scene, "bvh_camera", self.scene.tri_visible_camera)
         self._use("bvh_shadow")
         return self._shadow
 
@@ -269,14 +271,8 @@ class FrameBuffers:
     def camera_scene(self) -> raycast.TriangleScene:
         """Embree BVH of the triangles the camera sees (the G-buffer's)."""
         if self._camera_scene is None:
-            mask = self.scene.tri_visible_camera
-            if self._shadow is not None and np.array_equal(mask, self.scene.tri_casts_shadow):
-                # the same triangles: the shadow BVH (one build per frame, issue 15)
-                self._camera_scene = self._timed("bvh_camera", "gbuffer", lambda: self._shadow,
-                                                 built_from=("bvh_shadow",))
-            else:
-                self._camera_scene = self._timed(
-                    "bvh_camera", "gbuffer", lambda: raycast.TriangleScene.from_scene(self.scene, mask))
+            self._camera_scene = self._bvh("bvh_camera", "gbuffer", self.scene.tri_visible_camera,
+                                           self._shadow, "bvh_shadow", self.scene.tri_casts_shadow)
         self._use("bvh_camera")
         return self._camera_scene
 
