@@ -48,6 +48,7 @@ SWEEPS: Dict[str, List] = {
     "pcf": [("light region, PenumbraSamples=64", {}),
             ("light region, PenumbraSamples=16", {"PenumbraSamples": 16}),
             ("light region, map 2x", {"map_scale": 2.0}),
+            ("light region, every pixel filtered (pixel_step=1)", {"pixel_step": 1}),
             ("paper: figure-4 region, NumSamples=16 ResFactor=3", {"region": "figure4"}),
             ("paper: figure-4 region, ResFactor=8", {"region": "figure4", "ResFactor": 8.0}),
             ("paper: figure-4 region, receiver_plane off", {"region": "figure4", "receiver_plane": False})],

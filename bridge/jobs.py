@@ -29,15 +29,16 @@ PREVIEW_MAP_SCALE = 0.5
 #: 1080p; section 4.3's adaptive groups every 8th pixel instead of 4th: a
 #: moved light's Preview at 1080p 0.52 -> 0.40 s, RMSE against embree within 0.002 of the
 #: 4-pixel groups at 960x540 on four scenes), ``pcf`` with a quarter of the samples of its light-sized region,
-#: V at one pixel in each 2 x 2 block (``pixel_step``: the block's other
-#: pixels on the same surface share it) and no pixel footprint (``ResFactor``
+#: V at one pixel in each 2 x 2 block (``pixel_step``, ``step_fill="copy"``: the block's other
+#: pixels on the same surface share it, without the render's interpolation) and no pixel footprint (``ResFactor``
 #: 0: the region's floor is MinSize texels; the light's extent sets it
 #: anyway): issue 15, the filter's per-pixel cost was most of a moved light's
 #: Preview at 1080p. The Compute keeps the accurate defaults. Said in the
 #: Preview's report.
 PREVIEW_PARAMS: Dict[str, Dict[str, object]] = {
     "single_sample": {"blocker": "nearest", "surfaces": "object", "block": 8},
-    "pcf": {"BlockerSamples": 8, "PenumbraSamples": 16, "pixel_step": 2, "ResFactor": 0.0},
+    "pcf": {"BlockerSamples": 8, "PenumbraSamples": 16, "pixel_step": 2, "step_fill": "copy",
+            "ResFactor": 0.0},
 }
 
 

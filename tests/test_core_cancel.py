@@ -78,7 +78,8 @@ def test_pcf_filter_stops_between_chunks(monkeypatch):
     render_frame(scene, ["pcf"])                      # every chunk runs
     chunks = len(calls)
     threads = numba.get_num_threads()
-    assert chunks == min(36, 8 * threads) and sum(calls) == 36   # kernels.each_dealt_chunk: 8 per thread
+    # kernels.each_dealt_chunk: 8 per thread, twice (pixel_step's anchors, then the pixels between them)
+    assert chunks == 2 * min(36, 8 * threads) and sum(calls) == 2 * 36
     calls.clear()
     armed = True
     with cancel.watching(token), pytest.raises(Cancelled):

@@ -6,7 +6,7 @@ from penumbra.core import views
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.kernels import finite_bbox
 from penumbra.core.methods import producer_of
-from penumbra.core.methods.pcf import (hard_shadow_kernel, pixel_footprint, pixel_ray_terms, resolved_bias,
+from penumbra.core.methods.pcf import (PCFParams, hard_shadow_kernel, pixel_footprint, pixel_ray_terms, resolved_bias,
                                       sample_shadow, scene_extent)
 
 from synthetic import (area_light, half_plane_scene, make_scene, persp_camera, pixel_world_y, quad, sphere_light,
@@ -406,8 +406,8 @@ def test_tiles_search_region_holds_every_blocker_and_is_exact_with_the_face_one(
         run_pcf(scene, search="all")
 
 
-def test_pixel_step_shares_a_blocks_first_pixel_on_one_surface_only():
-    """pixel_step=2 (the Preview's): the first pixel of each 2 x 2 block has
+def test_pixel_step_copy_shares_a_blocks_first_pixel_on_one_surface_only():
+    """pixel_step=2, step_fill="copy" (the Preview's): the first pixel of each 2 x 2 block has
     the full pass's V (the same bits: its own stream); another pixel of the
     block on the same object with a near normal has that V, one on another
     object (or whose block starts on empty sky) its own full-pass V. A step
@@ -416,8 +416,8 @@ def test_pixel_step_shares_a_blocks_first_pixel_on_one_surface_only():
     tris = quad(-10, 10, -10, 10, 0.0) + box(-0.7, 0.45, -0.3, 0.8, 0.0, 1.2)
     scene = make_scene(tris, [0, 0] + [1] * 12, [area_light(1.5, z=4.0)], res=62,
                        camera=persp_camera((0.5, -4.0, 3.5), (0.0, 0.0, 0.3)), names=("ground", "box"))
-    full, fb = run_pcf(scene)
-    step, _ = run_pcf(scene, pixel_step=2)
+    full, fb = run_pcf(scene, pixel_step=1)
+    step, _ = run_pcf(scene, pixel_step=2, step_fill="copy")
     a, b = full.passes["pcf"], step.passes["pcf"]
     g = fb.gbuffer
     np.testing.assert_array_equal(b[::2, ::2], a[::2, ::2])
@@ -431,3 +431,67 @@ def test_pixel_step_shares_a_blocks_first_pixel_on_one_surface_only():
     assert ((a > 0.0) & (a < 1.0)).sum() > 200            # a shadow with a penumbra
     with pytest.raises(ValueError, match="pixel_step"):
         run_pcf(scene, pixel_step=3)
+
+
+def _anchor_blend(a, g, step, tol, slope):
+    """NumPy's account of step_fill="interpolate" over the pixel-centre pass
+    ``a`` (every pixel filtered): per pixel, whether its anchors (the
+    non-zero bilinear weights) all lie on its surface and span at most
+    ``tol``, and their blend."""
+    H, W = a.shape
+    r, c = np.mgrid[0:H, 0:W]
+    r0, c0 = r - r % step, c - c % step
+    fr, fc = (r - r0) / step, (c - c0) / step
+    r1, c1 = np.where(r > r0, r0 + step, r0), np.where(c > c0, c0 + step, c0)
+    ok = g.hit & ((r % step + c % step) > 0) & (r1 < H) & (c1 < W)
+    r1, c1 = np.minimum(r1, H - 1), np.minimum(c1, W - 1)
+    lo, hi, blend = np.full(a.shape, np.inf), np.full(a.shape, -np.inf), np.zeros(a.shape)
+    for rr, cc, wgt in ((r0, c0, (1 - fr) * (1 - fc)), (r0, c1, (1 - fr) * fc),
+                        (r1, c0, fr * (1 - fc)), (r1, c1, fr * fc)):
+        used = wgt > 0
+        d = g.position - g.position[rr, cc]
+        off = np.abs(np.sum(d * g.normal[rr, cc], axis=-1))
+        same = (g.hit[rr, cc] & (g.object_id == g.object_id[rr, cc])
+                & (np.sum(g.normal * g.normal[rr, cc], axis=-1) >= 0.95)
+                & (off <= slope * np.linalg.norm(d, axis=-1)))
+        ok &= ~used | same
+        v = a[rr, cc].astype(np.float64)
+        lo = np.where(used, np.minimum(lo, v), lo)
+        hi = np.where(used, np.maximum(hi, v), hi)
+        blend += wgt * v
+    return ok & (hi - lo <= tol) & ((hi == lo) | ((lo > 0.0) & (hi < 1.0))), blend
+
+
+def test_pixel_step_interpolates_between_anchors_on_their_surface_only():
+    """The render's default (issue 15): pixel_step=2, step_fill="interpolate".
+    Anchors (even row and column) keep the every-pixel pass's V bit for bit;
+    a pixel whose anchors lie on its surface (object, normal, tangent plane)
+    and span at most step_tolerance is their bilinear blend; every other
+    pixel (an object's silhouette, a shadow edge sharper than the tolerance)
+    has its own every-pixel V. The interpolated pass is no further from
+    embree's than the every-pixel one."""
+    from synthetic import box
+    from penumbra.core.methods.pcf import PIXEL_STEP_SLOPE
+    tris = quad(-10, 10, -10, 10, 0.0) + box(-0.7, 0.45, -0.3, 0.8, 0.0, 1.2)
+    scene = make_scene(tris, [0, 0] + [1] * 12, [area_light(1.5, z=4.0)], res=62,
+                       camera=persp_camera((0.5, -4.0, 3.5), (0.0, 0.0, 0.3)), names=("ground", "box"))
+    full, fb = run_pcf(scene, pixel_step=1)
+    step, _ = run_pcf(scene)
+    assert PCFParams().pixel_step == 2 and PCFParams().step_fill == "interpolate"
+    a, b = full.passes["pcf"], step.passes["pcf"]
+    g = fb.gbuffer
+    np.testing.assert_array_equal(b[::2, ::2], a[::2, ::2])
+    tol = PCFParams().step_tolerance
+    interp, blend = _anchor_blend(a, g, 2, tol, PIXEL_STEP_SLOPE)
+    np.testing.assert_allclose(b[interp], blend[interp], atol=1e-6)
+    np.testing.assert_array_equal(b[~interp], a[~interp])
+    assert interp.sum() > 1500 and ((~interp) & g.hit & ((np.mgrid[0:62, 0:62].sum(0) % 2) > 0)).sum() > 20
+    # a shadow edge the tolerance keeps: pixels between anchors whose V differs by more than it
+    edge = g.hit & ~interp & (a > 0.0) & (a < 1.0)
+    assert edge.sum() > 10
+    emb = producer_of("embree")
+    ref = emb.run(fb, scene.lights[0], emb.make_params({"samples": 1024})).passes["embree"]
+    m = g.hit
+    assert _rmse(b[m], ref[m]) <= _rmse(a[m], ref[m]) + 0.002
+    with pytest.raises(ValueError, match="step_fill"):
+        run_pcf(scene, step_fill="nearest")

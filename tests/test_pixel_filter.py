@@ -303,11 +303,14 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
     every seed at each receiver's own sub-pixel; layered's LDI and
     depth_raytrace's reference maps those of the pixel-centre stage) is the
     method on the supersampled image, bit for bit (single_sample without its
-    adaptive image walk, which a packed list cannot take)."""
+    adaptive image walk, which a packed list cannot take; pcf filtering
+    every pixel, as the dense image would otherwise interpolate between its
+    sub-samples: ``pixel_step``)."""
     sc = _box_scene(24)
     flt = PixelFilter("blackman-harris", 1.5)
     assert set(PACKED) == set(filtered_frame.PACKED_PRODUCERS)
-    opts = dict(overrides={"samples": 16}, method_overrides={"single_sample": {"adaptive": False}})
+    opts = dict(overrides={"samples": 16}, method_overrides={"single_sample": {"adaptive": False},
+                                                             "pcf": {"pixel_step": 1}})
     packed = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
     monkeypatch.setattr(filtered_frame, "PACKED_PRODUCERS", frozenset())
     dense = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
