@@ -79,6 +79,22 @@ def _run_one(args):
         return args, json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def merged_signatures(items: list, lists: dict):
+    """One item per dispatcher and signature: the same Numba types can pickle
+    to other bytes in another process (pickle's memo follows object
+    identity), which would list one kernel twice for the helpers."""
+    import base64
+    import pickle
+    first, remap, out = {}, {}, []
+    for i, (name, sig) in enumerate(items):
+        key = (name, repr(pickle.loads(base64.b64decode(sig))))
+        if key not in first:
+            first[key] = len(out)
+            out.append([name, sig])
+        remap[i] = first[key]
+    return out, {k: [remap[i] for i in ids] for k, ids in lists.items()}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=2)
@@ -103,6 +119,7 @@ def main(argv=None) -> int:
                 ids.append(index[(name, sig)])
             lists[plan_key(p, k, f)] = ids
             print(f"{plan_key(p, k, f)}: {len(ids)} kernels", file=sys.stderr)
+    items, lists = merged_signatures(items, lists)
     import numba
     with open(PLAN_FILE, "w") as f:
         json.dump({"numba": numba.__version__, "items": items, "lists": dict(sorted(lists.items()))}, f,

@@ -303,14 +303,13 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
     every seed at each receiver's own sub-pixel; layered's LDI and
     depth_raytrace's reference maps those of the pixel-centre stage) is the
     method on the supersampled image, bit for bit (single_sample without its
-    adaptive image walk, which a packed list cannot take; pcf filtering
-    every pixel, as the dense image would otherwise interpolate between its
-    sub-samples: ``pixel_step``)."""
+    adaptive image walk, which a packed list cannot take; pcf's
+    ``pixel_step`` anchors and blends found among the listed receivers as
+    in the image)."""
     sc = _box_scene(24)
     flt = PixelFilter("blackman-harris", 1.5)
     assert set(PACKED) == set(filtered_frame.PACKED_PRODUCERS)
-    opts = dict(overrides={"samples": 16}, method_overrides={"single_sample": {"adaptive": False},
-                                                             "pcf": {"pixel_step": 1}})
+    opts = dict(overrides={"samples": 16}, method_overrides={"single_sample": {"adaptive": False}})
     packed = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
     monkeypatch.setattr(filtered_frame, "PACKED_PRODUCERS", frozenset())
     dense = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
@@ -320,20 +319,25 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
     assert np.array_equal(packed.coverage, dense.coverage)
 
 
-def test_pcf_pixel_step_leaves_sub_pixel_receivers_their_own_v():
-    """pcf's ``pixel_step`` (a Preview knob over a dense image's 2 x 2
-    blocks) does not touch the packed sub-pixel receivers: with every pixel
-    refined (threshold < 0) the filtered pass comes from them alone and is
-    the same bits with pixel_step 2 as with 1 (a packed list's neighbouring
-    entry is not its pixel's block: sharing V with it would blur the
-    sub-pixel detail the refinement is for)."""
+def test_pcf_pixel_step_on_sub_pixel_receivers():
+    """pcf's ``pixel_step`` on the packed sub-pixel receivers: the Preview's
+    ``step_fill="copy"`` does not touch them (with every pixel refined,
+    threshold < 0, the filtered pass comes from them alone and is the same
+    bits as with pixel_step 1: a packed list's neighbouring entry is not its
+    pixel's block); the render's "interpolate" blends between sub-pixel
+    anchors on one surface, and stays within issue 14's 0.005 RMSE of the
+    pass that filters every receiver."""
     sc = _box_scene(24)
     flt = dataclasses.replace(PixelFilter("blackman-harris", 1.5), threshold=-1.0)
-    one = render_filtered(sc, ["pcf"], pixel_filter=flt)
-    two = render_filtered(sc, ["pcf"], pixel_filter=flt, method_overrides={"pcf": {"pixel_step": 2}})
-    a, b = one.lights[0].passes["pcf"], two.lights[0].passes["pcf"]
+    one = render_filtered(sc, ["pcf"], pixel_filter=flt, method_overrides={"pcf": {"pixel_step": 1}})
+    copy = render_filtered(sc, ["pcf"], pixel_filter=flt, method_overrides={"pcf": {"step_fill": "copy"}})
+    blend = render_filtered(sc, ["pcf"], pixel_filter=flt)
+    a, b, c = (r.lights[0].passes["pcf"] for r in (one, copy, blend))
     assert ((a > 0.05) & (a < 0.95)).sum() > 20              # a penumbra to get wrong
     np.testing.assert_array_equal(a, b)
+    cov = blend.coverage > 0
+    assert not np.array_equal(a, c)
+    assert np.sqrt(np.mean((a.astype(np.float64) - c)[cov] ** 2)) <= 0.005
 
 
 def test_object_edges_and_hard_shadow_edges_get_the_full_grid():

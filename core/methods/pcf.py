@@ -117,7 +117,8 @@ class PCFParams:
     pixel_step: int = 2           # beyond the paper (issue 15): V filtered at the anchor pixels, whose row and
                                   # column are multiples of it; the others take it from them (``step_fill``)
                                   # where they lie on the anchors' surface; 1 = every pixel filtered (the
-                                  # paper's shading regions). A packed G-buffer (sub-pixel receivers): 1
+                                  # paper's shading regions). Sub-pixel receivers (a packed G-buffer): the
+                                  # same over the supersampled view's pixels they list ("copy": 1)
     step_fill: str = "interpolate"  # pixel_step > 1: "interpolate": a pixel takes its anchors' bilinear V when
                                   # they lie on its surface and their V spans at most ``step_tolerance``, else
                                   # is filtered itself | "copy" (the Preview's): the V of its block's first pixel
@@ -767,17 +768,14 @@ def filter_pixels(cam, smap, flt, out, height, threads=None) -> None:
     lie close together in the map (rows of a 1080p frame sweep the whole
     map: samples then miss the cache), dealt over the chunks (sky and ground
     differ widely in cost); a packed one in blocks of PIXEL_BLOCK entries."""
-    if cam.pixel.shape[0]:
-        each_dealt_chunk(lambda idx: pcf_kernel(idx, 0, height, 0, cam, smap, flt, out), out.shape[0], threads,
-                         block=PIXEL_BLOCK)
-        return
-    tiles = -(-cam.width // PIXEL_TILE) * -(-height // PIXEL_TILE)
-    if flt.pixel_step > 1 and flt.interpolate:     # the anchors, then the pixels between them
-        for stage in (STAGE_ANCHORS, STAGE_BETWEEN):
-            each_dealt_chunk(lambda idx: pcf_kernel(idx, PIXEL_TILE, height, stage, cam, smap, flt, out), tiles,
-                             threads)
-        return
-    each_dealt_chunk(lambda idx: pcf_kernel(idx, PIXEL_TILE, height, 0, cam, smap, flt, out), tiles, threads)
+    packed = cam.pixel.shape[0] > 0
+    tile = 0 if packed else PIXEL_TILE
+    n = out.shape[0] if packed else -(-cam.width // PIXEL_TILE) * -(-height // PIXEL_TILE)
+    block = PIXEL_BLOCK if packed else 1
+    stages = (STAGE_ANCHORS, STAGE_BETWEEN) if flt.pixel_step > 1 and flt.interpolate else (0,)
+    for stage in stages:          # step_fill="interpolate": the anchors, then the pixels between them
+        each_dealt_chunk(lambda idx: pcf_kernel(idx, tile, height, stage, cam, smap, flt, out), n, threads,
+                         block=block)
 
 
 STAGE_ANCHORS = 1    # ``pcf_kernel``'s stages for step_fill="interpolate" (0: every pixel)
@@ -804,7 +802,7 @@ def pcf_kernel(idx, tile, height, stage, cam, smap, flt, out):
     cam, smap, flt, out = borrowed((cam, smap, flt, out))
     W = cam.width
     tw = (W + tile - 1) // tile if tile else 1
-    step = flt.pixel_step if tile else 1
+    step = flt.pixel_step if tile or flt.interpolate else 1
     for k in idx:
         if tile:
             ra, ca = (k // tw) * tile, (k % tw) * tile
@@ -815,10 +813,11 @@ def pcf_kernel(idx, tile, height, stage, cam, smap, flt, out):
             for c in range(ca, cb):
                 i = r * W + c if tile else c
                 if step > 1 and cam.hit[i]:
-                    anchor = r % step == 0 and c % step == 0
+                    pr, pc = (r, c) if tile else (cam.pixel[i] // W, cam.pixel[i] % W)   # its view pixel
+                    anchor = pr % step == 0 and pc % step == 0
                     if stage == STAGE_ANCHORS and not anchor:
                         continue
-                    if stage == STAGE_BETWEEN and (anchor or _interpolated(cam, out, i, r, c, step, height,
+                    if stage == STAGE_BETWEEN and (anchor or _interpolated(cam, out, i, pr, pc, step, height,
                                                                            flt.step_tolerance)):
                         continue
                     if stage == 0 and not anchor:
@@ -842,13 +841,26 @@ def _on_anchor_surface(cam, i, j):
 
 
 @njit(cache=True, inline="always")
+def _entry(cam, p):
+    """The entry of view pixel ``p``: itself in a dense G-buffer; in a packed
+    one (``cam.pixel``, ascending) its index, or -1 when it is not listed."""
+    if cam.pixel.shape[0] == 0:
+        return p
+    k = np.searchsorted(cam.pixel, p)
+    if k < cam.pixel.shape[0] and cam.pixel[k] == p:
+        return k
+    return -1
+
+
+@njit(cache=True, inline="always")
 def _interpolated(cam, out, i, r, c, step, height, tol):
     """``step_fill="interpolate"``: out[i] = the bilinear blend of the
-    anchors around pixel (r, c) (those of non-zero weight: 2 on an anchor
-    row or column, else 4), when each lies on its surface
+    anchors around view pixel (r, c) (those of non-zero weight: 2 on an
+    anchor row or column, else 4), when each is an entry (a packed
+    G-buffer's sub-pixel receivers: listed) on its surface
     (``_on_anchor_surface``) and their V spans at most ``tol`` without
     mixing a decided V (0: umbra, 1: lit, exact) with another; False (out[i]
-    untouched) otherwise, or past the image's last anchor row or column."""
+    untouched) otherwise, or past the view's last anchor row or column."""
     W = cam.width
     r0, c0 = r - r % step, c - c % step
     fr, fc = (r - r0) / step, (c - c0) / step
@@ -862,8 +874,8 @@ def _interpolated(cam, out, i, r, c, step, height, tol):
         wc = fc if q & 1 else 1.0 - fc
         if wr * wc == 0.0:
             continue
-        j = (r1 if q & 2 else r0) * W + (c1 if q & 1 else c0)
-        if not _on_anchor_surface(cam, i, j):
+        j = _entry(cam, (r1 if q & 2 else r0) * W + (c1 if q & 1 else c0))
+        if j < 0 or not _on_anchor_surface(cam, i, j):
             return False
         v = np.float64(out[j])
         lo, hi = min(lo, v), max(hi, v)
@@ -1028,9 +1040,9 @@ class PercentageCloserFiltering(Method):
                              b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                              params.region == "light", max(1, int(params.BlockerSamples)),
                              max(1, int(params.PenumbraSamples)), SEARCH_STEPS if params.search == "tiles" else 0,
-                             max(1, int(params.pixel_step)) if g.pixel is None else 1,
+                             max(1, int(params.pixel_step)),
                              params.sampler == "fast", params.step_fill == "interpolate",
                              float(params.step_tolerance))
-                filter_pixels(cam, smap, flt, out, n // W if g.pixel is None else 1)
+                filter_pixels(cam, smap, flt, out, H)
         return MethodResult(passes={"pcf": out.reshape(g.shape)}, time_s=timer.result(),
                             stats={"map": [lv.depth.shape[0], lv.depth.shape[1], lv.depth.shape[2]]})
