@@ -83,11 +83,10 @@ def merged_signatures(items: list, lists: dict):
     """One item per dispatcher and signature: the same Numba types can pickle
     to other bytes in another process (pickle's memo follows object
     identity), which would list one kernel twice for the helpers."""
-    import base64
-    import pickle
+    from penumbra.core.compile_ahead import _unpickle
     first, remap, out = {}, {}, []
     for i, (name, sig) in enumerate(items):
-        key = (name, repr(pickle.loads(base64.b64decode(sig))))
+        key = (name, repr(_unpickle(sig, "penumbra")))
         if key not in first:
             first[key] = len(out)
             out.append([name, sig])
