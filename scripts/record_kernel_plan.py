@@ -1,6 +1,8 @@
 """Record ``core/kernel_plan.json`` (``core/compile_ahead.py``): for each core
-pass, light kind and pixel model, the top-level Numba dispatchers and
-signatures a cold frame compiles, in its order. Each list is recorded in
+pass, light kind and pixel model, the Numba dispatchers and signatures a
+cold frame compiles, callees included, in the order their compiles start (a
+caller before its callees: read backwards, callees before their callers,
+the order a helper works in). Each list is recorded in
 its own process on an empty cache, rendering the warm-up scene
 (``core/warmup.py``) as a real frame does (its warm-ups first).
 
@@ -35,31 +37,33 @@ def _light(kind: str):
     return Light("warm-up", "sun", np.eye(4), blender_type="SUN", angle=0.05)
 
 
-def record_one(pass_id: str, kind: str, filtered: bool) -> list:
-    """[[dispatcher, sig_b64], ...]: the top-level compiles of one cold frame,
-    in order (this process must start on an empty cache)."""
-    import threading
+def _named(disp) -> bool:
+    """A helper can find ``disp`` by its function's module and name (not so
+    for a second dispatcher made from one Python function, e.g.
+    ``single_sample._warp_inline``: the caller compiles it itself)."""
+    mod = sys.modules.get(disp.py_func.__module__)
+    return getattr(mod, disp.py_func.__qualname__, None) is disp
 
+
+def record_one(pass_id: str, kind: str, filtered: bool) -> list:
+    """[[dispatcher, sig_b64], ...]: the compiles of one cold frame, callees
+    included, in the order they start (this process must start on an empty cache)."""
     from numba.core import event
 
     from penumbra.core.filtered_frame import render_filtered
     from penumbra.core.pixel_filter import PixelFilter
     from penumbra.core.warmup import warmup_scene
-    local = threading.local()
     out = []
 
     class Listener(event.Listener):
         def on_start(self, ev):
-            depth = getattr(local, "depth", 0)
-            if depth == 0:
-                d = ev.data["dispatcher"]
-                name = f"{d.py_func.__module__}:{d.py_func.__qualname__}"
-                if name.startswith("penumbra."):
-                    out.append([name, base64.b64encode(pickle.dumps(tuple(ev.data["args"]))).decode()])
-            local.depth = depth + 1
+            d = ev.data["dispatcher"]
+            name = f"{d.py_func.__module__}:{d.py_func.__qualname__}"
+            if name.startswith("penumbra.") and _named(d):
+                out.append([name, base64.b64encode(pickle.dumps(tuple(ev.data["args"]))).decode()])
 
         def on_end(self, ev):
-            local.depth -= 1
+            pass
 
     event.register("numba:compile", Listener())
     flt = PixelFilter("blackman-harris", 1.5) if filtered else PixelFilter()

@@ -118,22 +118,48 @@ class _Proc:
     def poll(self):
         return None if self.alive else 0
 
+    def poll_alive(self):
+        return self.poll() is None
+
 
 def test_the_caller_claims_what_nobody_has_and_waits_for_a_helpers_claim(tmp_path):
     helper = _Proc()
     t0 = time.perf_counter()
-    compile_ahead._claim_or_wait(str(tmp_path), 0, [helper])
-    assert (tmp_path / "0.claim").read_text() == "main" and time.perf_counter() - t0 < 0.5
+    assert compile_ahead._claim_or_wait(str(tmp_path), 0, helper.poll_alive)
+    assert (tmp_path / "0.claim").read_text() == f"main {os.getpid()}" and time.perf_counter() - t0 < 0.5
     (tmp_path / "1.claim").write_text("helper")
     threading.Timer(0.3, (tmp_path / "1.done").touch).start()
     t0 = time.perf_counter()
-    compile_ahead._claim_or_wait(str(tmp_path), 1, [helper])
+    assert not compile_ahead._claim_or_wait(str(tmp_path), 1, helper.poll_alive)
     assert 0.25 < time.perf_counter() - t0 < 5 and (tmp_path / "1.done").exists()
     (tmp_path / "2.claim").write_text("helper")                  # its helper died: no wait for ever
     threading.Timer(0.2, lambda: setattr(helper, "alive", False)).start()
     t0 = time.perf_counter()
-    compile_ahead._claim_or_wait(str(tmp_path), 2, [helper])
+    assert not compile_ahead._claim_or_wait(str(tmp_path), 2, helper.poll_alive)
     assert time.perf_counter() - t0 < 5 and not (tmp_path / "2.done").exists()
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    (tmp_path / "3.claim").write_text(f"helper {int(gone.stdout)}")    # its claimant exited: no wait
+    t0 = time.perf_counter()
+    assert not compile_ahead._claim_or_wait(str(tmp_path), 3, lambda: True)
+    assert time.perf_counter() - t0 < 1
+
+
+def test_a_callee_is_claimed_on_lookup_and_marked_done_after_its_compile(tmp_path):
+    """The hook on ``disp.compile``: a process claims a listed signature when
+    it compiles it (a caller's typing included) and marks it done after;
+    another signature of the same kernel is not claimed."""
+    from numba import njit, types
+    from numba.core import sigutils
+
+    @njit
+    def twice(x):
+        return 2 * x
+    sig = base64.b64encode(pickle.dumps((types.int64,))).decode()
+    compile_ahead._hook(twice, "test:twice", str(tmp_path), 0, sig, lambda: True)
+    assert twice(3) == 6                                            # compiled for int64 through the hook
+    assert (tmp_path / "0.claim").read_text() == f"main {os.getpid()}" and (tmp_path / "0.done").exists()
+    assert twice(1.5) == 3.0 and not (tmp_path / "1.claim").exists()
+    assert sigutils.normalize_signature((types.int64,))[0] in [tuple(s) for s in twice.signatures]
 
 
 def test_a_helper_works_from_the_end_and_skips_what_is_claimed(tmp_path):
@@ -146,5 +172,5 @@ def test_a_helper_works_from_the_end_and_skips_what_is_claimed(tmp_path):
     pkg_dir = os.path.dirname(os.path.dirname(os.path.abspath(compile_ahead.__file__)))
     assert compile_ahead._helper(pkg_dir, compile_ahead._PKG, str(tmp_path)) == 0
     for i in (0, 2):                                             # a stale entry is marked done too
-        assert (tmp_path / f"{i}.claim").read_text() == "helper" and (tmp_path / f"{i}.done").exists()
+        assert (tmp_path / f"{i}.claim").read_text().startswith("helper") and (tmp_path / f"{i}.done").exists()
     assert not (tmp_path / "1.done").exists() and not (tmp_path / "3.done").exists()
