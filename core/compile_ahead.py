@@ -53,7 +53,7 @@ _lock = threading.Lock()
 _started: set = set()              # plan keys already handed to helpers in this process
 _jobs: list = []                   # (work dir, [Popen])
 _idle: list = []                   # (work dir, [Popen]) started ahead, waiting for their list
-_hooked: dict = {}                 # dispatcher name -> [(work dir, item, signature, helpers)]
+_hooked: dict = {}                 # dispatcher name -> [(work dir, item, signature, alive())]
 _waited = [0.0]                    # seconds this process spent waiting for helpers
 _mine: set = set()                 # (work dir, item) this process claimed
 _role = ["main"]                   # "helper" in a helper process
@@ -263,22 +263,30 @@ def _claim_or_wait(work, idx, alive) -> bool:
     """Claim item ``idx`` for this process (True: it compiles it), or, when
     another process claimed it and has not finished, wait until it has (or
     ``alive()`` says it cannot, or the claimant has exited) and return False."""
+    claimed = _claim(work, idx)
+    if claimed is not None:
+        return claimed
     claim = os.path.join(work, f"{idx}.claim")
-    try:
-        with open(claim, "x") as f:
-            f.write(f"{_role[0]} {os.getpid()}")
-        _mine.add((work, idx))
-        return True
-    except FileExistsError:
-        pass
-    except OSError:
-        return False
     done = os.path.join(work, f"{idx}.done")
     t0 = time.perf_counter()
     while not os.path.exists(done) and alive() and _claimant_alive(claim):
         time.sleep(0.01)
     _waited[0] += time.perf_counter() - t0
     return False
+
+
+def _claim(work, idx):
+    """Claim item ``idx`` for this process (a claim file naming it, ``O_EXCL``):
+    True; another process has it: None; the work folder is gone: False."""
+    try:
+        with open(os.path.join(work, f"{idx}.claim"), "x") as f:
+            f.write(f"{_role[0]} {os.getpid()}")
+    except FileExistsError:
+        return None
+    except OSError:
+        return False
+    _mine.add((work, idx))
+    return True
 
 
 def _claimant_alive(claim: str) -> bool:
@@ -380,15 +388,11 @@ def _helper(pkg_dir: str, pkg_name: str, work: str, parent: str = "0") -> int:
         if not caller_alive():
             return 0                        # the caller was killed: nobody needs the rest
         name, sig = items[idx]
-        claim = os.path.join(work, f"{idx}.claim")
-        try:
-            with open(claim, "x") as f:
-                f.write(f"helper {os.getpid()}")
-        except FileExistsError:
+        claimed = _claim(work, idx)
+        if claimed is None:
             continue                        # the caller or another helper has it (or had it: a callee)
-        except OSError:
+        if not claimed:
             return 0                        # the work folder is gone: the caller finished
-        _mine.add((work, idx))
         try:
             disps[idx].compile(_unpickle(sig, pkg_name))   # a cache hit when done already
         except Exception:
