@@ -68,6 +68,8 @@ def stratum_uv(seed, key, s, nx, ny):
 # counter-based random numbers
 @njit(cache=True, forceinline=True)
 def _pcg(v):
+    """PCG's output permutation of one LCG step of a uint32 (callers pass
+    uint32 only: one compiled signature)."""
     v = (v * np.uint32(747796405) + np.uint32(2891336453)) & np.uint32(0xFFFFFFFF)
     word = (((v >> ((v >> np.uint32(28)) + np.uint32(4))) ^ v) * np.uint32(277803737)) & np.uint32(0xFFFFFFFF)
     return ((word >> np.uint32(22)) ^ word) & np.uint32(0xFFFFFFFF)
@@ -76,9 +78,11 @@ def _pcg(v):
 @njit(cache=True, forceinline=True)
 def rand01(seed, pixel, sample, dim):
     """Uniform in [0, 1) from four counters."""
-    h = _pcg(np.uint32(seed & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel & 0xFFFFFFFF)
-                                                ^ _pcg(np.uint32(pixel >> 32)
-                                                       ^ _pcg(np.uint32(sample) ^ _pcg(np.uint32(dim))))))
+    h = _pcg(np.uint32(dim))
+    h = _pcg(np.uint32(np.uint32(sample) ^ h))
+    h = _pcg(np.uint32(np.uint32(pixel >> 32) ^ h))
+    h = _pcg(np.uint32(np.uint32(pixel & 0xFFFFFFFF) ^ h))
+    h = _pcg(np.uint32(np.uint32(seed & 0xFFFFFFFF) ^ h))
     return np.float64(h >> np.uint32(8)) * (1.0 / 16777216.0)
 
 
@@ -86,7 +90,9 @@ def rand01(seed, pixel, sample, dim):
 def stream_start(seed, pixel):
     """A 32-bit state for one pixel's stream of cheap random numbers
     (``stream_next``): one hash per pixel instead of one per number."""
-    return _pcg(np.uint32(seed & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel & 0xFFFFFFFF) ^ _pcg(np.uint32(pixel >> 32))))
+    h = _pcg(np.uint32(pixel >> 32))
+    h = _pcg(np.uint32(np.uint32(pixel & 0xFFFFFFFF) ^ h))
+    return _pcg(np.uint32(np.uint32(seed & 0xFFFFFFFF) ^ h))
 
 
 @njit(cache=True, forceinline=True)

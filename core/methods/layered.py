@@ -263,7 +263,7 @@ def sample_points(lp, uv, seed):
             # projection), whose projection along any axis is the uniform disk
             dx, dy = concentric_disk(u, v)
             hz = math.sqrt(max(0.0, 1.0 - dx * dx - dy * dy)) * \
-                math.cos(2.0 * math.pi * rand01(seed, 0, s, 2))
+                math.cos(2.0 * math.pi * rand01(seed, np.int64(0), s, np.int64(2)))
             r = lp[16]
             for k in range(3):
                 out[s, k] = lp[1 + k] + r * (dx * lp[4 + k] + dy * lp[7 + k] + hz * lp[10 + k])

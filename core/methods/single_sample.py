@@ -625,7 +625,7 @@ def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, 
                             s_next = (ta + 1) * TILE    # the rest of the tile's texels on this row
                         continue
                 nvis += 1
-                d = depth_f[t, s]
+                d = np.float64(depth_f[t, s])
                 # the layer at this texel: z_l = lv (ortho) or 1 / lv (perspective,
                 # +inf where lv <= 0); "d < z_l - tol" is "(d + tol) lv < 1" there
                 nearer = _nearer(d, A * (s + 0.5) + B * (t + 0.5) + C, ortho, tol)
@@ -643,8 +643,8 @@ def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, 
                 dv = t + 0.5 - v
                 if jit > 0.0:
                     key = (fidx * h + t) * w + s
-                    du += jit * (rand01(seed, key, 0, 0) - 0.5)
-                    dv += jit * (rand01(seed, key, 0, 1) - 0.5)
+                    du += jit * (rand01(seed, key, np.int64(0), np.int64(0)) - 0.5)
+                    dv += jit * (rand01(seed, key, np.int64(0), np.int64(1)) - 0.5)
                 if edge:
                     du = math.copysign(max(abs(du) - 0.5, 0.0), du)
                     dv = math.copysign(max(abs(dv) - 0.5, 0.0), dv)

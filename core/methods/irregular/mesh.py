@@ -60,7 +60,7 @@ def vertex_ids(bits):
     for i in range(M):
         h = np.uint64(14695981039346656037)
         for j in range(4):
-            h = _mix(h, bits[i, j])
+            h = _mix(h, np.uint64(bits[i, j]))
         s = h & mask
         while True:
             j = table[s]
@@ -120,7 +120,7 @@ def build_edges(vid, nv):
             hi = max(u, v)
             direction = 1 if u == lo else 0
             key = lo * nv + hi
-            h = _mix(np.uint64(14695981039346656037), key)
+            h = _mix(np.uint64(14695981039346656037), np.uint64(key))
             s = h & mask
             while True:
                 e = table[s]

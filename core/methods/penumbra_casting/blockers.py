@@ -200,7 +200,7 @@ def _grow(P, ids, nbr, maxb, ulps):
                 mg = max(mg, abs(P[w, d]))
             tol = ulps * _ULP32 * mg
             # insert w after position ins
-            kk = 0
+            kk = np.int64(0)              # not a literal: _planar compiles once
             for j in range(k):
                 nxt[kk] = cur[j]
                 kk += 1

@@ -355,5 +355,5 @@ def assign_sets(pix, nsets, seed):
     """Section 3.4: one light sample set per receiver, by a hash of its pixel."""
     out = np.empty(pix.shape[0], np.int64)
     for i in range(pix.shape[0]):
-        out[i] = min(nsets - 1, int(rand01(seed, pix[i], 0, 7) * nsets))
+        out[i] = min(nsets - 1, int(rand01(seed, pix[i], np.int64(0), np.int64(7)) * nsets))
     return out
