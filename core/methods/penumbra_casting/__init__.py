@@ -187,7 +187,7 @@ def _light_volumes_of(ts, tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, n
         if k < 0:
             keep[t] = False
             continue
-        ok, _ = box_vs_volume(root_bb, 0, VL, t, k, np.int64(-1), False, tol)
+        ok, _ = box_vs_volume(root_bb, np.int64(0), VL, t, k, np.int64(-1), np.bool_(False), tol)
         keep[t] = ok
 
 

@@ -24,6 +24,9 @@ SIMD code (signed indices keep Numba's negative-index wraparound in the loop
 and block it); the plane tests read structure-of-arrays planes and evaluate
 every plane without early exit, for the same reason; no loop creates an
 array view or reassigns an array (each costs atomic reference counting).
+The helpers are inlined by LLVM (``forceinline``), not by Numba's IR
+inliner (``inline="always"``, which re-types a body at every call site):
+each is typed and cached once, and the cast runs as fast (issue 15).
 
 Mask memory (D): ``pool`` has a row for every receiver of the chunk, but it
 is allocated zeroed (calloc: the operating system commits a page on first
@@ -93,7 +96,7 @@ CastSwitches = namedtuple("CastSwitches", "optA optB optC optD rebuild_frac leaf
 ``materialize_hard_volumes`` and ``hidden_behind_cores``."""
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _bits_full(pool, sl, a, b):
     """Every bit in [a, b) of mask ``pool[sl]`` set."""
     i = a
@@ -111,7 +114,7 @@ def _bits_full(pool, sl, a, b):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _popcount(x):
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
     x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
@@ -119,7 +122,7 @@ def _popcount(x):
     return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _coefficients(ef, tn, rho, mode, r, M, centre, co):
     """Per receiver: the MAXB edge functions (rows of edges T lacks are zero)
     and T's plane (last) as linear forms in the sample, signed so that
@@ -145,7 +148,7 @@ def _coefficients(ef, tn, rho, mode, r, M, centre, co):
         co[4 * e + 3] = k
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _word_tests(T4, j, a, e, base, co, nb):
     """Bits [a, e) of one 64-bit mask word: sample i blocked by T (the edge
     forms and the plane: three edges for a triangle, four for a quad, MAXB
@@ -200,7 +203,7 @@ def _word_tests(T4, j, a, e, base, co, nb):
     return acc
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _slice_of(solids, sid, x, y, z, ax, ay, az):
     """The disk of solid ``sid`` for the ray from (x, y, z) along (ax, ay,
     az): the slice nearest the ray's closest approach to the centroid (-1:
@@ -216,7 +219,7 @@ def _slice_of(solids, sid, x, y, z, ax, ay, az):
     return np.int64(solids[sid, 8]) + np.int64(fi)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _through_disk(disks, c, x, y, z, vx, vy, vz):
     """The ray from (x, y, z) through (vx, vy, vz) meets disk ``c`` at a
     positive distance: 1 before the point, 2 beyond it, 0 not."""
@@ -263,7 +266,7 @@ def _box_hidden(bb, node, tris, k, nb, solids, disks, sid):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _hidden_behind(tris, k, nb, solids, disks, sid, x, y, z):
     """Every ray from r = (x, y, z) through a corner of blocker ``k`` (so
     through all of it: convex) passes, at a positive distance, through one
@@ -565,7 +568,7 @@ def _make_cast_chunk(variant: str):
                             fu[r] = 1
                             st[ST_UMBRA] += 1
                     if optD:                                                 # line 75
-                        full = fu[r] == 1 if optA else _bits_full(pool, sl, 0, S)
+                        full = fu[r] == 1 if optA else _bits_full(pool, sl, np.int64(0), S)
                         if full:
                             fu[r] = 1
                             free[st[ST_FREE]] = sl

@@ -39,7 +39,7 @@ MAXB = 6           # corners of a blocker polygon (a leaf's hexagon; ``MaxCorner
 ALL = np.int64(-1)  # active plane set token "ALL" (every bit set)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _cross(ax, ay, az, bx, by, bz):
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
@@ -192,7 +192,7 @@ def hard_volume(tri, nb, px, py, pz, pw, hv):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def in_hard_volume(hv, nb, x, y, z):
     """POINT-IN-VOLUME(r, V_l): nb + 1 dot products."""
     if hv[0, 0] * x + hv[0, 1] * y + hv[0, 2] * z - hv[0, 3] <= 0.0:
@@ -203,7 +203,7 @@ def in_hard_volume(hv, nb, x, y, z):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def box_vs_volume(bb, i, planes, p, n, active, use_b, tol):
     """INTERSECTS(B_N, V, P, P'): box ``bb[i]`` (lo, hi) against volume
     ``planes[p]``; False if the box lies outside one active plane; otherwise
@@ -236,7 +236,7 @@ def box_vs_volume(bb, i, planes, p, n, active, use_b, tol):
     return True, active
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def point_in_volume(planes, p, n, active, x, y, z, tol):
     """POINT-IN-VOLUME(r, V, P) over the active planes of ``planes[p]``, with
     slack ``tol``."""
@@ -249,7 +249,7 @@ def point_in_volume(planes, p, n, active, x, y, z, tol):
     return (outside & np.uint64(active)) == 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def receiver_edge_functions(tri, nb, tn, x, y, z, ef):
     """The hard shadow volume test of section 3.2 with the roles of sample
     and receiver exchanged. Edge plane e of V_l through sample (p, w) and edge
@@ -276,7 +276,7 @@ def receiver_edge_functions(tri, nb, tn, x, y, z, ef):
     return tn[0] * x + tn[1] * y + tn[2] * z - tn[3]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def blocked_by_edges(ef, rho, tn, px, py, pz, pw):
     """POINT-IN-VOLUME(r, V_l) from ``receiver_edge_functions``: the sample
     strictly on the other side of T's plane from r, and r inside every edge
