@@ -118,24 +118,22 @@ class _Proc:
     def poll(self):
         return None if self.alive else 0
 
-    def poll_alive(self):
-        return self.poll() is None
-
 
 def test_the_caller_claims_what_nobody_has_and_waits_for_a_helpers_claim(tmp_path):
     helper = _Proc()
+    alive = compile_ahead._any_alive([helper])                   # the caller's alive(): a helper still runs
     t0 = time.perf_counter()
-    assert compile_ahead._claim_or_wait(str(tmp_path), 0, helper.poll_alive)
+    assert compile_ahead._claim_or_wait(str(tmp_path), 0, alive)
     assert (tmp_path / "0.claim").read_text() == f"main {os.getpid()}" and time.perf_counter() - t0 < 0.5
     (tmp_path / "1.claim").write_text("helper")
     threading.Timer(0.3, (tmp_path / "1.done").touch).start()
     t0 = time.perf_counter()
-    assert not compile_ahead._claim_or_wait(str(tmp_path), 1, helper.poll_alive)
+    assert not compile_ahead._claim_or_wait(str(tmp_path), 1, alive)
     assert 0.25 < time.perf_counter() - t0 < 5 and (tmp_path / "1.done").exists()
     (tmp_path / "2.claim").write_text("helper")                  # its helper died: no wait for ever
     threading.Timer(0.2, lambda: setattr(helper, "alive", False)).start()
     t0 = time.perf_counter()
-    assert not compile_ahead._claim_or_wait(str(tmp_path), 2, helper.poll_alive)
+    assert not compile_ahead._claim_or_wait(str(tmp_path), 2, alive)
     assert time.perf_counter() - t0 < 5 and not (tmp_path / "2.done").exists()
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     (tmp_path / "3.claim").write_text(f"helper {int(gone.stdout)}")    # its claimant exited: no wait
