@@ -78,8 +78,9 @@ def test_pcf_filter_stops_between_chunks(monkeypatch):
     render_frame(scene, ["pcf"])                      # every chunk runs
     chunks = len(calls)
     threads = numba.get_num_threads()
-    # kernels.each_dealt_chunk: 8 per thread, twice (pixel_step's anchors, then the pixels between them)
-    assert chunks == 2 * min(36, 8 * threads) and sum(calls) == 2 * 36
+    # kernels.each_dealt_chunk: 8 per thread, once per level of pixel_step (its anchors, then each finer lattice)
+    levels = len(pcf.step_levels(pcf.auto_pixel_step(24, 24), True))
+    assert levels == 2 and chunks == levels * min(36, 8 * threads) and sum(calls) == levels * 36
     calls.clear()
     armed = True
     with cancel.watching(token), pytest.raises(Cancelled):

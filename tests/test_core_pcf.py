@@ -436,8 +436,9 @@ def test_pixel_step_copy_shares_a_blocks_first_pixel_on_one_surface_only():
 def _anchor_blend(a, g, step, tol, slope):
     """NumPy's account of step_fill="interpolate" over the pixel-centre pass
     ``a`` (every pixel filtered): per pixel, whether its anchors (the
-    non-zero bilinear weights) all lie on its surface and span at most
-    ``tol``, and their blend."""
+    non-zero bilinear weights at ``step`` spacing) on its surface are at
+    least 2 holding at least half the weight and span at most ``tol``, and
+    their renormalised blend."""
     H, W = a.shape
     r, c = np.mgrid[0:H, 0:W]
     r0, c0 = r - r % step, c - c % step
@@ -446,46 +447,87 @@ def _anchor_blend(a, g, step, tol, slope):
     ok = g.hit & ((r % step + c % step) > 0) & (r1 < H) & (c1 < W)
     r1, c1 = np.minimum(r1, H - 1), np.minimum(c1, W - 1)
     lo, hi, blend = np.full(a.shape, np.inf), np.full(a.shape, -np.inf), np.zeros(a.shape)
+    wsum, count = np.zeros(a.shape), np.zeros(a.shape, int)
     for rr, cc, wgt in ((r0, c0, (1 - fr) * (1 - fc)), (r0, c1, (1 - fr) * fc),
                         (r1, c0, fr * (1 - fc)), (r1, c1, fr * fc)):
-        used = wgt > 0
         d = g.position - g.position[rr, cc]
         off = np.abs(np.sum(d * g.normal[rr, cc], axis=-1))
         same = (g.hit[rr, cc] & (g.object_id == g.object_id[rr, cc])
                 & (np.sum(g.normal * g.normal[rr, cc], axis=-1) >= 0.95)
                 & (off <= slope * np.linalg.norm(d, axis=-1)))
-        ok &= ~used | same
+        used = (wgt > 0) & same
         v = a[rr, cc].astype(np.float64)
         lo = np.where(used, np.minimum(lo, v), lo)
         hi = np.where(used, np.maximum(hi, v), hi)
-        blend += wgt * v
-    return ok & (hi - lo <= tol) & ((hi == lo) | ((lo > 0.0) & (hi < 1.0))), blend
+        blend += np.where(used, wgt * v, 0.0)
+        wsum += np.where(used, wgt, 0.0)
+        count += used
+    ok &= (count >= 2) & (wsum >= 0.5)
+    blend = blend / np.where(ok, wsum, 1.0)
+    ok &= (hi - lo <= tol) & ((hi == lo) | ((lo > 0.0) & (hi < 1.0)))
+    return ok, blend, ok & (wsum < 1.0 - 1e-9)
+
+
+def _levels_blend(a, g, step, tol, slope):
+    """NumPy's account of the levels (``step_levels``): the anchors (row
+    and column multiples of ``step``) keep ``a``; then for s = step / 2,
+    ..., 1 the pixels of the s-lattice off the 2s-lattice take the blend of
+    their 2s-lattice anchors in the image so far where ``_anchor_blend``
+    allows, else their own ``a``. Returns (the image, interpolated mask,
+    mask of those blended from part of their anchors: beside a silhouette)."""
+    H, W = a.shape
+    r, c = np.mgrid[0:H, 0:W]
+    img = a.astype(np.float64).copy()
+    interp = np.zeros(a.shape, bool)
+    part = np.zeros(a.shape, bool)
+    s = step // 2
+    while s >= 1:
+        level = (r % s == 0) & (c % s == 0) & ~((r % (2 * s) == 0) & (c % (2 * s) == 0))
+        ok, blend, some = _anchor_blend(img, g, 2 * s, tol, slope)
+        take = level & ok
+        img[take] = blend[take]
+        interp |= take
+        part |= level & some
+        s //= 2
+    return img, interp, part
 
 
 def test_pixel_step_interpolates_between_anchors_on_their_surface_only():
-    """The render's default (issue 15): pixel_step=2, step_fill="interpolate".
-    Anchors (even row and column) keep the every-pixel pass's V bit for bit;
-    a pixel whose anchors lie on its surface (object, normal, tangent plane)
-    and span at most step_tolerance is their bilinear blend; every other
-    pixel (an object's silhouette, a shadow edge sharper than the tolerance)
-    has its own every-pixel V. The interpolated pass is no further from
+    """The render's default (issue 15): step_fill="interpolate", pixel_step 0:
+    2, and 4 from 1280 pixels across (``auto_pixel_step``), in levels
+    (``step_levels``: 4, 2, 1). Anchors (row and column multiples of 4) keep the every-pixel pass's V bit for bit; a pixel of a finer
+    level whose anchors on the coarser one lie on its surface (object,
+    normal, tangent plane) and span at most step_tolerance is their bilinear
+    blend; every other pixel (an object's silhouette, a shadow edge sharper
+    than the tolerance) has its own every-pixel V. pixel_step=2 is the one
+    level of the same rule. The interpolated pass is no further from
     embree's than the every-pixel one."""
     from synthetic import box
-    from penumbra.core.methods.pcf import PIXEL_STEP_SLOPE
+    from penumbra.core.methods.pcf import PIXEL_STEP_SLOPE, auto_pixel_step, step_levels
     tris = quad(-10, 10, -10, 10, 0.0) + box(-0.7, 0.45, -0.3, 0.8, 0.0, 1.2)
     scene = make_scene(tris, [0, 0] + [1] * 12, [area_light(1.5, z=4.0)], res=62,
                        camera=persp_camera((0.5, -4.0, 3.5), (0.0, 0.0, 0.3)), names=("ground", "box"))
     full, fb = run_pcf(scene, pixel_step=1)
-    step, _ = run_pcf(scene)
-    assert PCFParams().pixel_step == 2 and PCFParams().step_fill == "interpolate"
+    step, _ = run_pcf(scene, pixel_step=4)
+    two, _ = run_pcf(scene)
+    assert PCFParams().pixel_step == 0 and PCFParams().step_fill == "interpolate"
+    assert auto_pixel_step(62, 62) == 2 and auto_pixel_step(1279, 719) == 2
+    assert auto_pixel_step(1280, 720) == 4 and auto_pixel_step(1920, 1080) == 4
+    assert step_levels(4, True) == [4, 2, 1] and step_levels(4, False) == [0] and step_levels(1, True) == [0]
     a, b = full.passes["pcf"], step.passes["pcf"]
     g = fb.gbuffer
-    np.testing.assert_array_equal(b[::2, ::2], a[::2, ::2])
+    np.testing.assert_array_equal(b[::4, ::4], a[::4, ::4])
     tol = PCFParams().step_tolerance
-    interp, blend = _anchor_blend(a, g, 2, tol, PIXEL_STEP_SLOPE)
-    np.testing.assert_allclose(b[interp], blend[interp], atol=1e-6)
-    np.testing.assert_array_equal(b[~interp], a[~interp])
-    assert interp.sum() > 1500 and ((~interp) & g.hit & ((np.mgrid[0:62, 0:62].sum(0) % 2) > 0)).sum() > 20
+    for got, st in ((b, 4), (two.passes["pcf"], 2)):
+        want, interp, _ = _levels_blend(a, g, st, tol, PIXEL_STEP_SLOPE)
+        np.testing.assert_allclose(got[interp], want[interp], atol=1e-6)
+        np.testing.assert_array_equal(got[~interp], a[~interp])
+    want, interp, part = _levels_blend(a, g, 4, tol, PIXEL_STEP_SLOPE)
+    rr, cc = np.mgrid[0:62, 0:62]
+    coarse = (rr % 2 == 0) & (cc % 2 == 0) & ~((rr % 4 == 0) & (cc % 4 == 0))
+    assert interp.sum() > 1500 and (interp & coarse).sum() > 200       # both levels blend
+    assert part.sum() > 10                 # beside the box's silhouette: the anchors on the pixel's side
+    assert ((~interp) & g.hit & (((rr % 4) + (cc % 4)) > 0)).sum() > 20
     # a shadow edge the tolerance keeps: pixels between anchors whose V differs by more than it
     edge = g.hit & ~interp & (a > 0.0) & (a < 1.0)
     assert edge.sum() > 10

@@ -52,16 +52,23 @@ mean blocker depth, the filter region is the light's extent at that depth
 ``PenumbraSamples`` samples. No blocker found: lit. The tile test runs on the
 search region, and again on the filter region; both exact.
 
-Beyond the paper, ``pixel_step`` (issue 15; 2 by default, 1 = the paper's
-region per pixel): the filter runs at the anchor pixels (even row and column);
-a pixel between anchors that lie on its surface (object, normal, tangent
-plane) takes their bilinear V when it spans at most ``step_tolerance`` and
-does not mix a decided V (umbra 0, lit 1) with another; everywhere else (a
-silhouette, a shadow edge sharper than the tolerance) it is filtered itself.
-A light-sized region is many pixels wide, so V is smooth between anchors;
-the blend averages their sampling noise (RMSE against embree equal or lower
-on the sample scenes, 1.6-2x less filter time at 1080p). The Preview's
-``step_fill="copy"`` shares the block's first V instead.
+Beyond the paper, ``pixel_step`` (issue 15; 1 = the paper's region per
+pixel; by default 2, and 4 on views of 1280 pixels or more across,
+``auto_pixel_step``): the filter runs at the anchor pixels (row and column
+multiples of the step), then in levels (``step_levels``: for a step of 4,
+spacing 2, then 1): a pixel of a finer lattice between anchors of the
+coarser one that lie on its surface (object, normal, tangent plane) takes
+their bilinear V when it spans at most ``step_tolerance`` and does not mix
+a decided V (umbra 0, lit 1) with another; everywhere else (a silhouette,
+a shadow edge sharper than the tolerance) it is filtered itself. A
+light-sized region is many pixels wide, so V is smooth between anchors; the
+blend averages their sampling noise (RMSE against embree equal or lower at
+1080p on grids and sphere_plane, within 0.001 at 128 and 256 on the six
+sample scenes). At 1080p on grids the filter went 0.53 -> 0.28 s from one
+level at a step of 2 with a tolerance of 0.1 (the noise of 64 samples alone
+spans 0.1 between four anchors: a quarter of the pixels between them were
+filtered again). The Preview's ``step_fill="copy"`` shares the block's
+first V instead.
 
 The tile test (3.3's tiles, a min / max depth per 8 x 8 block) also keeps a
 plane per block (``tile_planes``): a receiver on a surface slanted to the
@@ -102,7 +109,7 @@ class PCFParams:
     MinSize: float = 2.0          # paper: "MinSize to 2" (texels)
     Bias0: Optional[float] = None # scene units; None = 0.003 x FrameBuffers.light_extent
     Bias1: Optional[float] = None # scene units; None = 0.004 x FrameBuffers.light_extent
-    map_size: Optional[int] = None  # depth map's larger side; None = output's larger side
+    map_size: Optional[int] = None  # depth map's larger side; None = views.default_map_size
     MaxSize: float = 64.0         # cap on the region's half size (texels), for grazing views
     receiver_plane: bool = True   # beyond the paper: compare each sample with the receiver's
                                   # tangent-plane depth at that texel, not the centre's z
@@ -114,15 +121,16 @@ class PCFParams:
     PenumbraSamples: int = 64     # region="light": samples of the filter region (NumSamples' role)
     search: str = "tiles"         # region="light": the blocker search region is the light's reach at the
                                   # nearest depth the tiles hold in it ("tiles") | at the face's ("face")
-    pixel_step: int = 2           # beyond the paper (issue 15): V filtered at the anchor pixels, whose row and
+    pixel_step: int = 0           # beyond the paper (issue 15): V filtered at the anchor pixels, whose row and
                                   # column are multiples of it; the others take it from them (``step_fill``)
                                   # where they lie on the anchors' surface; 1 = every pixel filtered (the
-                                  # paper's shading regions). Sub-pixel receivers (a packed G-buffer): the
-                                  # same over the supersampled view's pixels they list ("copy": 1)
+                                  # paper's shading regions); 0 = by the view's size (``auto_pixel_step``).
+                                  # Sub-pixel receivers (a packed G-buffer): the same over the supersampled
+                                  # view's pixels they list ("copy": 1)
     step_fill: str = "interpolate"  # pixel_step > 1: "interpolate": a pixel takes its anchors' bilinear V when
                                   # they lie on its surface and their V spans at most ``step_tolerance``, else
                                   # is filtered itself | "copy" (the Preview's): the V of its block's first pixel
-    step_tolerance: float = 0.1   # "interpolate": the largest span of the anchors' V that is interpolated
+    step_tolerance: float = 0.2   # "interpolate": the largest span of the anchors' V that is interpolated
     sampler: str = "fast"         # "fast": one random word per sample, the receiver plane compared by a
                                   # multiplication (issue 15) | "figure4": three random numbers and a division
     seed: int = 0
@@ -459,6 +467,7 @@ def plane_depth(pl, uc, vc, z):
 TILE = 8
 PLANAR_BLOCKS = 16   # blocks a region may span for ``planar_lit``
 SEARCH_STEPS = 2     # search="tiles": narrowing steps of the blocker search region (``search_region``)
+AUTO_STEP4_SIDE = 1280  # ``auto_pixel_step``: views at least this wide (or tall) take anchors 4 pixels apart
 PIXEL_TILE = 32      # camera pixels per side of a tile of ``pcf_kernel`` (``filter_pixels``)
 PIXEL_STEP_COS = 0.95   # ``pixel_step``: normals at most ~18 degrees apart share a V
 PIXEL_STEP_SLOPE = 0.2  # ``step_fill="interpolate"``: a pixel lies on an anchor's surface when its offset from
@@ -767,19 +776,32 @@ def filter_pixels(cam, smap, flt, out, height, threads=None) -> None:
     ``cam.width``) in tiles of PIXEL_TILE x PIXEL_TILE pixels, whose regions
     lie close together in the map (rows of a 1080p frame sweep the whole
     map: samples then miss the cache), dealt over the chunks (sky and ground
-    differ widely in cost); a packed one in blocks of PIXEL_BLOCK entries."""
+    differ widely in cost); a packed one in blocks of PIXEL_BLOCK entries.
+    step_fill="interpolate": one pass per level of ``step_levels``."""
     packed = cam.pixel.shape[0] > 0
     tile = 0 if packed else PIXEL_TILE
     n = out.shape[0] if packed else -(-cam.width // PIXEL_TILE) * -(-height // PIXEL_TILE)
     block = PIXEL_BLOCK if packed else 1
-    stages = (STAGE_ANCHORS, STAGE_BETWEEN) if flt.pixel_step > 1 and flt.interpolate else (0,)
-    for stage in stages:          # step_fill="interpolate": the anchors, then the pixels between them
+    for stage in step_levels(flt.pixel_step, flt.interpolate):
         each_dealt_chunk(lambda idx: pcf_kernel(idx, tile, height, stage, cam, smap, flt, out), n, threads,
                          block=block)
 
 
-STAGE_ANCHORS = 1    # ``pcf_kernel``'s stages for step_fill="interpolate" (0: every pixel)
-STAGE_BETWEEN = 2
+def auto_pixel_step(width: int, height: int) -> int:
+    """``pixel_step=0``'s step for a ``width`` x ``height`` view: 4 from
+    AUTO_STEP4_SIDE pixels on its larger side (a light-sized penumbra spans
+    twice the pixels of a view half the size), else 2."""
+    return 4 if max(width, height) >= AUTO_STEP4_SIDE else 2
+
+
+def step_levels(pixel_step: int, interpolate: bool):
+    """``pcf_kernel``'s stages, in order: step_fill="interpolate" with
+    ``pixel_step`` 2^k > 1: the anchor lattice's spacing 2^k, then each
+    finer spacing down to 1 (2^k, ..., 2, 1); otherwise one stage, 0 (every
+    pixel; "copy": the block's first pixel before the others)."""
+    if pixel_step > 1 and interpolate:
+        return [pixel_step >> k for k in range(int(pixel_step).bit_length())]
+    return [0]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -789,16 +811,18 @@ def pcf_kernel(idx, tile, height, stage, cam, smap, flt, out):
     ``height``-row image), or, with ``tile`` 0, every entry i in ``idx`` (a
     packed G-buffer: entry i is pixel ``cam.pixel[i]``), where
     ``cam.hit[i]``; other pixels are left as they are. ``stage`` (a dense
-    G-buffer, pixel_step > 1, step_fill="interpolate"): STAGE_ANCHORS
-    filters only the anchor pixels, STAGE_BETWEEN the others
-    (``_interpolated`` where it can; every anchor is done by then); 0 every
-    pixel (step_fill="copy": the block's first pixel, done before the others
-    of its tile, is shared). A serial ``nogil`` kernel with
-    ``kernels.borrowed`` arguments (issue 15: no parfor to compile), run on
-    worker threads by ``filter_pixels``; each pixel's V depends on its own
-    stream and its anchors only, so the result does not depend on the order,
-    the chunks or the thread count. cam: CameraPixels; smap: ShadowMap; flt:
-    Filter."""
+    G-buffer, pixel_step > 1, step_fill="interpolate"; ``step_levels``):
+    a spacing s; s = pixel_step filters the anchors (row and column
+    multiples of s); a smaller s does the pixels of the s-lattice that are
+    not on the 2s-lattice (every 2s-lattice pixel is done by then): the
+    blend of their 2s-lattice anchors (``_interpolated``) where it can, else
+    filtered. 0: every pixel (step_fill="copy": the block's first pixel,
+    done before the others of its tile, is shared). A serial ``nogil``
+    kernel with ``kernels.borrowed`` arguments (issue 15: no parfor to
+    compile), run on worker threads by ``filter_pixels``; each pixel's V
+    depends on its own stream and its anchors only, so the result does not
+    depend on the order, the chunks or the thread count. cam: CameraPixels;
+    smap: ShadowMap; flt: Filter."""
     cam, smap, flt, out = borrowed((cam, smap, flt, out))
     W = cam.width
     tw = (W + tile - 1) // tile if tile else 1
@@ -814,16 +838,18 @@ def pcf_kernel(idx, tile, height, stage, cam, smap, flt, out):
                 i = r * W + c if tile else c
                 if step > 1 and cam.hit[i]:
                     pr, pc = (r, c) if tile else (cam.pixel[i] // W, cam.pixel[i] % W)   # its view pixel
-                    anchor = pr % step == 0 and pc % step == 0
-                    if stage == STAGE_ANCHORS and not anchor:
-                        continue
-                    if stage == STAGE_BETWEEN and (anchor or _interpolated(cam, out, i, pr, pc, step, height,
-                                                                           flt.step_tolerance)):
-                        continue
-                    if stage == 0 and not anchor:
-                        j = (r - r % step) * W + (c - c % step)     # the block's first pixel: done before
-                        if _same_surface(cam, i, j):
-                            out[i] = out[j]
+                    if stage == 0:
+                        if pr % step or pc % step:
+                            j = (r - r % step) * W + (c - c % step)     # the block's first pixel: done before
+                            if _same_surface(cam, i, j):
+                                out[i] = out[j]
+                                continue
+                    elif pr % stage or pc % stage:
+                        continue                  # a finer level's pixel
+                    elif stage < step:
+                        up = 2 * stage            # this level's anchors: the coarser lattice, done before
+                        if (pr % up == 0 and pc % up == 0) or _interpolated(cam, out, i, pr, pc, up, height,
+                                                                           flt.step_tolerance):
                             continue
                 _pcf_pixel(i, cam, smap, flt, out)     # inlined by LLVM
 
@@ -856,9 +882,12 @@ def _entry(cam, p):
 def _interpolated(cam, out, i, r, c, step, height, tol):
     """``step_fill="interpolate"``: out[i] = the bilinear blend of the
     anchors around view pixel (r, c) (those of non-zero weight: 2 on an
-    anchor row or column, else 4), when each is an entry (a packed
-    G-buffer's sub-pixel receivers: listed) on its surface
-    (``_on_anchor_surface``) and their V spans at most ``tol`` without
+    anchor row or column, else 4) that are entries (a packed G-buffer's
+    sub-pixel receivers: listed) on its surface (``_on_anchor_surface``),
+    their weights renormalised, when there are at least 2 of them holding
+    at least half the weight (a pixel beside a silhouette blends the
+    anchors on its own side: issue 15, a tenth of the pixels between
+    anchors on grids at 1080p) and their V spans at most ``tol`` without
     mixing a decided V (0: umbra, 1: lit, exact) with another; False (out[i]
     untouched) otherwise, or past the view's last anchor row or column."""
     W = cam.width
@@ -868,7 +897,7 @@ def _interpolated(cam, out, i, r, c, step, height, tol):
     c1 = c0 + step if c > c0 else c0
     if r1 >= height or c1 >= W:
         return False
-    lo, hi, acc = np.inf, -np.inf, 0.0
+    lo, hi, acc, wsum, used = np.inf, -np.inf, 0.0, 0.0, 0
     for q in range(4):
         wr = fr if q & 2 else 1.0 - fr
         wc = fc if q & 1 else 1.0 - fc
@@ -876,13 +905,17 @@ def _interpolated(cam, out, i, r, c, step, height, tol):
             continue
         j = _entry(cam, (r1 if q & 2 else r0) * W + (c1 if q & 1 else c0))
         if j < 0 or not _on_anchor_surface(cam, i, j):
-            return False
+            continue
         v = np.float64(out[j])
         lo, hi = min(lo, v), max(hi, v)
         acc += wr * wc * v
+        wsum += wr * wc
+        used += 1
+    if used < 2 or wsum < 0.5:
+        return False
     if hi - lo > tol or (hi > lo and (lo == 0.0 or hi == 1.0)):
         return False            # a sharp edge, or the border of a decided umbra or lit region
-    out[i] = acc
+    out[i] = acc / wsum
     return True
 
 
@@ -1023,8 +1056,10 @@ class PercentageCloserFiltering(Method):
                     raise ValueError(f"pcf: unknown sampler {params.sampler!r} (fast | figure4)")
                 if params.search not in ("tiles", "face"):
                     raise ValueError(f"pcf: unknown search {params.search!r} (tiles | face)")
-                if params.pixel_step < 1 or PIXEL_TILE % int(params.pixel_step):
-                    raise ValueError(f"pcf: pixel_step {params.pixel_step!r} must divide {PIXEL_TILE}")
+                step = int(params.pixel_step) or auto_pixel_step(W, H)
+                if step < 1 or PIXEL_TILE % step:
+                    raise ValueError(f"pcf: pixel_step {params.pixel_step!r} must be a power of 2 dividing "
+                                     f"{PIXEL_TILE}")
                 if params.step_fill not in ("interpolate", "copy"):
                     raise ValueError(f"pcf: unknown step_fill {params.step_fill!r} (interpolate | copy)")
                 lsize = light_reach(light, lv.faces)
@@ -1042,7 +1077,7 @@ class PercentageCloserFiltering(Method):
                              b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                              params.region == "light", max(1, int(params.BlockerSamples)),
                              max(1, int(params.PenumbraSamples)), SEARCH_STEPS if params.search == "tiles" else 0,
-                             max(1, int(params.pixel_step)),
+                             step,
                              params.sampler == "fast", params.step_fill == "interpolate",
                              float(params.step_tolerance))
                 filter_pixels(cam, smap, flt, out, H)
