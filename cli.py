@@ -123,7 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "or EEVEE's filter size), none (one receiver per pixel centre), box:W, "
                         "gaussian:W or blackman-harris:W (W in pixels)")
     r.add_argument("--map-size", type=_positive("--map-size", 8, MAX_SIDE), default=None,
-                   help="light depth-map resolution (larger side)")
+                   help="light depth-map resolution (larger side); default: as many texels as the "
+                        "output has pixels (a sun's: the output's larger side)")
     r.add_argument("--threads", type=_positive("--threads", 1, 1024), default=None)
     r.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     r.add_argument("--error-budget", type=_error_budget, default=None,

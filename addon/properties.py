@@ -274,8 +274,8 @@ def _make_classes():
                         "more means less noise at proportional cost"),
         "map_size": bpy.props.IntProperty(
             name="Depth Map Size", default=0, min=0, max=16384,
-            description="Resolution (larger side) of the light's depth maps; 0 = the output's "
-                        "larger side. Larger maps give finer shadow detail at more memory and time"),
+            description="Resolution (larger side) of the light's depth maps; 0 = as many texels as "
+                        "the output has pixels. Larger maps give finer shadow detail at more memory and time"),
         "knobs": bpy.props.PointerProperty(type=knobs, name="Quality"),
     }
     light = type("PENUMBRA_PG_light", (bpy.types.PropertyGroup,),

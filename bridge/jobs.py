@@ -19,7 +19,7 @@ from .capture import light_kind_size, light_object
 
 #: methods fast enough for the preview (others fall back to pcf there)
 FAST_METHODS = ("pcf", "single_sample")
-#: the preview's light views: this fraction of the output's larger side
+#: the preview's light views: this fraction of the default map's larger side (``views.default_map_size``)
 #: (a quarter of the texels; a light's own Map Size wins). Preview quality:
 #: pcf's MinSize region covers twice the surface, so its edges are softer.
 PREVIEW_MAP_SCALE = 0.5
@@ -106,9 +106,10 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
     PREVIEW_PARAMS under the light's own knobs; ``references``:
     instead of the scene's; ``only``: names of Blender light objects;
     ``map_scale``: a light without its own map size gets light views of
-    this fraction of the output's larger side (1: the output's).
+    this fraction of ``views.default_map_size``'s side (1: that side).
     Returns (jobs, notes)."""
     from ..core import methods as registry
+    from ..core.views import default_map_size
     seed = settings.seed(scene)
     refs = list(settings.references(scene) if references is None else references)
     jobs, notes = [], []
@@ -149,7 +150,7 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
                 mo[m.id] = knobs
         ms = int(s.map_size) if s is not None and s.map_size else None
         if ms is None and map_scale != 1.0:
-            ms = max(1, int(round(max(captured.resolution) * map_scale)))
+            ms = max(1, int(round(default_map_size(*captured.resolution, lt.kind) * map_scale)))
         jobs.append(LightJob(lt.name, passes, ov, mo, ms, choice))
     return jobs, notes
 

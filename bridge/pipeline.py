@@ -52,7 +52,7 @@ class FrameRequest:
     Work, from each light's Penumbra settings: ``methods`` (pass ids for
     every light instead of its method + the references), ``samples``,
     ``fast`` (preview: fast methods only, light views at ``map_scale`` of
-    the output's larger side, default ``jobs.PREVIEW_MAP_SCALE``, and the
+    the default map's side, ``jobs.PREVIEW_MAP_SCALE``, and the
     buffers of the last Preview while the camera and the geometry did not
     change: ``buffer_cache.py``), ``references``, ``only`` (light
     object names), ``per_light`` (one step per light). With

@@ -24,6 +24,7 @@ import numba
 import numpy as np
 
 from . import raycast, views
+from .kernels import hit_box
 from .methods.base import GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES, params_dict
 from .scene import GBuffer, Light, LightView, Scene
 from .sampling import scene_scale
@@ -56,7 +57,7 @@ NEED_PHASE: Dict[str, str] = {
     LIGHT_SAMPLE_VIEWS: "bvh",      # sample views are the method's own work, on the shared BVH
 }
 #: the frame's inputs (not buffers): every method sees them
-FRAME_INPUTS = ("scene", "width", "height", "map_size", "scale", "frame_memo")
+FRAME_INPUTS = ("scene", "width", "height", "map_size", "map_size_for", "scale", "frame_memo")
 
 
 class UndeclaredBufferError(RuntimeError):
@@ -78,7 +79,9 @@ class FrameBuffers:
         self.scene = scene
         self.width = int(width)
         self.height = int(height)
-        self.map_size = int(map_size or max(width, height))
+        self.map_size_given = int(map_size) if map_size else None
+        self.map_size = self.map_size_given or views.default_map_size(width, height)   # an area / spot light's
+        self._map_base = (self.width, self.height)     # the view the default map sizes follow
         self.build_times: Dict[str, float] = {}
         self._builds: Dict[str, _Build] = {}
         self._used: Optional[Set[str]] = None     # the running view's record (``BufferView``)
@@ -97,6 +100,12 @@ class FrameBuffers:
         lo, hi = scene.bounds()
         self.scale = scene_scale(lo, hi)
 
+    def map_size_for(self, light: Light) -> int:
+        """The larger side of ``light``'s maps: the one given, else
+        ``views.default_map_size`` of the frame's view (a sun's: its larger
+        side; a sub-pixel stage's: the pixel-centre view's)."""
+        return self.map_size_given or views.default_map_size(*self._map_base, light.kind)
+
     def supersampled(self, scene: Scene, width: int, height: int, gbuffer: GBuffer,
                      seconds: float) -> "FrameBuffers":
         """Buffers for ``pixel_filter``'s sub-pixel stage: ``scene`` at the
@@ -110,7 +119,8 @@ class FrameBuffers:
         centre there would be; their box grows to hold the sub-pixel
         receivers (occluder culling keeps what can shadow them; the culled
         BVHs are shared when it did not grow)."""
-        sub = FrameBuffers(scene, width, height, self.map_size)
+        sub = FrameBuffers(scene, width, height, self.map_size_given)
+        sub.map_size, sub._map_base = self.map_size, self._map_base
         sub._gbuffer = gbuffer
         sub.build_times["gbuffer"] = float(seconds)
         sub._builds["gbuffer"] = _Build(float(seconds), NEED_PHASE[GBUFFER], ())
@@ -188,7 +198,7 @@ class FrameBuffers:
         and thread count give the same bits); the camera and geometry are
         the buffers' own."""
         return (light.name, light_key(light), method_id, json.dumps(params, sort_keys=True, default=str),
-                self.map_size, numba.get_num_threads())
+                self.map_size_for(light), numba.get_num_threads())
 
     def kept_result(self, key: tuple):
         """The MethodResult kept under ``key`` (``keep_result``; taken over by
@@ -311,17 +321,19 @@ class FrameBuffers:
         frame from the G-buffer (a 1080p G-buffer holds 2 M of them)."""
         if self._receivers is None:
             g = self.gbuffer
-            # a row gather and per-axis reductions: ``position[hit].min(0)`` reduced
-            # along the short axis and copied the hits twice, ~0.1 s at 1080p
-            # (1x the raw primary-ray time; issue 15), for the same points and box
+            # the box in one pass over the G-buffer (``kernels.hit_box``) and only the
+            # subsample gathered: the hits' gather and per-axis reductions took ~40 ms
+            # at 1080p (a fifth of the raw primary-ray time; issue 15)
             idx = np.flatnonzero(g.hit)
-            flat = g.position.reshape(-1, g.position.shape[-1])
+            flat = np.ascontiguousarray(g.position.reshape(-1, 3), np.float64)
+            lo, hi = None, None
+            if len(idx):
+                box = np.array(hit_box(flat, np.ascontiguousarray(g.hit.reshape(-1))))
+                lo, hi = box[:3], box[3:]
+            if len(idx) > _FIT_POINTS:
+                step = int(np.ceil(len(idx) / _FIT_POINTS))
+                idx = np.concatenate([idx[::step], idx[[0, -1]]])
             pts = flat.take(idx, axis=0)
-            lo, hi = ((np.array([pts[:, k].min() for k in range(pts.shape[1])]),
-                       np.array([pts[:, k].max() for k in range(pts.shape[1])])) if len(pts) else (None, None))
-            if len(pts) > _FIT_POINTS:
-                step = int(np.ceil(len(pts) / _FIT_POINTS))
-                pts = np.concatenate([pts[::step], pts[[0, -1]]])
             pts.setflags(write=False)    # shared by every caller
             self._receivers = (pts, lo, hi)
         self._use("gbuffer")
@@ -397,7 +409,7 @@ class FrameBuffers:
         fitted to the visible receivers (LIGHT_VIEW), one per (map size, key).
         ``tri_label`` (int32 per triangle) replaces the object ids in the id
         map; give such a view its own ``key``."""
-        ms = int(map_size or self.map_size)
+        ms = int(map_size or self.map_size_for(light))
         k = (light.name, ms, key)
         name = f"light_view:{light.name}:{ms}:{key}"
         if k not in self._views:

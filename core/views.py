@@ -158,6 +158,23 @@ def face_rays(face: ViewFace):
     return org, d, scale
 
 
+def default_map_size(width: int, height: int, kind: str = "area") -> int:
+    """A light map's larger side when none is set, for a light of ``kind``:
+    sqrt(width x height), rounded, so a map fitted to the receivers holds at
+    most as many texels as the output has pixels (the output's larger side
+    for a square one); a sun's: the output's larger side. Issue 15: the
+    output's larger side gave a 1920 x 1908 map at 1920 x 1080, 1.8x the
+    camera's rays; at sqrt pcf's RMSE against embree went 0.0924 -> 0.0909
+    on grids and 0.0192 -> 0.0193 on sphere_plane at 1080p, leaf_cards,
+    foliage and torus_plane within 0.0003 at 960 x 540, single_sample's
+    0.0701 -> 0.0714 and layered's 0.047 -> 0.051 on grids at 512 x 288;
+    a sun's orthographic view spreads its texels over the whole receiver
+    box: sun_pillars 0.0435 -> 0.0536 at 960 x 540, so it keeps the side."""
+    if kind == "sun":
+        return max(1, int(width), int(height))
+    return max(1, int(round(math.sqrt(float(width) * float(height)))))
+
+
 def _padded(lo: float, hi: float, margin: float) -> Tuple[float, float]:
     span = max(hi - lo, 1e-12)
     return lo - margin * span, hi + margin * span

@@ -3,6 +3,8 @@ buffers it declared, every need has a builder, and the buffer phases billed to
 a method do not depend on which method ran first."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -203,3 +205,55 @@ def test_frame_memo_is_kept_only_when_a_filtered_frame_shares_it():
     assert sub.frame_memo("layered.ldi", light, params, build) == 3
     other = registry.producers()["layered"].make_params({"samples": 16})
     assert fb.frame_memo("layered.ldi", light, other, build) == 4
+
+
+@pytest.mark.parametrize("light", sorted(LIGHTS))
+def test_the_default_light_map_holds_no_more_texels_than_the_output_has_pixels(light):
+    """``views.default_map_size`` (issue 15): an area or spot light's map's
+    larger side is sqrt(W x H), so a 16:9 frame's light view holds at most
+    its pixel count (the output's larger side gave 1.8x the camera's rays at
+    1080p); a sun's keeps the output's larger side (its orthographic view
+    spreads over the receivers' box); a square output keeps its side; a map
+    size given wins for every light, and a sub-pixel stage keeps the
+    pixel-centre view's sizes."""
+    from penumbra.core.views import default_map_size
+    assert default_map_size(1920, 1080) == 1440 and default_map_size(256, 256) == 256
+    assert default_map_size(1920, 1080, "sun") == 1920 and default_map_size(1, 1) == 1
+    scene = half_plane_scene(LIGHTS[light](), res=RES)
+    lt = scene.lights[0]
+    W, H = 64, 36
+    side = 64 if light == "sun" else 48
+    fb = FrameBuffers(scene, W, H)
+    lv = fb.light_view(lt)
+    assert fb.map_size_for(lt) == side and fb.map_size == 48
+    assert max(max(f.width, f.height) for f in lv.faces) == side
+    assert light == "sun" or all(f.width * f.height <= W * H for f in lv.faces)
+    assert max(lv.depth.shape[1:]) == side
+    sub = fb.supersampled(scene, 4 * W, 4 * H, fb.gbuffer, 0.0)
+    assert sub.map_size_for(lt) == side
+    given = FrameBuffers(scene, W, H, 80)
+    assert given.map_size == 80 and given.map_size_for(lt) == 80
+
+
+def test_receiver_points_are_the_hits_subsample_and_box(monkeypatch):
+    """``FrameBuffers.receivers`` / the receivers' box (issue 15: one pass of
+    ``kernels.hit_box``, only the subsample gathered): the box is NumPy's
+    min / max over every hit, the points every k-th hit (k = ceil(hits /
+    _FIT_POINTS)) and the first and last."""
+    monkeypatch.setattr(buffers_mod, "_FIT_POINTS", 37)
+    scene = _scene()
+    fb = FrameBuffers(scene, 48, 40)
+    g = fb.gbuffer
+    hit = g.hit.copy()
+    hit[::3, ::2] = False                                  # misses (sky) are left out
+    hit[:5] = False
+    fb._gbuffer = dataclasses.replace(g, hit=hit)
+    hits = g.position[hit]
+    assert 0 < len(hits) < 48 * 40
+    pts, lo, hi = fb._receiver_points()
+    np.testing.assert_array_equal(lo, hits.min(0))
+    np.testing.assert_array_equal(hi, hits.max(0))
+    k = int(np.ceil(len(hits) / 37))
+    np.testing.assert_array_equal(pts, np.concatenate([hits[::k], hits[[0, -1]]]))
+    from penumbra.core.kernels import hit_box
+    assert hit_box(np.zeros((4, 3)), np.zeros(4, bool)) == (np.inf,) * 3 + (-np.inf,) * 3

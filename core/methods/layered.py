@@ -225,7 +225,7 @@ PAD_CAP = 1.0                # at most this many map sizes of padding per side (
 class LayeredParams:
     samples: int = 64              # N light samples (paper: "typically 64", 256 for its figures)
     epsilon: Optional[float] = None  # depth tolerance (scene units); None = 0.002 x scene extent
-    map_size: Optional[int] = None   # LDI and sample maps' larger side; None = output's larger side
+    map_size: Optional[int] = None   # LDI and sample maps' larger side; None = views.default_map_size
     bilinear: bool = True          # figure 11 right: filter the 4 neighbouring attenuations (issue 17:
                                    # default, nearest on receivers steeper than steep_slope); False:
                                    # the paper's display, the nearest LDI pixel
@@ -968,7 +968,7 @@ def precompute(buffers, light: Light, params: LayeredParams,
     if params.surfaces not in ("mesh", "object"):
         raise ValueError(f"layered: unknown surfaces {params.surfaces!r} (mesh | object)")
     scene = buffers.scene
-    ms = int(params.map_size or buffers.map_size)
+    ms = int(params.map_size or buffers.map_size_for(light))
     receivers = buffers.receivers()
     bounds = scene.bounds()
     centre = centre_faces(light, receivers, bounds, ms)

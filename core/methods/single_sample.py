@@ -195,7 +195,7 @@ class SingleSampleParams:
     tile_skip: bool = True        # skip search boxes the 8x8 tiles' depth range rules out (not in the paper)
     horizon: bool = True          # V x the share of the light above the receiver's tangent plane (issue 17;
                                   # False: the paper, an object never shadows itself softly)
-    map_size: Optional[int] = None  # light map's larger side; None = output's larger side
+    map_size: Optional[int] = None  # light map's larger side; None = views.default_map_size
     seed: int = 0                 # jitter hash seed
 
 
