@@ -63,8 +63,8 @@ a decided V (umbra 0, lit 1) with another; everywhere else (a silhouette,
 a shadow edge sharper than the tolerance) it is filtered itself. A
 light-sized region is many pixels wide, so V is smooth between anchors; the
 blend averages their sampling noise (RMSE against embree equal or lower at
-1080p on grids and sphere_plane, within 0.001 at 128 and 256 on the six
-sample scenes). At 1080p on grids the filter went 0.53 -> 0.28 s from one
+1080p on grids and sphere_plane; at 128 and 256, the study's, within
+0.0011 of one level at a tolerance of 0.1 on the six sample scenes). At 1080p on grids the filter went 0.53 -> 0.28 s from one
 level at a step of 2 with a tolerance of 0.1 (the noise of 64 samples alone
 spans 0.1 between four anchors: a quarter of the pixels between them were
 filtered again). The Preview's ``step_fill="copy"`` shares the block's
