@@ -495,13 +495,15 @@ def _levels_blend(a, g, step, tol, slope):
 def test_pixel_step_interpolates_between_anchors_on_their_surface_only():
     """The render's default (issue 15): step_fill="interpolate", pixel_step 0:
     2, and 4 from 1280 pixels across (``auto_pixel_step``), in levels
-    (``step_levels``: 4, 2, 1). Anchors (row and column multiples of 4) keep the every-pixel pass's V bit for bit; a pixel of a finer
-    level whose anchors on the coarser one lie on its surface (object,
-    normal, tangent plane) and span at most step_tolerance is their bilinear
-    blend; every other pixel (an object's silhouette, a shadow edge sharper
-    than the tolerance) has its own every-pixel V. pixel_step=2 is the one
-    level of the same rule. The interpolated pass is no further from
-    embree's than the every-pixel one."""
+    (``step_levels``: 4, 2, 1). Anchors (row and column multiples of 4)
+    keep the every-pixel pass's V bit for bit; a pixel of a finer level
+    whose anchors on the coarser one lie on its surface (object, normal,
+    tangent plane; at least 2 holding half the weight, renormalised) and
+    span at most step_tolerance is their bilinear blend; every other pixel
+    (an object's silhouette, a shadow edge sharper than the tolerance) has
+    its own every-pixel V. pixel_step=2 is the one level of the same rule.
+    The interpolated pass is no further from embree's than the every-pixel
+    one."""
     from synthetic import box
     from penumbra.core.methods.pcf import PIXEL_STEP_SLOPE, auto_pixel_step, step_levels
     tris = quad(-10, 10, -10, 10, 0.0) + box(-0.7, 0.45, -0.3, 0.8, 0.0, 1.2)

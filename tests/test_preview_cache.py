@@ -73,7 +73,7 @@ def test_editing_geometry_or_moving_the_camera_rebuilds_the_gbuffer(scene):
     assert not job.reused and t["gbuffer"] > 0.0
 
 
-def test_the_preview_map_is_half_the_output(scene):
+def test_the_preview_map_is_half_the_default_map(scene):
     job, _, _ = _preview(scene)
     lr = job.result().lights[0]
     side = round((RES[0] * RES[1]) ** 0.5)          # views.default_map_size: texels ~ the output's pixels
