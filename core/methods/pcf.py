@@ -870,11 +870,18 @@ def _on_anchor_surface(cam, i, j):
 def _entry(cam, p):
     """The entry of view pixel ``p``: itself in a dense G-buffer; in a packed
     one (``cam.pixel``, ascending) its index, or -1 when it is not listed."""
-    if cam.pixel.shape[0] == 0:
+    n = cam.pixel.shape[0]
+    if n == 0:
         return p
-    k = np.searchsorted(cam.pixel, p)
-    if k < cam.pixel.shape[0] and cam.pixel[k] == p:
-        return k
+    lo, hi = 0, n                 # a binary search (np.searchsorted's overload cost 0.5 s to compile)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if cam.pixel[mid] < p:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < n and cam.pixel[lo] == p:
+        return lo
     return -1
 
 
