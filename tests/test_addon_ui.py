@@ -299,8 +299,11 @@ def test_preview_updates_one_image_in_place(registered):
     from penumbra.core.frame import render_frame
     from penumbra.bridge.capture import capture_scene
     from penumbra.bridge.jobs import PREVIEW_MAP_SCALE, PREVIEW_PARAMS
+    from penumbra.core.views import default_map_size
+    assert light.data.type == "AREA"
+    side = round(default_map_size(24, 16, "area") * PREVIEW_MAP_SCALE)
     ref = render_frame(capture_scene(scene, resolution=(24, 16)), ["pcf"], overrides={"seed": 0, "samples": 64},
-                       method_overrides={"pcf": PREVIEW_PARAMS["pcf"]}, map_size=round(24 * PREVIEW_MAP_SCALE))
+                       method_overrides={"pcf": PREVIEW_PARAMS["pcf"]}, map_size=side)
     np.testing.assert_allclose(_pixels(img), ref.lights[0].passes["pcf"], atol=1e-6)
     # no image nodes, no pass images: a preview changes nothing else
     assert not any(i.name.startswith("Penumbra ") and i.name != "Penumbra Preview" for i in bpy.data.images)
