@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from typing import List
 
 import numpy as np
-from numba import njit
+from .jit import kernel
 
 CLOSEST, LINEAR = 0, 1
 REPEAT, EXTEND, CLIP = 0, 1, 2
@@ -113,7 +113,7 @@ class AlphaMattes:
                            list(self.names))
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _wrap(i, n, extension):
     """Texel index ``i`` of a row of ``n`` folded in as Cycles' REPEAT
     (``wrap_periodic``) or EXTEND (``wrap_clamp``) does; CLIP: unchanged."""
@@ -125,7 +125,7 @@ def _wrap(i, n, extension):
     return i
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _texel(m, k, ix, iy):
     """Texel (ix, iy) of matte ``k`` (row iy from v = 0); 0 outside it (CLIP)."""
     w = m.width[k]
@@ -134,7 +134,7 @@ def _texel(m, k, ix, iy):
     return np.float64(m.texels[m.offset[k] + np.int64(iy) * w + ix])
 
 
-@njit(cache=True, nogil=True, inline="always")   # per hit: no call (tuple reference counts)
+@kernel(nogil=True, inline="always")   # per hit: no call (tuple reference counts)
 def matte_alpha(m, k, s, t):
     """Alpha of matte ``k`` at texture coordinates (s, t), as Cycles' Image
     Texture node samples it: CLOSEST takes texel (floor(s w), floor(t h));
@@ -170,7 +170,7 @@ def matte_alpha(m, k, s, t):
     return min(max(a, 0.0), 1.0)
 
 
-@njit(cache=True, nogil=True, inline="always")   # per hit: no call (tuple reference counts)
+@kernel(nogil=True, inline="always")   # per hit: no call (tuple reference counts)
 def alpha_at(m, tri, u, v):
     """Alpha of triangle ``tri`` (an index into the scene's triangles) at the
     hit with Embree barycentrics (u, v): its matte at UV = (1-u-v) uv0 +

@@ -35,7 +35,7 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from .jit import inner, kernel
 
 from .alpha import alpha_at
 from .sampling import offset_origin
@@ -61,7 +61,7 @@ def dither_band(row0: int, row1: int, width: int) -> np.ndarray:
 AlphaGeometry = namedtuple("AlphaGeometry", "mattes triangles scale")
 
 
-@njit(cache=True, nogil=True)
+@inner
 def _surface(triangles, g, uu, vv):
     """Point (float64, from barycentrics on the float32 triangle ``g``) and
     unit geometric normal of a hit."""
@@ -80,7 +80,7 @@ def _surface(triangles, g, uu, vv):
     return px, py, pz, n0, n1, n2
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _step_past(prim, u, v, tri_index, geo, o0, d, tfar0, o, tfar):
     """Move each ray's origin ``o`` just past its hit (local primitive
     ``prim``, barycentrics u, v), onto the side the ray goes on; ``tfar``:
@@ -96,7 +96,7 @@ def _step_past(prim, u, v, tri_index, geo, o0, d, tfar0, o, tfar):
                               + (oz - o0[i, 2]) * d[i, 2])
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _cross_mattes(prim, u, v, tri_index, geo, last, trans, ray, o0, d, t0, o, tf):
     """One crossing of ``transmittance``, in place: each ray's transmittance
     ``trans[ray[i]]`` times (1 - alpha) of its hit (``last``: no crossing
@@ -135,7 +135,7 @@ def _cross_mattes(prim, u, v, tri_index, geo, last, trans, ray, o0, d, t0, o, tf
     return k
 
 
-@njit(cache=True, nogil=True)
+@inner
 def _cutoff(cut, dither, crossing):
     """The alpha a ray's ``crossing``-th surface must reach to stop it: its
     own ``cut``; with ``dither`` (cut a DITHER level) the level's rank r
@@ -149,7 +149,7 @@ def _cutoff(cut, dither, crossing):
     return (r + 0.5) / 16.0
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def clear_hits(prim, u, v, tri_index, mattes, cut, clear):
     """clear[i]: hit i (local primitive, -1 = none) is on a matte whose alpha
     there is below ``cut[i]`` (a primary ray passes through it). Hits on
@@ -166,7 +166,7 @@ def clear_hits(prim, u, v, tri_index, mattes, cut, clear):
             clear[i] = alpha_at(mattes, g, np.float64(u[i]), np.float64(v[i])) < cut[i]
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _record(hp, hu, hv, tri_index, geo, ray, o0, d, prim, u, v, t, cut, crossing, going):
     """Write each re-traced ray's hit (-1: none) into ray ``ray[i]``'s
     (prim, u, v, t) (t: from its first origin ``o0``); it goes on when that
@@ -255,7 +255,7 @@ def pass_through(bvh, rays, prim, u, v, t, cut=None, dither: bool = False) -> np
     return changed
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def barycentrics(triangles, tri, P, u, v):
     """Embree's (u, v) of points ``P`` (float64[n,3]) on triangles ``tri``
     (the G-buffer keeps positions, not barycentrics)."""
@@ -280,11 +280,11 @@ def barycentrics(triangles, tri, P, u, v):
             u[i], v[i] = 0.0, 0.0
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def gbuffer_hits(prim, u, v, d, tri_index, triangles, tri_object, eye, fwd, pix,
                  position, normal, depth, object_id, triangle_id):
     """Re-traced camera rays -> G-buffer pixels ``pix`` (flat): the surface
-    they stopped at (``pixel_rays.gbuffer_pixels``' conventions: normal
+    they stopped at (``pixel_rays.gbuffer_list``' conventions: normal
     facing the ray, depth along ``fwd`` from ``eye``; empty: -1, +inf, 0)."""
     for i in range(prim.shape[0]):
         k = pix[i]

@@ -11,9 +11,10 @@ from contextlib import contextmanager
 
 import numba
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
+from .jit import inner, kernel
 
 from . import cancel
 
@@ -132,7 +133,7 @@ def borrowed(typingctx, value):
     return value(value), codegen
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def face_project(fp, x, y, z):
     """World point -> (u, v, depth) in face pixels; depth = -z_view.
     For perspective faces points at depth <= 0 get u = v = nan."""
@@ -150,7 +151,7 @@ def face_project(fp, x, y, z):
     return u, v, depth
 
 
-@njit(cache=True)
+@inner
 def pick_face(faces, x, y, z):
     """Index of the first face whose window holds the point, or -1."""
     for f in range(faces.shape[0]):
@@ -162,7 +163,7 @@ def pick_face(faces, x, y, z):
     return -1
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def hit_box(points, hit):
     """(xmin, ymin, zmin, xmax, ymax, zmax): the least and greatest
     ``points[i]`` (float64[N, 3]) per axis over the i with ``hit[i]``;
@@ -179,7 +180,7 @@ def hit_box(points, hit):
     return x0, y0, z0, x1, y1, z1
 
 
-@njit(cache=True)
+@kernel
 def finite_bbox(depth):
     """Per face: (umin, umax, vmin, vmax) of finite depths (Reeves et al. 3.3),
     (1, 0, 1, 0) for an empty face."""

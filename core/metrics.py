@@ -10,7 +10,7 @@ import math
 from typing import Dict, Optional
 
 import numpy as np
-from numba import njit
+from .jit import kernel
 
 from .scene import GBuffer, Light
 
@@ -88,7 +88,7 @@ def whole_light_mask(g: GBuffer, light: Light, margin: float = 0.02) -> np.ndarr
     return ok
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _reach_kernel(P, N, hit, mode, c, axis, limit, radius, pts, out):
     """``reach_mask`` per pixel: sun: n . to_sun > -sin(half angle); sphere:
     n . d / |d| > -min(r / |d|, 1) (d: to the centre) and, for a spot, the

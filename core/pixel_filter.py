@@ -51,7 +51,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from numba import njit
+from .jit import kernel
 
 from .kernels import each_range
 
@@ -286,7 +286,7 @@ def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, n
                                            float(sharp), full, float(geo_v)), hit.shape[0], threads, grain=8)
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _refine_rows(r0, r1, hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out,
                  sharp, full, geo_v):
     """``refine_mask`` for rows r0 .. r1 - 1 (a serial ``nogil`` kernel on
@@ -347,7 +347,7 @@ def _refine_rows(r0, r1, hit, obj, depth, normal, values, reach, threshold, dept
             full[r, c] = geo
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _footprint_rows(refine, full, grid, m0, k, lattice, shade_footprint, out):
     """``footprint_samples``' kernel: ``out`` (bool[SH * SW], row-major, all
     False) gets True at the sub-samples some refined pixel reads: a
@@ -420,7 +420,7 @@ def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int, full: Opti
     return flat // SW, flat % SW
 
 
-@njit(cache=True)
+@kernel
 def resolve(refine, centre, rows, cols, sub, weight_sub, taps, grid, m0, out):
     """Filtered pixels: where ``refine``, sum taps w_k weight_sub_k sub_k /
     sum taps w_k weight_sub_k over the listed sub-samples of the footprint

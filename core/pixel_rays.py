@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import inner, kernel
 
 ROT, EYE, WINDOW, ORTHO, NEAR, FAR = 0, 9, 12, 16, 17, 18
 RAY_PARAMS = 19
@@ -40,7 +40,7 @@ def pack_rays(rotation, eye, window, ortho: bool, near: float = 0.0, far: float 
     return p
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _local_xy(p, col, row, width, height):
     """View-plane point of the pixel centre (col + 0.5, row + 0.5)."""
     x = p[WINDOW] + (col + 0.5) / width * (p[WINDOW + 1] - p[WINDOW])
@@ -48,7 +48,7 @@ def _local_xy(p, col, row, width, height):
     return x, y
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _ray(p, col, row, width, height):
     """(origin, unit direction, view-axis depth per unit of ray length) of one
     pixel's ray, float64, as ``views.camera_rays`` computes them."""
@@ -69,7 +69,7 @@ def _ray(p, col, row, width, height):
     return p[EYE] + dx * s, p[EYE + 1] + dy * s, p[EYE + 2] + dz * s, dx, dy, dz, axis
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _put_ray(p, col, row, width, height, i, org, dirs, tfar):
     """Ray i of a batch: pixel (col, row)'s, as float32."""
     ox, oy, oz, dx, dy, dz, axis = _ray(p, col, row, width, height)
@@ -78,24 +78,35 @@ def _put_ray(p, col, row, width, height, i, org, dirs, tfar):
     tfar[i] = (p[FAR] - p[NEAR]) / axis
 
 
-@njit(cache=True, nogil=True)
+_NO_PIXELS = np.empty(0, np.int64)
+
+
 def make_rays(p, width, height, row0, row1, org, dirs, tfar):
     """float32 origins [N,3], unit directions [N,3] and ray lengths [N] (to
     the far plane) through the pixel centres of rows [row0, row1), row-major."""
-    for row in range(row0, row1):
-        for col in range(width):
-            _put_ray(p, col, row, width, height, (row - row0) * width + col, org, dirs, tfar)
+    pixel_ray_batch(p, width, height, row0, row1, _NO_PIXELS, _NO_PIXELS, org, dirs, tfar)
 
 
-@njit(cache=True, nogil=True)
 def make_rays_list(p, width, height, cols, rows, org, dirs, tfar):
     """``make_rays`` for the listed pixels (cols[i], rows[i]) only: a sparse
     set of sub-pixel samples is the pixel centres of a supersampled view."""
-    for i in range(cols.shape[0]):
-        _put_ray(p, cols[i], rows[i], width, height, i, org, dirs, tfar)
+    pixel_ray_batch(p, width, height, 0, 0, cols, rows, org, dirs, tfar)
 
 
-@njit(cache=True, inline="always")
+@kernel(nogil=True)
+def pixel_ray_batch(p, width, height, row0, row1, cols, rows, org, dirs, tfar):
+    """``make_rays`` (``cols`` empty) or ``make_rays_list``: one kernel for
+    both (issue 15: each compiled ``_put_ray`` again)."""
+    if cols.shape[0] == 0:
+        for row in range(row0, row1):
+            for col in range(width):
+                _put_ray(p, col, row, width, height, (row - row0) * width + col, org, dirs, tfar)
+    else:
+        for i in range(cols.shape[0]):
+            _put_ray(p, cols[i], rows[i], width, height, i, org, dirs, tfar)
+
+
+@kernel(inline="always")
 def _gbuffer_miss(i, position, normal, depth, object_id, triangle_id):
     """An empty G-buffer entry i (nothing hit)."""
     position[i, 0], position[i, 1], position[i, 2] = 0.0, 0.0, 0.0
@@ -105,10 +116,10 @@ def _gbuffer_miss(i, position, normal, depth, object_id, triangle_id):
     triangle_id[i] = -1
 
 
-@njit(cache=True)
+@inner
 def _gbuffer_hit(p, i, prim, u, v, tri_index, triangles, tri_object, fwd, dirs,
                  position, normal, depth, object_id, triangle_id):
-    """``gbuffer_pixels``' body for hit i, traced along ``dirs[i]``."""
+    """``gbuffer_list``' body for hit i, traced along ``dirs[i]``."""
     t = tri_index[prim[i]]
     triangle_id[i] = t
     object_id[i] = tri_object[t]
@@ -138,26 +149,15 @@ def _gbuffer_hit(p, i, prim, u, v, tri_index, triangles, tri_object, fwd, dirs,
     depth[i] = (px - p[EYE]) * fwd[0] + (py - p[EYE + 1]) * fwd[1] + (pz - p[EYE + 2]) * fwd[2]
 
 
-@njit(cache=True, nogil=True)
-def gbuffer_pixels(p, width, height, row0, row1, prim, u, v, tri_index, triangles, tri_object, fwd, dirs,
-                   position, normal, depth, object_id, triangle_id):
-    """Embree's closest hits (local primID, u, v) -> G-buffer pixels: position
-    from the barycentrics on the float32 triangle, in float64; the geometric
-    normal, unit, flipped to face the ray; depth along the view axis ``fwd``
-    from the eye; object and global triangle ids (-1, +inf, 0 where empty)."""
-    for i in range((row1 - row0) * width):
-        if prim[i] < 0:
-            _gbuffer_miss(i, position, normal, depth, object_id, triangle_id)
-        else:
-            _gbuffer_hit(p, i, prim, u, v, tri_index, triangles, tri_object, fwd, dirs,
-                         position, normal, depth, object_id, triangle_id)
-
-
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def gbuffer_list(p, prim, u, v, tri_index, triangles, tri_object, fwd, dirs,
                  position, normal, depth, object_id, triangle_id):
-    """``gbuffer_pixels`` for the rays of a pixel list (``make_rays_list``):
-    entry i is the list's pixel i."""
+    """Embree's closest hits (local primID, u, v) of rays ``dirs`` (a band
+    of pixel rows, ``make_rays``, or a pixel list, ``make_rays_list``: entry
+    i is ray i) -> G-buffer entries: position from the barycentrics on the
+    float32 triangle, in float64; the geometric normal, unit, flipped to
+    face the ray; depth along the view axis ``fwd`` from the eye; object and
+    global triangle ids (-1, +inf, 0 where empty)."""
     for i in range(prim.shape[0]):
         if prim[i] < 0:
             _gbuffer_miss(i, position, normal, depth, object_id, triangle_id)
@@ -166,7 +166,7 @@ def gbuffer_list(p, prim, u, v, tri_index, triangles, tri_object, fwd, dirs,
                          position, normal, depth, object_id, triangle_id)
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def depth_pixels(p, width, height, row0, row1, prim, t, tri_index, tri_object, depth, object_id):
     """Embree's closest hits -> a light view's pixels: depth along the view
     axis (ray length times its cosine to the axis; +inf where empty) and

@@ -214,7 +214,7 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
     Position comes from the hit's barycentrics on the float32 triangle (its
     error does not grow with the ray's length), the geometric normal from the
     triangle's edges, flipped to face the camera; depth is along the view axis
-    (``pixel_rays.gbuffer_pixels``).
+    (``pixel_rays.gbuffer_list``).
     """
     cam: Camera = scene.camera
     if tri_scene is None:
@@ -235,9 +235,8 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
         if r is None:
             r = {"primID": np.full(b - a, -1, np.int32), "u": np.zeros(b - a, np.float32),
                  "v": np.zeros(b - a, np.float32)}
-        pixel_rays.gbuffer_pixels(params, width, height, row0, row1, r["primID"], r["u"], r["v"],
-                                  tri_scene.tri_index, triangles, tri_object, fwd, dirs,
-                                  pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
+        pixel_rays.gbuffer_list(params, r["primID"], r["u"], r["v"], tri_scene.tri_index, triangles,
+                                tri_object, fwd, dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
 
     trace_pixels(tri_scene, params, width, height, True, finish, threads)
     if tri_scene.alpha is not None:

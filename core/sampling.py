@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import inner, kernel
 
 from .kernels import each_range
 from .scene import KIND_AREA, KIND_SPHERE, KIND_SUN, Light  # noqa: F401 (kernels' kind codes)
@@ -41,7 +41,7 @@ def pack_light(light: Light) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@kernel
 def strata(n):
     """(nx, ny) with nx * ny == n and nx the largest divisor of n not above
     sqrt(n): the stratification of n light samples (every method's)."""
@@ -56,7 +56,7 @@ def strata(n):
     return nx, n // nx
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def stratum_uv(seed, key, s, nx, ny):
     """A jittered point of stratum s (row-major, nx x ny) of the unit
     square, the jitter from rand01(seed, key, s, 0 / 1) (np.int64: a
@@ -66,7 +66,7 @@ def stratum_uv(seed, key, s, nx, ny):
 
 # --------------------------------------------------------------------------
 # counter-based random numbers
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _pcg(v):
     """PCG's output permutation of one LCG step of a uint32 (callers pass
     uint32 only: one compiled signature)."""
@@ -75,7 +75,7 @@ def _pcg(v):
     return ((word >> np.uint32(22)) ^ word) & np.uint32(0xFFFFFFFF)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def rand01(seed, pixel, sample, dim):
     """Uniform in [0, 1) from four counters."""
     h = _pcg(np.uint32(dim))
@@ -86,7 +86,7 @@ def rand01(seed, pixel, sample, dim):
     return np.float64(h >> np.uint32(8)) * (1.0 / 16777216.0)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def stream_start(seed, pixel):
     """A 32-bit state for one pixel's stream of cheap random numbers
     (``stream_next``): one hash per pixel instead of one per number."""
@@ -95,7 +95,7 @@ def stream_start(seed, pixel):
     return _pcg(np.uint32(np.uint32(seed & 0xFFFFFFFF) ^ h))
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def stream_next(state):
     """(next state, uniform in [0, 1)): PCG's output permutation of an LCG step."""
     state = (state * np.uint32(747796405) + np.uint32(2891336453)) & np.uint32(0xFFFFFFFF)
@@ -104,7 +104,7 @@ def stream_next(state):
     return state, np.float64(word >> np.uint32(8)) * (1.0 / 16777216.0)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def stream_word(state):
     """(next state, a uniform 32-bit word): ``stream_next``'s step with all
     of its output's bits, for a caller that splits one word into several
@@ -114,7 +114,7 @@ def stream_word(state):
     return state, ((word >> np.uint32(22)) ^ word) & np.uint32(0xFFFFFFFF)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def concentric_disk(u, v):
     """Shirley-Chiu concentric map of [0,1)^2 to the unit disk (area-preserving,
     keeps strata compact)."""
@@ -131,7 +131,7 @@ def concentric_disk(u, v):
     return r * math.cos(phi), r * math.sin(phi)
 
 
-@njit(cache=True, forceinline=True)
+@kernel(forceinline=True)
 def orthonormal_basis(nx, ny, nz):
     """Duff et al. 2017 branchless ONB around a unit vector."""
     s = 1.0 if nz >= 0.0 else -1.0
@@ -140,7 +140,7 @@ def orthonormal_basis(nx, ny, nz):
     return (1.0 + s * nx * nx * a, s * b, -s * nx), (b, s + ny * ny * a, -ny)
 
 
-@njit(cache=True)
+@inner
 def light_sample(lp, px, py, pz, u, v):
     """A point on (or direction to) the light for unit-square coordinates (u, v).
 
@@ -191,7 +191,7 @@ def light_sample(lp, px, py, pz, u, v):
     return x, y, z, True, 1.0
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def reference_sample(lp, seed, pixel, s, nx, ny, px, py, pz, ox, oy, oz, n0, n1, n2):
     """The ``embree`` reference's sample ``s`` of ``pixel`` (stratum s of an
     nx x ny grid, jittered by the counter hash), seen from origin (ox, oy, oz).
@@ -224,7 +224,7 @@ def reference_sample(lp, seed, pixel, s, nx, ny, px, py, pz, ox, oy, oz, n0, n1,
 # --------------------------------------------------------------------------
 # self-intersection offset
 OFFSET_ULPS = 32.0
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _nudge(p, of_i):
     """Move float32 ``p`` by ``of_i`` units in the last place, away from zero
     when ``of_i`` has p's sign."""
@@ -236,7 +236,7 @@ def _nudge(p, of_i):
     return np.float64(np.int32(b).view(np.float32))
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def offset_origin(px, py, pz, nx, ny, nz, scale):
     """Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection"
     (Ray Tracing Gems, ch. 6): move the hit point off its surface along the
@@ -273,7 +273,7 @@ def offset_points(P, Nrm, scale, to_float32, threads=None):
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _offset_points(i0, i1, P, Nrm, scale, to_float32, out):
     """``offset_points`` for points i0..i1-1 into ``out``."""
     for i in range(i0, i1):
@@ -291,7 +291,7 @@ def scene_scale(lo, hi) -> float:
     return d if d > 0 and np.isfinite(d) else 1.0
 
 
-@njit(cache=True)
+@kernel
 def light_sample_set(lp, n, seed):
     """The same ``n`` stratified jittered unit-square points for every pixel
     (the layered method's sampling, Agrawala et al. section 3), float64[n, 2]."""

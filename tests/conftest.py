@@ -10,17 +10,23 @@ runs the core part once and the bpy part on every tested Blender, and checks
 that together they ran every collected test.
 
 Only bpy fixtures live here, and bpy is imported inside them.
+
+``PENUMBRA_STRICT_INNER=1`` (``core/jit.py``): a Penumbra module that calls
+an inner kernel from Python fails the test that reaches it (subprocesses the
+tests start inherit it).
 """
 import ast
 import functools
 import importlib.abc
 import inspect
+import os
 import re
 import sys
 import textwrap
 
 import pytest
 
+os.environ["PENUMBRA_STRICT_INNER"] = "1"
 BPY_NAMES = re.compile(r"\b(bpy|load_sample|sample_path|factory_scene)\b")
 
 

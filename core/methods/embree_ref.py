@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from numba import njit
+from ..jit import HOT, kernel
 
 from .. import sampling
 from ..kernels import each_in_threads
@@ -51,7 +51,7 @@ class EmbreeParams:
     seed: int = 0
 
 
-@njit(cache=True, nogil=True)
+@kernel(opt=HOT, nogil=True)
 def generate_shadow_rays(P, Nrm, pix, lp, ns, seed, scale, org, dirs, tfar, w):
     """Fill float32 ray arrays for pixels ``P`` (float64[n,3]) with normals
     ``Nrm`` and global pixel ids ``pix``: ray i*ns+s goes to stratum s."""
@@ -77,7 +77,7 @@ def generate_shadow_rays(P, Nrm, pix, lp, ns, seed, scale, org, dirs, tfar, w):
             w[k] = wt * cos_r
 
 
-@njit(cache=True, nogil=True)
+@kernel(opt=HOT, nogil=True)
 def reduce_visibility(trans, w, ns, v_avg, v_irr):
     """trans: each ray's transmittance (0 or 1 past opaque triangles; issue
     18: Cycles' product of (1 - alpha) through mattes) -> per-pixel V (eq. 2,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from ..jit import inner, kernel
 
 from ..kernels import each_range
 
@@ -123,14 +123,14 @@ def pack_light(light) -> np.ndarray:
     return lp
 
 
-@njit(cache=True, error_model="numpy")
+@inner(error_model="numpy")
 def _disk_share_at(x):
     """``_disk_share`` of one x."""
     x = min(max(x, -1.0), 1.0)
     return (math.acos(x) - x * math.sqrt(1.0 - x * x)) / math.pi
 
 
-@njit(cache=True, error_model="numpy")
+@inner(error_model="numpy")
 def _share_at(lp, px, py, pz, nx, ny, nz):
     """The share of the light ``lp`` (``pack_light``) above the plane
     through (px, py, pz) with normal (nx, ny, nz): ``horizon_share_reference``
@@ -193,7 +193,7 @@ def _share_at(lp, px, py, pz, nx, ny, nz):
     return 1.0 if math.isnan(G) else 1.0 - G
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(nogil=True, error_model="numpy")
 def _horizon_range(i0, i1, P, Nrm, lp, only, out, scale):
     """Points i0..i1-1: ``out[i] = share`` or, with ``scale``, ``out[i] *=
     share`` where ``only[i]`` and out[i] > 0 (the share cannot lift a 0)."""

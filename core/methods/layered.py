@@ -200,7 +200,7 @@ from typing import Dict, List, Optional
 
 import numba
 import numpy as np
-from numba import njit
+from ..jit import HOT, inner, kernel
 
 from .. import sampling, views
 from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
@@ -250,7 +250,7 @@ class LayeredParams:
 
 # --------------------------------------------------------------------------
 # light samples
-@njit(cache=True)
+@kernel
 def sample_points(lp, uv, seed):
     """World points (area, sphere) or unit directions towards the light (sun)
     for the unit-square samples ``uv`` (float64[n, 2])."""
@@ -275,7 +275,7 @@ def sample_points(lp, uv, seed):
 
 # --------------------------------------------------------------------------
 # warps (line 5 of Precompute)
-@njit(cache=True, nogil=True)
+@kernel(opt=HOT, nogil=True)
 def warp_shift(sdepth, kx, ky, ax, ay, wf, wx, wy, wz):
     """Equation 3 for a sample map on the centre map's texel grid (same
     rotation, window padded by ``kx``, ``ky`` whole texels on the left / top):
@@ -297,7 +297,7 @@ def warp_shift(sdepth, kx, ky, ax, ay, wf, wx, wy, wz):
         wz[k] = d
 
 
-@njit(cache=True)
+@inner
 def _unproject(fp, r, c, d):
     """World point seen at pixel (r, c) of packed face ``fp`` at depth ``d``."""
     x = fp[17] + (c + 0.5) / fp[21] * (fp[18] - fp[17])
@@ -316,7 +316,7 @@ def _unproject(fp, r, c, d):
     return X, Y, Z
 
 
-@njit(cache=True, nogil=True)
+@kernel(opt=HOT, nogil=True)
 def warp_projective(sfaces, sdepth, cfaces, wf, wx, wy, wz):
     """General warp: unproject each sample pixel to world space and project it
     into the centre face that holds it (-1: outside the centre view)."""
@@ -342,7 +342,7 @@ def warp_projective(sfaces, sdepth, cfaces, wf, wx, wy, wz):
         wz[k] = dd
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _diagonal_neighbour(sobj, wf, wz, fs, r, c, sign, f, ob, z0):
     """Flat index of the neighbour of sample pixel (fs, r, c) along the
     diagonal (1, sign) or (-1, -sign) on the same surface ``ob`` and centre
@@ -364,7 +364,7 @@ def _diagonal_neighbour(sobj, wf, wz, fs, r, c, sign, f, ob, z0):
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel(opt=HOT, nogil=True)
 def warp_local(sdepth, sobj, wf, wx, wy, wz, cfaces, max_slope, gx, gy, span, foot, diagonals, slope_t):
     """The surface around each warped point, from its warped neighbours on the
     same object in the same centre face (per sample-map axis the neighbour
@@ -519,7 +519,7 @@ def warp_local(sdepth, sobj, wf, wx, wy, wz, cfaces, max_slope, gx, gy, span, fo
 
 # --------------------------------------------------------------------------
 # the layered depth image (line 6 of Precompute)
-@njit(cache=True, nogil=True)
+@kernel(opt=HOT, nogil=True)
 def ldi_insert(ldi_depth, ldi_span, ldi_count, ldi_last, ldi_n, wf, wx, wy, wz, gx, gy, span,
                foot, footprint, h, w, sample, eps, slope_t, foot_slope):
     """Insert one warped sample map: splat each point to the (up to four)
@@ -620,7 +620,7 @@ def ldi_insert(ldi_depth, ldi_span, ldi_count, ldi_last, ldi_n, wf, wx, wy, wz, 
 
 # --------------------------------------------------------------------------
 # display
-@njit(cache=True)
+@inner
 def _plane_depth(fp, pvx, pvy, pvz, nvx, nvy, nvz, col, row, d, cos_min):
     """Depth where the centre view's ray through pixel centre (col, row) meets
     the tangent plane through view-space point pv with normal nv; ``d`` when
@@ -639,7 +639,7 @@ def _plane_depth(fp, pvx, pvy, pvz, nvx, nvy, nvz, col, row, d, cos_min):
     return ((pvx - x) * nvx + (pvy - y) * nvy + pvz * nvz) / den
 
 
-@njit(cache=True)
+@inner
 def _point_span(fp, pvx, pvy, pvz, nvx, nvy, nvz, d, max_slope):
     """Depth change of the tangent plane (view-space point pv, normal nv)
     across one texel along each axis of face ``fp``, summed; at most
@@ -661,7 +661,7 @@ def _point_span(fp, pvx, pvy, pvz, nvx, nvy, nvz, d, max_slope):
     return num / den
 
 
-@njit(cache=True)
+@inner
 def _point_slope(fp, pvx, pvy, pvz, nvx, nvy, nvz, d):
     """The tangent plane's depth change per texel in texel widths, the
     larger axis (``steep_slope``'s measure on the display side)."""
@@ -673,7 +673,7 @@ def _point_slope(fp, pvx, pvy, pvz, nvx, nvy, nvz, d):
     return m / den if den > 0.0 else np.inf
 
 
-@njit(cache=True)
+@inner
 def _match(ldi_depth, ldi_span, ldi_n, pix, z, sp, eps):
     """(layer, status) for depth z at LDI pixel ``pix``: status 0 = the nearest
     layer within tolerance (eps + half the larger depth span across a texel,
@@ -696,7 +696,7 @@ def _match(ldi_depth, ldi_span, ldi_n, pix, z, sp, eps):
     return -1, 2
 
 
-@njit(cache=True)
+@inner
 def _lookup(ldi_depth, ldi_span, ldi_count, ldi_n, pix, z, sp, eps, invN):
     """Attenuation at one LDI pixel: the matching layer's; the nearest layer's
     if z is in front of every layer; 0 if behind / between; -1 if empty."""
@@ -708,7 +708,7 @@ def _lookup(ldi_depth, ldi_span, ldi_count, ldi_n, pix, z, sp, eps, invN):
     return ldi_count[pix, L] * invN
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(opt=HOT, nogil=True, error_model="numpy")
 def display_kernel(idx, P, Nrm, cfaces, h, w, ldi_depth, ldi_span, ldi_count, ldi_n, invN, eps,
                    bilinear, plane, cos_min, max_slope, out, bi_slope):
     """Procedure Display, lines 2-5, for the points ``idx`` of P (normals
@@ -1069,7 +1069,7 @@ def precompute(buffers, light: Light, params: LayeredParams,
                np.asarray(ctr, np.float64), float(reach), render_s, insert_s)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(opt=HOT, nogil=True, error_model="numpy")
 def horizon_kernel(idx, P, Nrm, pts, directional, centre, reach, out):
     """Fraction of the light samples above each point's tangent plane (on the
     side of its normal): the light its own surface does not hide. Points whose

@@ -83,7 +83,8 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
+from ..jit import inner, kernel
 
 from .. import views
 from ..kernels import borrowed, each_dealt_chunk, face_project, finite_bbox, pick_face
@@ -136,7 +137,7 @@ class PCFParams:
     seed: int = 0
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _grid(sres, tres, NumSamples, MinSamples):
     """Figure 4's ns x nt cells for a region of half sizes ``sres``, ``tres``
     (texels): one per texel up to ``NumSamples`` in all, at least
@@ -154,7 +155,7 @@ def _grid(sres, tres, NumSamples, MinSamples):
     return ns, nt
 
 
-@njit(cache=True, error_model="numpy")
+@inner(error_model="numpy")
 def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
     """The region's ns x nt grid, each cell sampled once with jitter over the
     whole cell (section 2's method (c)) from pixel ``pixel``'s stream: (the
@@ -193,7 +194,7 @@ def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, B
     return n, acc
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _receiver_form(plane, z, u0, u1, v0, v1):
     """The receiver's depth over the texel centres [u0, u1] x [v0, v1] as
     a form the fast sampler compares without a division: (mode, a, b, c, k)
@@ -223,7 +224,7 @@ def _receiver_form(plane, z, u0, u1, v0, v1):
     return 2, sg * a, sg * b, sg * c, sg * k
 
 
-@njit(cache=True, error_model="numpy")
+@inner(error_model="numpy")
 def _region_samples_fast(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
     """``_region_samples``' grid and test at a lower cost per sample (issue
     15): one 32-bit random word per sample split into the two jitters (11
@@ -272,7 +273,7 @@ def _region_samples_fast(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pix
     return n, acc
 
 
-@njit(cache=True)
+@inner
 def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
                   Bias0, Bias1, seed, pixel, plane, fast=False):
     """Reeves et al. figure 4 ``SampleShadow``: fraction of the region in
@@ -296,7 +297,7 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     return inshadow / (ns * nt)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def light_halfwidth(lsize, z, zb):
     """Half extents (texels) of the light as the rays from a receiver at
     depth ``z`` cross depth ``zb``: lsize = (ku, kv, ortho) from
@@ -309,7 +310,7 @@ def light_halfwidth(lsize, z, zb):
     return lsize[0] * q, lsize[1] * q
 
 
-@njit(cache=True)
+@inner
 def blocker_depth(depth_f, bbox_f, s, t, z, sres, tres, BlockerSamples, Bias0, Bias1, seed, pixel, plane, fast=False):
     """region="light"'s blocker search (Fernando 2005): the mean map depth of
     the samples (figure 4's grid of about ``BlockerSamples`` jittered cells
@@ -368,7 +369,7 @@ def pixel_ray_terms(cp) -> np.ndarray:
     return np.ascontiguousarray(np.array(rows, np.float64))
 
 
-@njit(cache=True)
+@inner
 def pixel_footprint(rt, fp, col, row, px, py, pz, nx, ny, nz, u0, v0, max_half):
     """Half extents (in face texels) of the bounding box of camera pixel
     (col, row)'s four corners, carried along their camera rays onto the
@@ -420,7 +421,7 @@ def pixel_footprint(rt, fp, col, row, px, py, pz, nx, ny, nz, u0, v0, max_half):
 NO_PLANE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)   # figure 4's constant receiver depth
 
 
-@njit(cache=True)
+@inner
 def receiver_plane(fp, px, py, pz, nx, ny, nz):
     """The receiver's tangent plane in face ``fp``'s view space, as a function
     of the texel position (u, v), packed for ``plane_depth``:
@@ -447,7 +448,7 @@ def receiver_plane(fp, px, py, pz, nx, ny, nz):
     return (1.0, 0.0, A, B, C - mz, npv)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def plane_depth(pl, uc, vc, z):
     """Depth of the receiver's tangent plane along the ray through texel
     centre (uc, vc); ``z`` (the point's own depth) where the ray runs along
@@ -494,7 +495,7 @@ and ``region="light"``'s switch, sample counts and search-region steps
 other pixels are interpolated (``step_fill``) and ``step_tolerance``."""
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def tile_minmax(depth):
     """Per face, per TILE x TILE block: min and max map depth (Reeves et al.
     3.3's tile scheme, "a maximum z value with each tile"). Serial: a few ms
@@ -519,7 +520,7 @@ def tile_minmax(depth):
     return lo, hi
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def tile_planes(depth, ortho):
     """Per face, per full TILE x TILE block: the least-squares plane through
     its texels, float64[F, th, tw, 4] (a, b, c, r): at texel centre (u, v)
@@ -597,7 +598,7 @@ def tile_tables(lo, hi, span=None):
     return tt
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _fill_tables(lo, hi, tt):
     """``tile_tables``' levels: along x, then along y (entries whose block
     runs past the grid repeat the last valid one; ``tile_range`` never reads
@@ -626,7 +627,7 @@ def _fill_tables(lo, hi, tt):
                         tt[f, ky, kx, y, x, 1] = max(tt[f, ky - 1, kx, y, x, 1], tt[f, ky - 1, kx, y2, x, 1])
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _floor_log2(n):
     k = 0
     while (2 << k) <= n:
@@ -634,7 +635,7 @@ def _floor_log2(n):
     return k
 
 
-@njit(cache=True)
+@inner
 def tile_range(tt, ty0, ty1, tx0, tx1):
     """(min, max) map depth over the tiles [ty0, ty1] x [tx0, tx1] of one
     face's sparse tables (``tile_tables``): four overlapping power-of-two
@@ -648,7 +649,7 @@ def tile_range(tt, ty0, ty1, tx0, tx1):
     return dmin, dmax
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _texel_box(w, h, s, t, sres, tres):
     """The texels [u0, u1) x [v0, v1) a region's samples can read (clamped
     to the map; at least one texel)."""
@@ -663,7 +664,7 @@ def _texel_box(w, h, s, t, sres, tres):
     return u0, u1, v0, v1
 
 
-@njit(cache=True)
+@inner
 def region_decided(tt, planes, ortho, w, h, s, t, z, sres, tres, plane, Bias0, Bias1):
     """The tile test: 0.0 when every sample of the region must be lit, 1.0
     when every one must be in shadow, -1.0 when samples must be taken. Exact:
@@ -694,7 +695,7 @@ def region_decided(tt, planes, ortho, w, h, s, t, z, sres, tres, plane, Bias0, B
     return -1.0
 
 
-@njit(cache=True, error_model="numpy")
+@inner(error_model="numpy")
 def planar_lit(tt, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
     """Whether no sample of texels [u0, u1) x [v0, v1) can be behind the map
     (``region_decided``'s lit case), block by block (at most PLANAR_BLOCKS):
@@ -743,7 +744,7 @@ def planar_lit(tt, planes, ortho, u0, u1, v0, v1, z, zhi, plane, Bias0):
     return True
 
 
-@njit(cache=True)
+@inner
 def search_region(tt, w, h, s, t, z, lsize, zmin, sres, tres, MaxSize, steps):
     """region="light"'s blocker search region (half sizes, texels): the
     light's reach (``light_halfwidth``) at the nearest depth ``zmin`` of the
@@ -804,7 +805,7 @@ def step_levels(pixel_step: int, interpolate: bool):
     return [0]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(nogil=True, error_model="numpy")
 def pcf_kernel(idx, tile, height, stage, cam, smap, flt, out):
     """V into out[i] for every camera pixel i (row-major, ``cam.width`` wide)
     in the tiles ``idx`` of ``tile`` x ``tile`` pixels (row-major over the
@@ -854,7 +855,7 @@ def pcf_kernel(idx, tile, height, stage, cam, smap, flt, out):
                 _pcf_pixel(i, cam, smap, flt, out)     # inlined by LLVM
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _on_anchor_surface(cam, i, j):
     """``step_fill="interpolate"``: anchor j's V stands for pixel i's surface
     (``_same_surface``, and i's offset from j within PIXEL_STEP_SLOPE of j's
@@ -866,7 +867,7 @@ def _on_anchor_surface(cam, i, j):
     return off <= PIXEL_STEP_SLOPE * math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _entry(cam, p):
     """The entry of view pixel ``p``: itself in a dense G-buffer; in a packed
     one (``cam.pixel``, ascending) its index, or -1 when it is not listed."""
@@ -885,7 +886,7 @@ def _entry(cam, p):
     return -1
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _interpolated(cam, out, i, r, c, step, height, tol):
     """``step_fill="interpolate"``: out[i] = the bilinear blend of the
     anchors around view pixel (r, c) (those of non-zero weight: 2 on an
@@ -926,7 +927,7 @@ def _interpolated(cam, out, i, r, c, step, height, tol):
     return True
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _same_surface(cam, i, j):
     """``pixel_step``: pixel j's V stands for pixel i's (both hit the same
     object, normals within PIXEL_STEP_COS)."""
@@ -936,7 +937,7 @@ def _same_surface(cam, i, j):
     return dot >= PIXEL_STEP_COS
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _pcf_pixel(i, cam, smap, flt, out):
     """``pcf_kernel``'s body for pixel i (inlined: a call costs 15-25 % of
     the filter). The helpers here are inlined by LLVM (``forceinline``):
@@ -1004,7 +1005,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
                                  MinSamples, Bias0, Bias1, seed, j, plane, flt.fast)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def hard_shadow_kernel(P, faces, depth, bias, out):
     """Williams' hard test at each point: 0 where depth > map + bias, else 1;
     points outside every face are lit. Reference for the zero-region case."""

@@ -142,7 +142,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from numba import njit
+from ..jit import HOT, inner, kernel
 
 from ..kernels import borrowed, each_dealt_chunk, each_range, face_project
 from ..sampling import rand01
@@ -201,7 +201,7 @@ class SingleSampleParams:
 
 # --------------------------------------------------------------------------
 # per-pixel setup
-@njit(cache=True)
+@inner
 def _light_axes(prm, finfo, fp, pvx, pvy, pvz):
     """The light's two half axes in the face's view coordinates:
     area: per face; sphere: the disk facing P; sun: tan(angle/2) along x, y."""
@@ -229,7 +229,7 @@ def _light_axes(prm, finfo, fp, pvx, pvy, pvz):
     return t, 0.0, 0.0, 0.0, t, 0.0
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _face_of(faces, px, py, pz):
     """``kernels.pick_face`` and the point's projection into that face:
     (face, u, v, depth), face -1 (and zeros) outside every face."""
@@ -314,11 +314,11 @@ def _warp_py(P, Nrm, i, faces, depth, prm):
     return f, u, v, zr, inner, zmap, planar, A, B, C, tol, pvx, pvy, pvz
 
 
-_warp = njit(cache=True)(_warp_py)
-_warp_inline = njit(inline="always")(_warp_py)
+_warp = kernel(_warp_py)
+_warp_inline = kernel(cache=False, inline="always")(_warp_py)
 
 
-@njit(cache=True)
+@inner
 def _shape(prm, finfo_f, fp, pvx, pvy, pvz, zr):
     """The light's shape in the map (auto_radius): G maps texel offsets to
     the light's shape coordinates per unit of s(z_b) (gauge ``prm[P_NORM]``),
@@ -359,7 +359,7 @@ def _shape(prm, finfo_f, fp, pvx, pvy, pvz, zr):
     return gs * n11 / det, -gs * n01 / det, -gs * n10 / det, gs * n00 / det, max(eu, ev) / gs
 
 
-@njit(cache=True)
+@inner
 def _s_of(zb, zr, ortho):
     """Penumbra scale of a blocker at depth zb over a receiver at zr:
     1/zb - 1/zr (perspective), zr - zb (orthographic)."""
@@ -370,7 +370,7 @@ def _s_of(zb, zr, ortho):
     return 1.0 / zb - 1.0 / zr
 
 
-@njit(cache=True)
+@inner
 def _tile_range(tiles_f, iu, iv, c, pid):
     """Over the tiles covering texels [iu-c, iu+c] x [iv-c, iv+c]: least and
     largest depth, and whether every texel shows object ``pid``."""
@@ -391,7 +391,7 @@ def _tile_range(tiles_f, iu, iv, c, pid):
     return zmin, zmax, own
 
 
-@njit(cache=True)
+@inner
 def _layer_range(A, B, C, iu, iv, c, ortho):
     """Least and largest depth of the layer over the texel centres of that
     box (1/z, or z, is affine in texel coordinates: extremes at the corners)."""
@@ -410,7 +410,7 @@ def _layer_range(A, B, C, iu, iv, c, ortho):
     return zlo, zhi
 
 
-@njit(cache=True)
+@inner
 def _nearer(d, lv, ortho, tol):
     """Is map depth ``d`` in front of the layer, whose value at the texel is
     ``lv``: z_l = lv (orthographic) or 1 / lv (perspective, +inf where
@@ -422,7 +422,7 @@ def _nearer(d, lv, ortho, tol):
     return d < np.inf
 
 
-@njit(cache=True)
+@inner
 def _overlap(c, hw):
     """Share of the interval [c - hw, c + hw] inside [-1, 1]."""
     if hw <= 0.0:
@@ -430,7 +430,7 @@ def _overlap(c, hw):
     return min(max((min(c + hw, 1.0) - max(c - hw, -1.0)) / (2.0 * hw), 0.0), 1.0)
 
 
-@njit(cache=True)
+@inner
 def _overlap_radial(r, hw):
     """Share of [r - hw, r + hw] inside the unit disk's radius."""
     if hw <= 0.0:
@@ -438,7 +438,7 @@ def _overlap_radial(r, hw):
     return min(max((1.0 - (r - hw)) / (2.0 * hw), 0.0), 1.0)
 
 
-@njit(cache=True)
+@inner
 def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, crad, use_id):
     """``blocker="sum"`` (not in the paper; section 3.4's one-blocker ramp
     cannot add up several blockers): the fraction of the light hidden by the
@@ -516,7 +516,7 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
     return min(acc * n_ball / n_in, 1.0), nvis
 
 
-@njit(cache=True)
+@inner
 def _tile_hopeless(tiles_f, tb, ta, inner, lv, ortho, tol, pid, pid_in_map, use_id):
     """Under a constant layer ``lv``: no texel of tile (tb, ta) can be the
     search's candidate, by the tile's depth range and id (``_nearer`` is
@@ -546,7 +546,7 @@ Gauge = namedtuple("Gauge", "G00 G01 G10 G11 norm emax")
 (NORM_*), ``emax`` its largest stretch."""
 
 
-@njit(cache=True)
+@inner
 def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_max):
     """Ring-ordered axis-aligned box scan (sections 4.2, 4.3, figure 4).
 
@@ -676,7 +676,7 @@ def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, 
     return found, best, best_z, nvis
 
 
-@njit(cache=True)
+@inner
 def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
     """V of one pixel (section 3.3 with the search); also returns the search
     box's half size in texels (0 where no search ran) and the texels read."""
@@ -779,7 +779,7 @@ def shade_all(P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm
                                            out, rad, vis), sel.shape[0], threads, block=_BLOCK)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(opt=HOT, nogil=True, error_model="numpy")
 def _shade_all(ks, P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis):
     """``shade_all`` for entries ``ks`` of ``sel``: a serial ``nogil`` kernel
     with ``kernels.borrowed`` arguments (issue 15: a prange one's parfor
@@ -803,7 +803,7 @@ def hard_all(P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr, t
                P.shape[0], threads, grain=16384, per_worker=4)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(opt=HOT, nogil=True, error_model="numpy")
 def _hard_range(i0, i1, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr):
     """``hard_all`` for pixels i0..i1-1."""
     P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid, pid_arr = borrowed(
@@ -827,7 +827,7 @@ def _hard_range(i0, i1, P, Nrm, hit, faces, depth, ids, prm, hface, hinner, hid,
             hid[i] = pid_arr[i]
 
 
-@njit(cache=True)
+@inner
 def _same(hface, hinner, hid, idx0, stride, a, b):
     """Section 4.3's group criterion over pixels a..b: equal hard results and
     ids (and, conservatively, the same light-view face)."""
@@ -839,7 +839,7 @@ def _same(hface, hinner, hid, idx0, stride, a, b):
     return True
 
 
-@njit(cache=True)
+@inner
 def _walk(hface, hinner, hid, need, out, idx0, stride, marks, ends, interpolate):
     """Section 4.3 along one column or row: groups [marks[k], marks[k+1]]
     (5 pixels for blocks of 4). Where the group criterion holds the inner
@@ -908,7 +908,7 @@ def adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, inter
                                           interpolate), H, threads, grain=64, per_worker=2)
 
 
-@njit(cache=True, nogil=True)
+@kernel(opt=HOT, nogil=True)
 def _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, columns, interpolate):
     """``adaptive_walk``'s columns colmarks[k0:k1] (``columns``) or rows k0..k1-1."""
     hface, hinner, hid, need, out, colmarks, rowmarks = borrowed((hface, hinner, hid, need, out, colmarks, rowmarks))
@@ -920,7 +920,7 @@ def _walk_lines(k0, k1, hface, hinner, hid, need, out, W, colmarks, rowmarks, co
         _walk(hface, hinner, hid, need, out, idx0, stride, marks, columns, interpolate)
 
 
-@njit(cache=True)
+@kernel
 def tile_depth_range(depth, ids):
     """float64[F, ceil(h/TILE), ceil(w/TILE), 3]: per tile the least and the
     largest depth (+inf counts: an empty texel is behind everything) and the

@@ -124,7 +124,8 @@ from typing import Dict, List, Optional, Sequence
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import prange
+from ...jit import inner, kernel
 
 from ... import sampling, views
 from ...kernels import borrowed, each_dealt_chunk, each_range, face_project, pick_face
@@ -177,7 +178,7 @@ class DepthRaytraceParams:
 
 
 # ---------------------------------------------------------------------------
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _slab(o, d, lo, hi, tmin, tmax):
     """One axis of the slab test: [tmin, tmax] restricted to lo <= o + t d <= hi
     (empty: tmin > tmax)."""
@@ -196,7 +197,7 @@ def _slab(o, d, lo, hi, tmin, tmax):
     return tmin, tmax
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _segment_end(ox, oy, oz, ex, ey, ez, lo, hi):
     """t where o + t (E - o) leaves the casters' box (<= 1 - 1e-7); 0 if the
     segment misses the box. (Axes unrolled: half the time of a loop over
@@ -209,7 +210,7 @@ def _segment_end(ox, oy, oz, ex, ey, ez, lo, hi):
     return tmax
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, out_irr, rays):
     """The depth-image driver: for each tile ``ti`` of ``tiles`` (in turn;
     ``_trace_tiles`` runs chunks of tiles on threads) a fresh state, every
@@ -252,7 +253,7 @@ def _depth_tiles(tiles, tile_ptr, pts, noff, smp, blo, bhi, refs, sw, out_avg, o
             rays[ti, j] = misc[j]
 
 
-@njit(cache=True, error_model="numpy")
+@inner(error_model="numpy")
 def _tile_points(i0, i1, pts, noff, smp, blo, bhi, refs, sw, ts, ws, out_avg, out_irr):
     """Points ``i0:i1`` of one tile (state ``ts``, trace scratch ``ws``):
     their queued rays traced through the reference images, the points
@@ -311,7 +312,7 @@ def normal_offsets(P, Nrm, lp, faces, factor, threads=None):
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _normal_offsets(i0, i1, P, Nrm, lp, faces, factor, out):
     """``normal_offsets`` for points i0..i1-1 into ``out``."""
     for i in range(i0, i1):
@@ -339,7 +340,7 @@ def _normal_offsets(i0, i1, P, Nrm, lp, faces, factor, out):
 
 # ---------------------------------------------------------------------------
 # Embree wave driver: the same sampler, the queued rays of every tile per call
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _wave_emit(tile_ptr, cursor, phase, pts, smp, tiles, r_cell, cnt):
     """Embree waves, first half: per tile, begin its next point if needed and
     move its queued cells into ``r_cell[ti, :cnt[ti]]``. pts: Points; smp:
@@ -362,7 +363,7 @@ def _wave_emit(tile_ptr, cursor, phase, pts, smp, tiles, r_cell, cnt):
         cnt[ti] = j
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _wave_pack(cnt, off, origin, tgt, r_cell, is_sun, org, dirs, tfar):
     nt = cnt.shape[0]
     for ti in prange(nt):
@@ -387,7 +388,7 @@ def _wave_pack(cnt, off, origin, tgt, r_cell, is_sun, org, dirs, tfar):
             tfar[k] = np.float32(1e30) if is_sun else d * (1.0 - 1e-6)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _wave_absorb(tile_ptr, cursor, phase, P, smp, tiles, cnt, off, r_cell, hit_t, org, dirs,
                   out_avg, out_irr):
     """Embree waves, second half: the hits ``hit_t`` of the rays ``org + t dirs``

@@ -53,7 +53,7 @@ from __future__ import annotations
 import math
 from collections import namedtuple
 
-from numba import njit
+from ...jit import inner
 
 from ...sampling import offset_origin, orthonormal_basis, reference_sample
 
@@ -81,7 +81,7 @@ flag per cell, blocker list and its sub-cell stamps, visibility, cell state
 (USEPREV / QUEUED / DONE), queue, prediction, previous point, ``misc`` (M_*)."""
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def tile_row(ts, ti):
     """Tile ``ti``'s TileState from one whose arrays hold every tile (first axis)."""
     return TileState(ts.origin[ti], ts.tgt[ti], ts.wts[ti], ts.subi[ti], ts.back[ti], ts.blk[ti],
@@ -89,7 +89,7 @@ def tile_row(ts, ti):
                      ts.misc[ti])
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def inv_concentric(x, y):
     """Inverse of ``sampling.concentric_disk``: unit disk -> [0,1)^2."""
     r = math.sqrt(x * x + y * y)
@@ -114,7 +114,7 @@ def inv_concentric(x, y):
     return 0.5 * (a + 1.0), 0.5 * (b + 1.0)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def light_frame(lp, px, py, pz):
     """The per-point part of the projection onto a planar light (area: its
     plane; sphere: the disk through the centre facing p), computed once per
@@ -144,7 +144,7 @@ def light_frame(lp, px, py, pz):
     return (ok, nx_, ny_, nz_, e1x, e1y, e1z, e2x, e2y, e2z, hx, hy, num, cx, cy, cz, square)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def project_planar(fr, px, py, pz, bx, by, bz):
     """Blocker point b seen from p -> (inside, u, v), ``fr`` = light_frame(p)."""
     if not fr[0]:
@@ -171,7 +171,7 @@ def project_planar(fr, px, py, pz, bx, by, bz):
     return True, u, v
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def project_sun(lp, px, py, pz, bx, by, bz):
     """Sun: the direction p -> b inside the cone -> (inside, u, v)."""
     dx, dy, dz = bx - px, by - py, bz - pz
@@ -201,7 +201,7 @@ def project_sun(lp, px, py, pz, bx, by, bz):
     return True, u, v
 
 
-@njit(cache=True)
+@inner
 def project_to_light(lp, px, py, pz, bx, by, bz):
     """Blocker point b seen from p -> (inside, u, v) on the light's unit square."""
     if lp[0] == 2.0:
@@ -209,7 +209,7 @@ def project_to_light(lp, px, py, pz, bx, by, bz):
     return project_planar(light_frame(lp, px, py, pz), px, py, pz, bx, by, bz)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _cell_of(u, v, nx, ny, S):
     fu = u * nx
     fv = v * ny
@@ -220,7 +220,7 @@ def _cell_of(u, v, nx, ny, S):
     return cv * nx + cu, sv * S + su
 
 
-@njit(cache=True)
+@inner
 def begin_point(smp, pts, i, noff, ts):
     """Samples for point i (rays start at the offset origin moved a further
     ``noff`` along the normal), then Predict (or a full trace without
@@ -347,7 +347,7 @@ def begin_point(smp, pts, i, noff, ts):
     misc[M_SEEDED] += qt
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def absorb(c, blocked, bx, by, bz, nx, ny, coherent, blk, vis, cst, queue, misc):
     """The result of the ray to cell c (Update + the flood fill)."""
     cst[c] = DONE
@@ -380,7 +380,7 @@ def absorb(c, blocked, bx, by, bz, nx, ny, coherent, blk, vis, cst, queue, misc)
         misc[M_QT] = qt
 
 
-@njit(cache=True)
+@inner
 def finish_point(P, i, nx, ny, wts, vis, prevp, misc):
     """Shade: (V_avg, V_irr) from the visibility image."""
     C = nx * ny

@@ -54,7 +54,7 @@ from typing import Optional
 
 import numba
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 from ... import views
 from ...scene import Light, ViewFace
@@ -141,12 +141,12 @@ def fit_points(buffers, light: Light, casters: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------------------
 # pyramid build
-@njit(cache=True)
+@inner
 def _footprint(persp, foot, z):
     return foot * z if persp else foot
 
 
-@njit(cache=True)
+@inner
 def _connected(za, zb, persp, foot, gap_abs, gap_tex):
     if not (za < np.inf) or not (zb < np.inf):
         return False
@@ -155,7 +155,7 @@ def _connected(za, zb, persp, foot, gap_abs, gap_tex):
     return abs(za - zb) < g
 
 
-@njit(cache=True)
+@kernel
 def _biased(depth, persp, foot, bias_abs, bias_tex, slope_bias, gap_abs, gap_tex, out):
     """Floors: Z + bias (see module docstring)."""
     h, w = depth.shape
@@ -186,7 +186,7 @@ def _biased(depth, persp, foot, bias_abs, bias_tex, slope_bias, gap_abs, gap_tex
             out[i, j] = np.float32(z + bias_abs + bias_tex * fp + slope_bias * s)
 
 
-@njit(cache=True)
+@kernel
 def _build_levels(zp, persp, foot, gap_abs, gap_tex, offs, dims, mn, mx, conn, zflat):
     """Min / max / connectedness quadtrees of one face (levels 0..K).
 

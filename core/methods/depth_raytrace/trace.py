@@ -58,7 +58,7 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 from .maps import FP_FOOT, FP_GAPABS, FP_GAPTEX, FP_K, FP_MNROOT, FP_MXROOT
 
@@ -78,7 +78,7 @@ TraceScratch = namedtuple("TraceScratch", "line order key U U2")
 MAXI x 2 interval lists."""
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _push(ivs, n, a, b):
     """Append [a, b] to the sorted interval list, merging touching ones."""
     if not (b > a):
@@ -95,7 +95,7 @@ def _push(ivs, n, a, b):
     return n
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def connected_depths(za, zb, persp, foot, gap_abs, gap_tex):
     if not (za < INF) or not (zb < INF):
         return False
@@ -104,7 +104,7 @@ def connected_depths(za, zb, persp, foot, gap_abs, gap_tex):
     return abs(za - zb) < g
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _enter_side(side, state, crossed, s, occ0, zp, o0, W, piu, piv, iu, iv, persp, foot, gap_abs, gap_tex,
                 Lf, ivs, niv):
     """The walk enters, at s, a stretch where the ray is on ``side`` of the
@@ -127,7 +127,7 @@ def _enter_side(side, state, crossed, s, occ0, zp, o0, W, piu, piv, iu, iv, pers
     return False, side, occ0, niv
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _clampi(x, lo, hi):
     if not (x == x):       # nan
         return lo
@@ -138,7 +138,7 @@ def _clampi(x, lo, hi):
     return int(x)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def s_to_t(Lf, s):
     """Epipolar parameter -> ray parameter (perspective-correct)."""
     w0 = Lf[8]
@@ -148,7 +148,7 @@ def s_to_t(Lf, s):
     return Lf[6] + (Lf[7] - Lf[6]) * lam
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def t_to_s(Lf, t):
     span = Lf[7] - Lf[6]
     if span <= 0.0:
@@ -160,7 +160,7 @@ def t_to_s(Lf, t):
     return lam * w1 / den if den != 0.0 else lam
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _lin_clip(lo, hi, A, B):
     """Restrict [lo, hi] to A + t B >= 0."""
     if B > 0.0:
@@ -177,7 +177,7 @@ def _lin_clip(lo, hi, A, B):
     return lo, hi
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def face_line(fp, f, ox, oy, oz, ex, ey, ez, t_end, Lf):
     """The ray's epipolar line in face f, clipped to the window: fills ``Lf``
     (see LN) and returns True, or False when the ray misses the face."""
@@ -252,7 +252,7 @@ def face_line(fp, f, ox, oy, oz, ex, ey, ez, t_end, Lf):
     return True
 
 
-@njit(cache=True, forceinline=True, error_model="numpy")
+@inner(forceinline=True, error_model="numpy")
 def trace_face(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, sA, sB, hier, clip, ivs, niv, st0, st1):
     """Walk the epipolar segment s in [sA, sB] through face f.
 
@@ -430,7 +430,7 @@ def trace_face(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, sA, sB, hier, clip, iv
     return False, 0.0, niv
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _band(k0, dk, klo, khi, a, b):
     """s-range inside [a, b] where klo <= k0 + s dk <= khi, plus the side of
     the parts before / after it (0 in front, 1 behind)."""
@@ -457,7 +457,7 @@ def _band(k0, dk, klo, khi, a, b):
     return lo, hi, sb, sa
 
 
-@njit(cache=True, forceinline=True, error_model="numpy")
+@inner(forceinline=True, error_model="numpy")
 def _trace_piece(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, a, b, hier, clip, out, n):
     """Trace the ray-parameter piece [a, b] in face f: parts outside the
     window are unknown; with ``clip`` the root range drops the parts in front
@@ -497,7 +497,7 @@ def _trace_piece(fp, offs, dims, kmn, kmx, conn, zp, f, Lf, a, b, hier, clip, ou
     return False, 0.0, _push(out, n, hi, b)
 
 
-@njit(cache=True, forceinline=True, error_model="numpy")
+@inner(forceinline=True, error_model="numpy")
 def trace_ray(refs, ox, oy, oz, ex, ey, ez, t_end, sw, ws):
     """Is the segment o + t (E - o), t in [0, t_end], blocked in the
     reference images? Returns (blocked, t_hit).

@@ -32,10 +32,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from ...jit import kernel
 
 
-@njit(cache=True)
+@kernel
 def cone_envelope(R, step):
     """max over texels q of R(q) - step * chessboard distance (in texels), per
     texel (two raster passes); R = -inf where no receiver projects."""

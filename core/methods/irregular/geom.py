@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 from ...kernels import each_range
 
@@ -45,7 +45,7 @@ INV_2PI = 1.0 / (2.0 * math.pi)
 
 # --------------------------------------------------------------------------
 # 2D occlusion kernels (segment already clipped to the light shape)
-@njit(cache=True)
+@inner
 def minor_segment_area(ax, ay, bx, by):
     """Equation 3 for a segment A-B inside the unit disk.
 
@@ -85,7 +85,7 @@ def minor_segment_area(ax, ay, bx, by):
     return v if v > 0.0 else 0.0
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _square_exit(x, y):
     """Where the ray from the origin along (x, y) leaves [-1,1]^2, and the
     side: 0 (x = 1), 1 (y = 1), 2 (x = -1), 3 (y = -1)."""
@@ -98,7 +98,7 @@ def _square_exit(x, y):
     return x / m, y / m, side
 
 
-@njit(cache=True)
+@inner
 def square_sector(ax, ay, bx, by):
     """Area of the square [-1,1]^2 inside the wedge from the origin between
     directions A and B (the smaller angle): triangles from the origin to the
@@ -122,7 +122,7 @@ def square_sector(ax, ay, bx, by):
     return area
 
 
-@njit(cache=True)
+@inner
 def rect_segment_area(ax, ay, bx, by):
     """Rectangle kernel: (square sector AOB - triangle AOB) / 4 for a segment
     inside [-1,1]^2 (the square's analogue of equation 3)."""
@@ -135,7 +135,7 @@ def rect_segment_area(ax, ay, bx, by):
 
 # --------------------------------------------------------------------------
 # clipping a homogeneous 2D segment H(t) = H0 + t (H1 - H0), H = (x, y, w)
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _lb(f0, f1, t0, t1):
     """Liang-Barsky step for the constraint f(t) = f0 + t (f1 - f0) <= 0."""
     if f0 <= 0.0 and f1 <= 0.0:
@@ -148,7 +148,7 @@ def _lb(f0, f1, t0, t1):
     return t0, min(t1, tc)
 
 
-@njit(cache=True)
+@inner
 def clip_homogeneous(shape, x0, y0, w0, x1, y1, w1, wmax):
     """Parameter interval [ta, tb] of the segment where 0 <= w <= wmax and
     (x/w, y/w) lies in the light shape; ta > tb when empty."""
@@ -204,7 +204,7 @@ def clip_homogeneous(shape, x0, y0, w0, x1, y1, w1, wmax):
     return b0, b1
 
 
-@njit(cache=True)
+@inner
 def clipped_edge(shape, x0, y0, w0, x1, y1, w1, wmax):
     """One projected edge (homogeneous endpoints) clipped to the light:
     (ok, ax, ay, bx, by), the endpoints in unit-shape coordinates."""
@@ -236,7 +236,7 @@ def clipped_edge(shape, x0, y0, w0, x1, y1, w1, wmax):
     return True, ax, ay, bx, by
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def segment_area(shape, ax, ay, bx, by):
     """Equation 3 (disk) or the rectangle kernel of a clipped segment."""
     if shape == SHAPE_SQUARE:
@@ -244,7 +244,7 @@ def segment_area(shape, ax, ay, bx, by):
     return minor_segment_area(ax, ay, bx, by)
 
 
-@njit(cache=True)
+@inner
 def edge_occlusion(shape, x0, y0, w0, x1, y1, w1, wmax):
     """Unsigned occlusion term of one projected edge (homogeneous endpoints):
     clip to the light, then equation 3 (disk) or the rectangle kernel."""
@@ -275,7 +275,7 @@ def light_samples(shape: int, m: int):
     return np.array(rows, np.float64).reshape(-1, 3), np.array(first, np.int64)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _half_line(a, b, lo, hi):
     """Intersect the interval [lo, hi] with {x : a x + b >= 0}."""
     if a > 0.0:
@@ -287,7 +287,7 @@ def _half_line(a, b, lo, hi):
     return lo, hi
 
 
-@njit(cache=True)
+@inner
 def count_beyond(ax, ay, bx, by, sign, ls, s):
     """Add ``sign`` to the depth complexity ``ls.counts[s, j]`` of every light
     sample j in the region whose area the edge's term measures: inside the
@@ -328,7 +328,7 @@ def overlap_from_counts(umbra, counts, threads=None):
     return C
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _overlap_from_counts(i0, i1, umbra, counts, C):
     """``overlap_from_counts`` for receivers i0..i1-1 into ``C``."""
     m = counts.shape[1]
@@ -341,7 +341,7 @@ def _overlap_from_counts(i0, i1, umbra, counts, C):
         C[s] = acc / m
 
 
-@njit(cache=True)
+@inner
 def clip_and_occlude_2d(shape, ax, ay, bx, by):
     """Occlusion term of a plain 2D segment (w = 1) against the unit light
     shape; for tests and for the closed-form checks."""
@@ -350,7 +350,7 @@ def clip_and_occlude_2d(shape, ax, ay, bx, by):
 
 # --------------------------------------------------------------------------
 # watertight orientation tests
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def edge_side(px, py, pz, dx, dy, dz, ax, ay, az, bx, by, bz):
     """Sign (+1/-1) of d . ((a - p) x (b - p)): which side of the directed
     edge a->b the line from p along d passes. The product is always computed
@@ -371,7 +371,7 @@ def edge_side(px, py, pz, dx, dy, dz, ax, ay, az, bx, by, bz):
     return flip if val >= 0.0 else -flip
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def tri_side_of_receiver(px, py, pz, tv, nv, t):
     """Sign of D_p = (v0 - p) . N_T (0 when p lies in the triangle's plane)."""
     dp = ((tv[t, 0, 0] - px) * nv[t, 0] + (tv[t, 0, 1] - py) * nv[t, 1]
@@ -383,7 +383,7 @@ def tri_side_of_receiver(px, py, pz, tv, nv, t):
     return 0
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def blocks_centre(px, py, pz, dx, dy, dz, tv, nv, side_light, t, is_sun):
     """Hard irregular shadow mapping test: does triangle t lie on the segment
     from p to the light centre (local lights: d = c - p, ``side_light`` =
@@ -406,7 +406,7 @@ def blocks_centre(px, py, pz, dx, dy, dz, tv, nv, side_light, t, is_sun):
     return True
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s, ls):
     """Signed term of edge k of triangle t at receiver p (section 2.3):
     + minor-segment area when p is outside the edge, - when inside.

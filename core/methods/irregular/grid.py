@@ -37,7 +37,8 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
+from ...jit import HOT, inner, kernel
 
 from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from .geom import blocks_centre, penumbra_term
@@ -91,7 +92,7 @@ def assign_faces(P, faces, fu, fv, fz, threads=None):
     return face
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(nogil=True, error_model="numpy")
 def _assign_faces(idx, P, faces, fu, fv, fz, face):
     """``assign_faces`` for receivers ``idx``: a serial ``nogil`` kernel with
     ``kernels.borrowed`` arguments (as ``_penumbra_bins``; issue 15)."""
@@ -110,7 +111,7 @@ def _assign_faces(idx, P, faces, fu, fv, fz, face):
             fz[i] = 0.0
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def slice_of(z, zlo, zhi, gd, logz):
     if not (zhi > zlo):
         return 0
@@ -128,7 +129,7 @@ def slice_of(z, zlo, zhi, gd, logz):
     return k
 
 
-@njit(cache=True)
+@kernel
 def counting_sort_cells(face, fu, fv, fz, faces, col_base, gd, zlo, zhi, logz, ncols, bin_size,
                         bin_base, nbx):
     """Counting sort of the receivers into cells; also the largest receiver
@@ -175,7 +176,7 @@ def counting_sort_cells(face, fu, fv, fz, faces, col_base, gd, zlo, zhi, logz, n
 
 # --------------------------------------------------------------------------
 # face-plane helpers
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def to_view(fp, x, y, z):
     vx = fp[0] * x + fp[1] * y + fp[2] * z + fp[3]
     vy = fp[4] * x + fp[5] * y + fp[6] * z + fp[7]
@@ -183,7 +184,7 @@ def to_view(fp, x, y, z):
     return vx, vy, -vz
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _cell_span(edge0, edge1, n, lo, hi):
     """Cells 0..n-1 of an axis whose cell 0 starts at ``edge0`` and cell n
     ends at ``edge1`` that cover [lo, hi] measured from ``edge0`` (clamped;
@@ -195,19 +196,19 @@ def _cell_span(edge0, edge1, n, lo, hi):
     return int(math.floor(max(a, 0.0))), int(math.floor(min(b, n - 1.0)))
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def col_range(fp, xmin, xmax):
     """Columns covering face-plane x in [xmin, xmax] (clamped; c0 > c1 if none)."""
     return _cell_span(fp[17], fp[18], fp[21], xmin, xmax)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def row_range(fp, ymin, ymax):
     """Rows covering face-plane y in [ymin, ymax]; row 0 is the top (y = t)."""
     return _cell_span(fp[20], fp[19], fp[22], ymax, ymin)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def col_rect(fp, c0, c1, r0, r1):
     """Face-plane rectangle (x0, x1, y0, y1) of columns c0..c1, rows r0..r1."""
     l, r, bt, tp, gw, gh = fp[17], fp[18], fp[19], fp[20], fp[21], fp[22]
@@ -218,7 +219,7 @@ def col_rect(fp, c0, c1, r0, r1):
     return x0, x1, y0, y1
 
 
-@njit(cache=True, forceinline=True)
+@kernel(forceinline=True)
 def rect_k(x0, x1, y0, y1):
     """sqrt(1 + max |p'|^2) over a face-plane rectangle."""
     mx = max(abs(x0), abs(x1))
@@ -226,7 +227,7 @@ def rect_k(x0, x1, y0, y1):
     return math.sqrt(1.0 + mx * mx + my * my)
 
 
-@njit(cache=True)
+@inner
 def point_seg_dist2(px, py, ax, ay, bx, by):
     ex = bx - ax
     ey = by - ay
@@ -240,7 +241,7 @@ def point_seg_dist2(px, py, ax, ay, bx, by):
     return dx * dx + dy * dy
 
 
-@njit(cache=True)
+@inner
 def seg_rect_dist(ax, ay, bx, by, x0, x1, y0, y1):
     """Distance between segment AB and the rectangle [x0,x1] x [y0,y1]."""
     # segment meets the rectangle? (Liang-Barsky)
@@ -274,7 +275,7 @@ def seg_rect_dist(ax, ay, bx, by, x0, x1, y0, y1):
     return math.sqrt(best)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def seg_x_in_band(ax, ay, bx, by, y0, y1):
     """x-extent of the part of segment AB with y in [y0, y1] (xa > xb: none)."""
     t0, t1 = 0.0, 1.0
@@ -309,7 +310,7 @@ def triangle_ranges(tv, tri_ids, faces, near, threads=None):
     return rng, zmin
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(nogil=True, error_model="numpy")
 def _triangle_ranges(js, tv, tri_ids, faces, near, rng, zmin):
     """``triangle_ranges`` for entries ``js`` of ``tri_ids``: a serial
     ``nogil`` kernel with ``kernels.borrowed`` arguments (issue 15)."""
@@ -373,7 +374,7 @@ def _triangle_ranges(js, tv, tri_ids, faces, near, rng, zmin):
             zmin[j, f] = zm
 
 
-@njit(cache=True)
+@kernel
 def bin_entries_from_ranges(rng, bin_base, nbx, bin_size):
     """Counting sort of (item, face) ranges into bins: bin_start, items."""
     ni = rng.shape[0]
@@ -411,7 +412,7 @@ def umbra_bins(bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests
                                              tests), bins.perm.shape[0], threads)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(opt=HOT, nogil=True, error_model="numpy")
 def _umbra_bins(jbs, bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count, tests):
     """Per bin ``bins.perm[jb]``, jb in ``jbs`` (in turn): every triangle
     listed in it is tested against the receivers of the columns it covers at
@@ -473,7 +474,7 @@ def _umbra_bins(jbs, bins, blist, rng, zmin, tri_ids, occ, grid, Ps, lit, count,
 
 # --------------------------------------------------------------------------
 # penumbra: records (silhouette edges) -> quads -> bins
-@njit(cache=True)
+@inner
 def _quad_width(persp, rL, k, rho, tan_a, Z, z):
     """Half width of the penumbra quad at an edge endpoint of depth z for
     receivers no deeper than Z (face-plane units); -1 = unbounded."""
@@ -501,7 +502,7 @@ def edge_quads(tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, fac
     return ep, flag, rng
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(nogil=True, error_model="numpy")
 def _edge_quads(rs, tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near, face_rnear, rL, tan_a,
                 ep, flag, rng):
     """``edge_quads`` for records ``rs``: a serial ``nogil`` kernel with
@@ -584,7 +585,7 @@ def _edge_quads(rs, tv, rec_t, rec_k, faces, face_Z, face_k, face_rho, face_near
             rng[r, f, 3] = r1
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _bin_quad(ep, r, f, fp, persp, rL, rho, tan_a, Zb, kb):
     za = ep[r, f, 2]
     zb = ep[r, f, 5]
@@ -593,7 +594,7 @@ def _bin_quad(ep, r, f, fp, persp, rL, rho, tan_a, Zb, kb):
     return wa, wb
 
 
-@njit(cache=True)
+@kernel
 def bin_quads(ep, flag, rng, faces, bin_base, nbx, bin_size, binmax, face_rho, face_k, face_par,
               rL, tan_a, refine):
     """Sort penumbra quads into bins. With ``refine`` (section 2.5, first
@@ -658,7 +659,7 @@ def penumbra_bins(bins, blist, quads, grid, fb, rec, records, occ, lit, mode, re
                                                 refine, wedge, pen, ls, evals), bins.perm.shape[0], threads)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(opt=HOT, nogil=True, error_model="numpy")
 def _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mode, refine, wedge, pen, ls, evals):
     """Per bin ``bins.perm[jb]``, jb in ``jbs`` (in turn): every quad listed
     in it is rasterized over the bin's columns; the wedge test (second
@@ -788,7 +789,7 @@ def _penumbra_bins(jbs, bins, blist, quads, grid, fb, rec, records, occ, lit, mo
         evals[b] = nev
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def penumbra_brute_force(rec, records, occ, lit, mode, pen, ls):
     """Every record against every receiver (no quads): the ground truth the
     quads and both overdraw reductions must reproduce (tests, ablation).
@@ -813,7 +814,7 @@ def penumbra_brute_force(rec, records, occ, lit, mode, pen, ls):
         pen[s] = acc
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def umbra_brute_force(Ps, tri_ids, tv, nv, side_light, cx, cy, cz, is_sun, count):
     for s in prange(Ps.shape[0]):
         px, py, pz = Ps[s, 0], Ps[s, 1], Ps[s, 2]

@@ -34,18 +34,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 from .geom import SILHOUETTE_CENTRE
 
 
-@njit(cache=True)
+@inner
 def _mix(h, x):
     h = (h ^ np.uint64(x)) * np.uint64(1099511628211)
     return h ^ (h >> np.uint64(29))
 
 
-@njit(cache=True)
+@kernel
 def vertex_ids(bits):
     """bits: uint32[M, 4] (x, y, z float32 bit patterns, object id) ->
     int64[M] ids of equal keys, number of distinct keys."""
@@ -77,7 +77,7 @@ def vertex_ids(bits):
     return ids, nv
 
 
-@njit(cache=True)
+@inner
 def _find(parent, i):
     r = i
     while parent[r] != r:
@@ -89,7 +89,7 @@ def _find(parent, i):
     return r
 
 
-@njit(cache=True)
+@kernel
 def build_edges(vid, nv):
     """vid: int64[T, 3] vertex ids. Returns per-triangle edge ids
     tri_edge int64[T, 3] (-1 for collapsed triangles), per-edge count,
@@ -165,7 +165,7 @@ def build_edges(vid, nv):
     return tri_edge, count[:ne], t0[:ne], t1[:ne], d0[:ne], d1[:ne], root, closed
 
 
-@njit(cache=True)
+@inner
 def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     """Van Oosterom & Strackee: signed solid angle of a triangle seen from 0."""
     la = math.sqrt(ax * ax + ay * ay + az * az)
@@ -177,7 +177,7 @@ def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     return 2.0 * math.atan2(det, den)
 
 
-@njit(cache=True)
+@kernel
 def classify(tv, nv, valid, tri_edge, count, t0, t1, d0, d1, root, closed,
              cx, cy, cz, is_sun, use_adjacency, silhouettes_only, mode, reach):
     """Counted triangles and silhouette records for one light.

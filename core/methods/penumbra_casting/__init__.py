@@ -109,7 +109,7 @@ from typing import Dict, List, Optional
 
 import numba
 import numpy as np
-from numba import njit
+from ...jit import kernel
 
 from ... import sampling
 from ...kernels import borrowed, each_dealt_chunk, each_in_threads
@@ -174,7 +174,7 @@ def _light_volumes(tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, kee
                                                   keep), tris.shape[0], threads)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@kernel(nogil=True, error_model="numpy")
 def _light_volumes_of(ts, tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, nVL, keep):
     """``_light_volumes`` for blockers ``ts``: a serial ``nogil`` kernel with
     ``kernels.borrowed`` arguments (issue 15: a prange one's parfor lowering
@@ -191,7 +191,7 @@ def _light_volumes_of(ts, tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, n
         keep[t] = ok
 
 
-@njit(cache=True)
+@kernel
 def _bucket_sort_by_area(tris, nverts, nb):
     """Coarse blocker sorting (section 3.3): bucket by area on a log scale
     into ``nb`` buckets, largest first; linear time (histogram + counting

@@ -47,7 +47,7 @@ from collections import namedtuple
 from typing import Optional, Tuple
 
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 from ... import alpha_rays, raycast
 from ...alpha import alpha_at
@@ -66,7 +66,7 @@ def split_blockers(scene, casting: np.ndarray) -> Tuple[np.ndarray, Optional[ray
     return (casting, None) if has is None else (casting[~has], mattes)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _open_count(pool, sl, S):
     """How many of the S relations of the receiver with mask row ``sl``
     (-1: none) no opaque blocker took."""
@@ -79,7 +79,7 @@ def _open_count(pool, sl, S):
     return c
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _open_relations(fu, slot, pool, S, count):
     """Per receiver: how many of its S relations no opaque blocker took
     (full umbra: none; no mask: all)."""
@@ -87,7 +87,7 @@ def _open_relations(fu, slot, pool, S, count):
         count[r] = 0 if fu[r] else _open_count(pool, slot[r], S)
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _relation_rays(smp, rec, r0, r1, fu, slot, pool, S, org, dirs, tfar, owner):
     """The rays r_j -> l_i of the open relations of receivers [r0, r1), as
     the reference casts them (from the receiver point, float32, to the light
@@ -171,7 +171,7 @@ def corner_order(tris: np.ndarray) -> np.ndarray:
     return lex
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def matte_candidates(mb, hier, pts, fu, tol, ptr, lists):
     """Per receiver the matte blockers whose V_L holds it (figure 2's box and
     point tests, B's active planes; receivers in full umbra skipped): with
@@ -212,14 +212,14 @@ def matte_candidates(mb, hier, pts, fu, tol, ptr, lists):
                 sp += 2
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _edge_ok(e, lex, k, j, front):
     """An edge function exactly 0 (the segment through edge j's line):
     the hit counts for one of the two triangles sharing the edge only."""
     return e != 0.0 or (lex[k, j] != 0) == front
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def fetch_visibility(smp, rec, fu, slot, pool, S, ptr, lists, mb, mattes, V):
     """V per receiver: (1 / S) sum over its open relations of the product of
     (1 - alpha) at every matte blocker of ``lists[ptr[r]:ptr[r + 1]]`` the

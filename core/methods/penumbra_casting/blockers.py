@@ -31,7 +31,7 @@ only when exactly two share it.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 from .geometry import MAXB     # corners per blocker polygon (one more plane test per sample and corner)
 
@@ -75,7 +75,7 @@ def _adjacency(ids: np.ndarray, nonmanifold: bool = False):
     return nbr.reshape(n, 3)
 
 
-@njit(cache=True)
+@inner
 def _turn(P, u, v, p, q, r):
     """2D cross product (q - p) x (r - q) in the plane basis (u, v), and the
     length of r - p (the collinearity yardstick)."""
@@ -91,7 +91,7 @@ def _turn(P, u, v, p, q, r):
     return cr, dot, ln
 
 
-@njit(cache=True)
+@inner
 def _planar(P, c, k, tol):
     """Corners ``P[c[:k]]`` within ``tol`` of their best plane (Newell's
     normal through their centroid)."""
@@ -118,7 +118,7 @@ def _planar(P, c, k, tol):
     return True
 
 
-@njit(cache=True)
+@kernel
 def _grow(P, ids, nbr, maxb, ulps):
     """Greedy coplanar convex merging; returns polygon vertex ids [M, maxb],
     corner counts [M] and the polygon of every triangle [T]."""

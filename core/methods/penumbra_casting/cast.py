@@ -40,7 +40,7 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from ...jit import HOT, inner, kernel
 
 from .geometry import MAXB, MAXP, blocked_by_edges, box_vs_volume, hard_volume, in_hard_volume, \
     penumbra_volume, point_in_volume, receiver_edge_functions, triangle_plane
@@ -96,7 +96,7 @@ CastSwitches = namedtuple("CastSwitches", "optA optB optC optD rebuild_frac leaf
 ``materialize_hard_volumes`` and ``hidden_behind_cores``."""
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _bits_full(pool, sl, a, b):
     """Every bit in [a, b) of mask ``pool[sl]`` set."""
     i = a
@@ -114,7 +114,7 @@ def _bits_full(pool, sl, a, b):
     return True
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _popcount(x):
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
     x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
@@ -122,7 +122,7 @@ def _popcount(x):
     return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _coefficients(ef, tn, rho, mode, r, M, centre, co):
     """Per receiver: the MAXB edge functions (rows of edges T lacks are zero)
     and T's plane (last) as linear forms in the sample, signed so that
@@ -148,7 +148,7 @@ def _coefficients(ef, tn, rho, mode, r, M, centre, co):
         co[4 * e + 3] = k
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _word_tests(T4, j, a, e, base, co, nb):
     """Bits [a, e) of one 64-bit mask word: sample i blocked by T (the edge
     forms and the plane: three edges for a triangle, four for a quad, MAXB
@@ -203,7 +203,7 @@ def _word_tests(T4, j, a, e, base, co, nb):
     return acc
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _slice_of(solids, sid, x, y, z, ax, ay, az):
     """The disk of solid ``sid`` for the ray from (x, y, z) along (ax, ay,
     az): the slice nearest the ray's closest approach to the centroid (-1:
@@ -219,7 +219,7 @@ def _slice_of(solids, sid, x, y, z, ax, ay, az):
     return np.int64(solids[sid, 8]) + np.int64(fi)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _through_disk(disks, c, x, y, z, vx, vy, vz):
     """The ray from (x, y, z) through (vx, vy, vz) meets disk ``c`` at a
     positive distance: 1 before the point, 2 beyond it, 0 not."""
@@ -240,7 +240,7 @@ def _through_disk(disks, c, x, y, z, vx, vy, vz):
     return 1 if t < 1.0 else 2
 
 
-@njit(cache=True)
+@inner
 def _box_hidden(bb, node, tris, k, nb, solids, disks, sid):
     """``_hidden_behind`` for every point of box ``bb[node]``: for each corner
     v of T, the 8 box corners all see the same disk through v, and all
@@ -266,7 +266,7 @@ def _box_hidden(bb, node, tris, k, nb, solids, disks, sid):
     return True
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _hidden_behind(tris, k, nb, solids, disks, sid, x, y, z):
     """Every ray from r = (x, y, z) through a corner of blocker ``k`` (so
     through all of it: convex) passes, at a positive distance, through one
@@ -283,7 +283,7 @@ def _hidden_behind(tris, k, nb, solids, disks, sid, x, y, z):
     return True
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def chunk_visibility(fu, slot, pool, S, out):
     """V = 1 - blocked / S; full umbra (mask released) = 0; no mask = 1."""
     for r in range(fu.shape[0]):
@@ -580,7 +580,7 @@ def _make_cast_chunk(variant: str):
         return tri_sel.shape[0]
 
     cast_chunk.__name__ = cast_chunk.__qualname__ = f"cast_chunk_{variant}"
-    return njit(cache=True, nogil=True)(cast_chunk)
+    return kernel(opt=HOT, nogil=True)(cast_chunk)
 
 
 cast_chunk_words = _make_cast_chunk("words")

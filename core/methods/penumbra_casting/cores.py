@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from ...jit import kernel
 
 from .blockers import _adjacency, _unique_vertices
 from .geometry import MAXB
@@ -44,7 +44,7 @@ SHRINK = 1e-4          # relative shrink of the polygon toward the loop's centre
 DISK_SHRINK = 1e-6     # relative shrink of the disk inside the polygon (``hidden_behind_cores``)
 
 
-@njit(cache=True)
+@kernel
 def _components(nbr):
     """Connected components over shared edges: (label[T], closed[C]) where
     closed = every edge of the component is shared by exactly two triangles."""
@@ -75,7 +75,7 @@ def _components(nbr):
     return label, closed[:c].copy()
 
 
-@njit(cache=True)
+@kernel
 def _slice_loop(P, ids, nbr, tri_list, nx, ny, nz, off, out):
     """Walk the slice of closed component ``tri_list`` by plane n . x = off;
     writes the crossing points in loop order to ``out`` and returns their

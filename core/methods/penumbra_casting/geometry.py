@@ -32,19 +32,19 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from ...jit import inner
 
 MAXP = 31          # planes kept per penumbra volume (cap first); bit masks fit int64
 MAXB = 6           # corners of a blocker polygon (a leaf's hexagon; ``MaxCorners`` picks up to this)
 ALL = np.int64(-1)  # active plane set token "ALL" (every bit set)
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def _cross(ax, ay, az, bx, by, bz):
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
-@njit(cache=True)
+@inner
 def _separating(tri, nb, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
     """Candidate plane with normal n through point s: append it to ``out``
     at column k, oriented with T's side >= 0, when it separates T and the
@@ -82,7 +82,7 @@ def _separating(tri, nb, DV, nv, eps, nx, ny, nz, sx, sy, sz, out, k):
     return k + 1
 
 
-@njit(cache=True)
+@inner
 def penumbra_volume(tri, nb, DV, nv, DE, ne, eps, out):
     """Separating planes between light polygon/polytope ``DV[:nv]`` (homogeneous
     vertices, edges ``DE[:ne]`` as vertex index pairs) and blocker ``tri``
@@ -153,7 +153,7 @@ def penumbra_volume(tri, nb, DV, nv, DE, ne, eps, out):
     return k
 
 
-@njit(cache=True)
+@inner
 def hard_volume(tri, nb, px, py, pz, pw, hv):
     """Hard shadow volume V_l of sample ``(p, w)`` and T into ``hv[MAXB + 1, 4]``:
     row 0 T's plane (inside strictly > 0), rows 1..nb the edge planes through
@@ -192,7 +192,7 @@ def hard_volume(tri, nb, px, py, pz, pw, hv):
     return True
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def in_hard_volume(hv, nb, x, y, z):
     """POINT-IN-VOLUME(r, V_l): nb + 1 dot products."""
     if hv[0, 0] * x + hv[0, 1] * y + hv[0, 2] * z - hv[0, 3] <= 0.0:
@@ -203,7 +203,7 @@ def in_hard_volume(hv, nb, x, y, z):
     return True
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def box_vs_volume(bb, i, planes, p, n, active, use_b, tol):
     """INTERSECTS(B_N, V, P, P'): box ``bb[i]`` (lo, hi) against volume
     ``planes[p]``; False if the box lies outside one active plane; otherwise
@@ -236,7 +236,7 @@ def box_vs_volume(bb, i, planes, p, n, active, use_b, tol):
     return True, active
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def point_in_volume(planes, p, n, active, x, y, z, tol):
     """POINT-IN-VOLUME(r, V, P) over the active planes of ``planes[p]``, with
     slack ``tol``."""
@@ -249,7 +249,7 @@ def point_in_volume(planes, p, n, active, x, y, z, tol):
     return (outside & np.uint64(active)) == 0
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def receiver_edge_functions(tri, nb, tn, x, y, z, ef):
     """The hard shadow volume test of section 3.2 with the roles of sample
     and receiver exchanged. Edge plane e of V_l through sample (p, w) and edge
@@ -276,7 +276,7 @@ def receiver_edge_functions(tri, nb, tn, x, y, z, ef):
     return tn[0] * x + tn[1] * y + tn[2] * z - tn[3]
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def blocked_by_edges(ef, rho, tn, px, py, pz, pw):
     """POINT-IN-VOLUME(r, V_l) from ``receiver_edge_functions``: the sample
     strictly on the other side of T's plane from r, and r inside every edge
@@ -299,7 +299,7 @@ def blocked_by_edges(ef, rho, tn, px, py, pz, pw):
     return False
 
 
-@njit(cache=True)
+@inner
 def _newell(tri, nb):
     """Newell's normal of polygon ``tri[:nb]`` (twice its area, oriented by its winding)."""
     nx = ny = nz = 0.0
@@ -311,7 +311,7 @@ def _newell(tri, nb):
     return nx, ny, nz
 
 
-@njit(cache=True)
+@inner
 def triangle_plane(tri, nb, tn):
     """T's (unnormalized) plane into tn[4]: n_T = (b - a) x (c - a) for a
     triangle, Newell's normal for a polygon; o_T = n_T . a."""

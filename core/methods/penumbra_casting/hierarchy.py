@@ -14,16 +14,16 @@ index than its parent: a reverse sweep combines children before parents.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 
-@njit(cache=True)
+@inner
 def _area(x0, y0, z0, x1, y1, z1):
     dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
     return dx * dy + dy * dz + dz * dx
 
 
-@njit(cache=True)
+@inner
 def _grow(a, cap):
     """``a`` (1-D) in a new array of length ``cap``. Element by element: a
     slice assignment compiles Numba's shape-mismatch error message (string
@@ -34,7 +34,7 @@ def _grow(a, cap):
     return b
 
 
-@njit(cache=True)
+@inner
 def _grow_boxes(a, cap):
     """``_grow`` for the (m, 6) node boxes."""
     b = np.empty((cap, 6), a.dtype)
@@ -47,7 +47,7 @@ def _grow_boxes(a, cap):
 _RUN = 16          # ``_stable_order``: runs insertion-sorted before the merges
 
 
-@njit(cache=True)
+@inner
 def _stable_order(keys, c, order, tmp, kb, kt):
     """``order[:c]`` = the stable ascending order of ``keys[:c]`` (what
     ``np.argsort(keys[:c], kind="mergesort")`` gives: ties keep their index
@@ -108,7 +108,7 @@ def _stable_order(keys, c, order, tmp, kb, kt):
             order[k] = tmp[k]
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
     """BVH over receivers ``idx`` (indices into ``pts``). Returns perm (the
     receivers in leaf order), node boxes (m, 6: lo, hi), left, right (-1 for
@@ -271,7 +271,7 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
         count[:m].copy(), max_depth
 
 
-@njit(cache=True, forceinline=True)
+@inner(forceinline=True)
 def leaf_umbra_bits(node, start, count, perm, gu, fu, node_gu, node_fu):
     """A leaf's umbra bits (optimization A, lines 77-80): the AND of its
     receivers' per-group bits ``gu`` and whole-light bits ``fu``."""
@@ -287,7 +287,7 @@ def leaf_umbra_bits(node, start, count, perm, gu, fu, node_gu, node_fu):
     node_fu[node] = f
 
 
-@njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def node_umbra_bits(left, right, start, count, perm, gu, fu, node_gu, node_fu):
     """Umbra bits of every node from its receivers' (optimization A, lines
     50-54 and 77-80): the AND over the leaf's points, then over children."""

@@ -42,7 +42,7 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from ...jit import inner, kernel
 
 from ...sampling import concentric_disk, light_sample, rand01, strata, stratum_uv
 
@@ -223,7 +223,7 @@ def box_to_homog(lo, hi, origin, frame, tol):
 
 # --------------------------------------------------------------------------
 # sample tables
-@njit(cache=True)
+@kernel
 def fixed_sample_table(lp, nsets, nx, ny, bit2s, seed, key):
     """SP[set, bit, 4]: homogeneous sample of every set (area: points, sun:
     directions), jittered in its stratum with rand01(seed, key + set, s, dim)."""
@@ -241,7 +241,7 @@ def fixed_sample_table(lp, nsets, nx, ny, bit2s, seed, key):
     return out
 
 
-@njit(cache=True)
+@kernel
 def sphere_disk_table(nsets, nx, ny, bit2s, seed, key, radius, e1, e2):
     """Q[set, bit, 3]: disk offsets r (dx e1 + dy e2) in the w0 frame."""
     S = nx * ny
@@ -256,7 +256,7 @@ def sphere_disk_table(nsets, nx, ny, bit2s, seed, key, radius, e1, e2):
     return out
 
 
-@njit(cache=True)
+@kernel
 def min_rotations(P, centre, w0):
     """Per receiver: the 3x3 minimal rotation taking w0 to the unit direction
     from the point to the light centre (Rodrigues), row-major, and its angle."""
@@ -312,7 +312,7 @@ def min_rotations(P, centre, w0):
     return M, ang
 
 
-@njit(cache=True, inline="always")   # per relation: a call would cost the tuples' reference counts
+@kernel(inline="always")   # per relation: a call would cost the tuples' reference counts
 def sample_point(smp, i, r, rec):
     """Homogeneous position of bit ``i`` of receiver ``r``'s light sample set
     (smp: LightSamples; rec: cast.Receivers, whose set_id, pix, Pg and M are read)."""
@@ -334,7 +334,7 @@ def sample_point(smp, i, r, rec):
     return x, y, z, (0.0 if is_dir else 1.0)
 
 
-@njit(cache=True)
+@kernel
 def all_sample_points(smp, rows, S, rec):
     """float64[len(rows), S, 4]: every sample of the given receivers, bit order
     (smp: LightSamples; rec: cast.Receivers)."""
@@ -350,7 +350,7 @@ def all_sample_points(smp, rows, S, rec):
     return out
 
 
-@njit(cache=True)
+@kernel
 def assign_sets(pix, nsets, seed):
     """Section 3.4: one light sample set per receiver, by a hash of its pixel."""
     out = np.empty(pix.shape[0], np.int64)
