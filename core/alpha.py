@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 from typing import List
 
 import numpy as np
+
 from .jit import kernel
 
 CLOSEST, LINEAR = 0, 1

@@ -35,9 +35,9 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from .jit import inner, kernel
 
 from .alpha import alpha_at
+from .jit import inner, kernel
 from .sampling import offset_origin
 
 #: matte surfaces a ray may cross (Cycles' transparent_max_bounces, set high

@@ -14,9 +14,9 @@ import numpy as np
 from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
-from .jit import inner, kernel
 
 from . import cancel
+from .jit import inner, kernel
 
 
 @contextmanager

@@ -10,8 +10,8 @@ import math
 from typing import Dict, Optional
 
 import numpy as np
-from .jit import kernel
 
+from .jit import kernel
 from .scene import GBuffer, Light
 
 PENUMBRA_LO, PENUMBRA_HI = 0.02, 0.98

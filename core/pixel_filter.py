@@ -51,8 +51,8 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from .jit import kernel
 
+from .jit import kernel
 from .kernels import each_range
 
 KINDS = ("box", "gaussian", "blackman-harris", "eevee")

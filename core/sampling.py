@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .jit import inner, kernel
 
+from .jit import inner, kernel
 from .kernels import each_range
 from .scene import KIND_AREA, KIND_SPHERE, KIND_SUN, Light  # noqa: F401 (kernels' kind codes)
 

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from ..jit import HOT, kernel
 
 from .. import sampling
+from ..jit import HOT, kernel
 from ..kernels import each_in_threads
 from ..sampling import offset_origin, reference_sample, strata
 from .registry import register

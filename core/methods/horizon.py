@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ..jit import inner, kernel
 
+from ..jit import inner, kernel
 from ..kernels import each_range
 
 SUN_RINGS = 16   # under a sun: rings of the cone of directions (equal solid angle)

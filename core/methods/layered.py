@@ -200,9 +200,9 @@ from typing import Dict, List, Optional
 
 import numba
 import numpy as np
-from ..jit import HOT, inner, kernel
 
 from .. import sampling, views
+from ..jit import HOT, inner, kernel
 from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from ..sampling import concentric_disk, light_sample, rand01
 from ..scene import Light, ViewFace

@@ -84,9 +84,9 @@ from typing import Optional
 
 import numpy as np
 from numba import prange
-from ..jit import inner, kernel
 
 from .. import views
+from ..jit import inner, kernel
 from ..kernels import borrowed, each_dealt_chunk, face_project, finite_bbox, pick_face
 from ..sampling import stream_next, stream_start, stream_word
 from .registry import register

@@ -142,8 +142,8 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from ..jit import HOT, inner, kernel
 
+from ..jit import HOT, inner, kernel
 from ..kernels import borrowed, each_dealt_chunk, each_range, face_project
 from ..sampling import rand01
 from .registry import register

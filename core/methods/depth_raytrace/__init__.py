@@ -125,9 +125,9 @@ from typing import Dict, List, Optional, Sequence
 import numba
 import numpy as np
 from numba import prange
-from ...jit import inner, kernel
 
 from ... import sampling, views
+from ...jit import inner, kernel
 from ...kernels import borrowed, each_dealt_chunk, each_range, face_project, pick_face
 from ...sampling import strata
 from ...scene import Light

@@ -54,7 +54,6 @@ import math
 from collections import namedtuple
 
 from ...jit import inner
-
 from ...sampling import offset_origin, orthonormal_basis, reference_sample
 
 USEPREV, QUEUED, DONE = 0, 1, 2

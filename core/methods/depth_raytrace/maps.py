@@ -54,9 +54,9 @@ from typing import Optional
 
 import numba
 import numpy as np
-from ...jit import inner, kernel
 
 from ... import views
+from ...jit import inner, kernel
 from ...scene import Light, ViewFace
 from .window import blocker_points
 

@@ -58,8 +58,8 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from ...jit import inner, kernel
 
+from ...jit import inner, kernel
 from .maps import FP_FOOT, FP_GAPABS, FP_GAPTEX, FP_K, FP_MNROOT, FP_MXROOT
 
 MAXI = 48            # occlusion intervals kept per ray (extra ones merge: conservative)

@@ -29,8 +29,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ...jit import inner, kernel
 
+from ...jit import inner, kernel
 from ...kernels import each_range
 
 SHAPE_DISK = 0      # unit disk (disk, ellipse, sphere and sun lights)

@@ -38,8 +38,8 @@ from collections import namedtuple
 
 import numpy as np
 from numba import prange
-from ...jit import HOT, inner, kernel
 
+from ...jit import HOT, inner, kernel
 from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
 from .geom import blocks_centre, penumbra_term
 

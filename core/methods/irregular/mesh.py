@@ -34,8 +34,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ...jit import inner, kernel
 
+from ...jit import inner, kernel
 from .geom import SILHOUETTE_CENTRE
 
 

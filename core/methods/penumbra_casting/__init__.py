@@ -109,9 +109,9 @@ from typing import Dict, List, Optional
 
 import numba
 import numpy as np
-from ...jit import kernel
 
 from ... import sampling
+from ...jit import kernel
 from ...kernels import borrowed, each_dealt_chunk, each_in_threads
 from ..registry import register
 from .alpha_blockers import (MatteBlockers, corner_order, fetch_visibility, matte_pairs, matte_triangles,

@@ -47,10 +47,10 @@ from collections import namedtuple
 from typing import Optional, Tuple
 
 import numpy as np
-from ...jit import inner, kernel
 
 from ... import alpha_rays, raycast
 from ...alpha import alpha_at
+from ...jit import inner, kernel
 from .geometry import box_vs_volume, point_in_volume
 from .light import sample_point
 

@@ -31,8 +31,8 @@ only when exactly two share it.
 from __future__ import annotations
 
 import numpy as np
-from ...jit import inner, kernel
 
+from ...jit import inner, kernel
 from .geometry import MAXB     # corners per blocker polygon (one more plane test per sample and corner)
 
 PLANE_ULPS = 4.0    # coplanarity / collinearity tolerance in float32 ULPs

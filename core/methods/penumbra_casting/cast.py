@@ -40,8 +40,8 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from ...jit import HOT, inner, kernel
 
+from ...jit import HOT, inner, kernel
 from .geometry import MAXB, MAXP, blocked_by_edges, box_vs_volume, hard_volume, in_hard_volume, \
     penumbra_volume, point_in_volume, receiver_edge_functions, triangle_plane
 from .hierarchy import leaf_umbra_bits

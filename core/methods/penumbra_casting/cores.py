@@ -30,8 +30,8 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from ...jit import kernel
 
+from ...jit import kernel
 from .blockers import _adjacency, _unique_vertices
 from .geometry import MAXB
 

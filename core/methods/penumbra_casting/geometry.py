@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from ...jit import inner
 
 MAXP = 31          # planes kept per penumbra volume (cap first); bit masks fit int64

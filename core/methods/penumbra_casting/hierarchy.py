@@ -14,6 +14,7 @@ index than its parent: a reverse sweep combines children before parents.
 from __future__ import annotations
 
 import numpy as np
+
 from ...jit import inner, kernel
 
 

@@ -42,8 +42,8 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from ...jit import inner, kernel
 
+from ...jit import inner, kernel
 from ...sampling import concentric_disk, light_sample, rand01, strata, stratum_uv
 
 MAXV = 16
