@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from .jit import inner, kernel
 
 ROT, EYE, WINDOW, ORTHO, NEAR, FAR = 0, 9, 12, 16, 17, 18
