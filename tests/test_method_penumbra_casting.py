@@ -493,6 +493,35 @@ def test_coarse_sort_is_largest_first_by_bucket():
     assert area[order[:np.sum(b == 0)]].min() > area[order[np.sum(b == 0):]].max()
 
 
+def test_coarse_sort_takes_a_polygons_area_from_all_its_corners():
+    """Blocker polygons (corners past ``nverts`` repeated, as the merge
+    stores them) are bucketed by their whole area: squares of side s (area
+    s^2, closed form) and hexagons of circumradius h (3 sqrt(3) / 2 h^2)
+    among triangles, in any orientation."""
+    rng = np.random.default_rng(9)
+    polys, nv, area = [], [], []
+    for k in range(300):
+        kind = k % 3
+        n = (3, 4, 6)[kind]
+        size = 10.0 ** rng.uniform(-3, 1)
+        ang = np.arange(n) * 2 * np.pi / n
+        pts = np.stack([np.cos(ang), np.sin(ang), np.zeros(n)], 1) * size
+        R, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        pts = pts @ R.T + rng.normal(0, 5, 3)
+        p = np.repeat(pts[-1:], MAXB, 0)
+        p[:n] = pts
+        polys.append(p)
+        nv.append(n)
+        area.append(0.5 * n * np.sin(2 * np.pi / n) * size ** 2)    # regular n-gon of circumradius size
+    polys, nv, area = np.array(polys), np.array(nv, np.int64), np.array(area)
+    order = _bucket_sort_by_area(polys, nv, 8)
+    la = np.log(area)
+    b = np.minimum(7, ((la.max() - la) / (la.max() - la.min()) * 8).astype(int))
+    assert sorted(order) == list(range(len(area)))
+    assert np.all(np.diff(b[order]) >= 0)
+    assert np.all(np.diff(order[b[order] == 3]) > 0)       # stable inside a bucket
+
+
 def test_groups_of_32_on_a_jittered_grid():
     nx, ny, G, bit2s, g_start, blocks = group_layout(256, 32)
     assert (nx, ny, G) == (16, 16, 8)

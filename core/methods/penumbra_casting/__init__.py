@@ -124,7 +124,7 @@ from .cast import (N_ST, ST_GROUP_TESTS, ST_HARD_BUILT, ST_HARD_TESTS, ST_GROUP_
                    ST_NODES, ST_PEAK, ST_PAIRS, ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED, ST_SLOTS, ST_UMBRA, Blockers,
                    CastSwitches, Hierarchy, LightGroups, Masks, Receivers, UmbraBits, cast_chunk_for,
                    chunk_visibility)
-from .geometry import MAXP, _newell, box_vs_volume, penumbra_volume
+from .geometry import MAXP, box_vs_volume, penumbra_volume
 from .hierarchy import build_hierarchy, node_umbra_bits
 from .light import (MAXE, MAXV, MODE_FIXED, MODE_SHARED, MODE_SPHERE, SET_KEY, LightSamples, all_sample_points,
                         assign_sets, block_polygon_2d, box_to_homog, disk_polygon, fixed_sample_table,
@@ -191,54 +191,44 @@ def _light_volumes_of(ts, tris, nverts, DV, nv, DE, ne, eps, root_bb, tol, VL, n
         keep[t] = ok
 
 
-@kernel
 def _bucket_sort_by_area(tris, nverts, nb):
     """Coarse blocker sorting (section 3.3): bucket by area on a log scale
     into ``nb`` buckets, largest first; linear time (histogram + counting
-    sort), stable."""
+    sort: a stable sort of small integers), stable. A polygon's area is half
+    its Newell normal (``geometry._newell``) over its ``nverts`` corners.
+    NumPy, not a kernel: nothing to compile (the kernel was about 1 s of a
+    cold start's compile, issue 15); a million blockers take 0.09-0.15 s
+    against the kernel's 0.02 s."""
     n = tris.shape[0]
-    area = np.empty(n)
-    for t in range(n):
-        if nverts[t] > 3:
-            cx, cy, cz = _newell(tris[t], nverts[t])
-            area[t] = 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
-            continue
-        ux = tris[t, 1, 0] - tris[t, 0, 0]
-        uy = tris[t, 1, 1] - tris[t, 0, 1]
-        uz = tris[t, 1, 2] - tris[t, 0, 2]
-        vx = tris[t, 2, 0] - tris[t, 0, 0]
-        vy = tris[t, 2, 1] - tris[t, 0, 1]
-        vz = tris[t, 2, 2] - tris[t, 0, 2]
-        cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        area[t] = 0.5 * math.sqrt(cx * cx + cy * cy + cz * cz)
-    out = np.arange(n)
+    out = np.arange(n, dtype=np.int64)
     if n == 0:
         return out
-    lo = np.inf
-    hi = -np.inf
-    for t in range(n):
-        if area[t] > 0.0:
-            la = math.log(area[t])
-            lo = min(lo, la)
-            hi = max(hi, la)
+    t = tris.transpose(1, 2, 0)                          # [corner, axis, blocker]
+    u, v = t[1] - t[0], t[2] - t[0]
+    c = np.stack([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
+    poly = np.flatnonzero(nverts > 3)
+    if len(poly):
+        p = tris[poly]
+        nv = nverts[poly][:, None]
+        j = np.arange(p.shape[1])
+        used = j < nv                                    # corners past nverts add no term
+        q = np.take_along_axis(p, np.where(j + 1 < nv, j + 1, 0)[..., None], 1)   # the next corner
+        c[:, poly] = np.stack([((p[..., 1] - q[..., 1]) * (p[..., 2] + q[..., 2]) * used).sum(1),
+                               ((p[..., 2] - q[..., 2]) * (p[..., 0] + q[..., 0]) * used).sum(1),
+                               ((p[..., 0] - q[..., 0]) * (p[..., 1] + q[..., 1]) * used).sum(1)])
+    area = 0.5 * np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+    pos = area > 0.0
+    if not pos.any():
+        return out
+    la = np.log(area[pos])
+    lo, hi = la.min(), la.max()
     if not (hi > lo):
         return out
-    bucket = np.empty(n, np.int64)
-    hist = np.zeros(nb + 1, np.int64)
-    for t in range(n):
-        if area[t] > 0.0:
-            b = int((hi - math.log(area[t])) / (hi - lo) * nb)
-            b = min(nb - 1, max(0, b))
-        else:
-            b = nb - 1
-        bucket[t] = b
-        hist[b + 1] += 1
-    for b in range(nb):
-        hist[b + 1] += hist[b]
-    for t in range(n):
-        out[hist[bucket[t]]] = t
-        hist[bucket[t]] += 1
-    return out
+    bucket = np.full(n, nb - 1, np.int64)
+    bucket[pos] = np.clip(((hi - la) / (hi - lo) * nb).astype(np.int64), 0, nb - 1)
+    if nb <= 1 << 15:
+        bucket = bucket.astype(np.int16)                 # NumPy's stable sort of 16-bit keys: a radix sort
+    return np.argsort(bucket, kind="stable").astype(np.int64, copy=False)
 
 
 # --------------------------------------------------------------------------
