@@ -3,21 +3,21 @@ cost every user pays on a cold start): ``kernel`` and ``inner``, the two
 decorators every kernel in ``core`` uses instead of ``numba.njit``.
 
 - **An LLVM optimisation level per kernel** (``opt``). Numba runs LLVM's -O3
-  pipeline on every kernel, and again on each caller's module with its
-  callees linked in. Penumbra's kernels are branchy scalar loops that -O3's
-  loop vectorisation and aggressive passes rarely speed up: measured on a
-  cold ``penumbra_casting`` frame, -O1 everywhere cut the compile CPU
-  28 -> 20 s. Kernels compile at ``COLD`` (-O1) unless they are marked
-  ``HOT`` (-O3: the per-pixel kernels whose warm time was measured to drop
-  with it, ``penumbra_casting``'s cast loop among them). A callee linked
-  into a ``HOT`` caller is optimised again at -O3 there, so a hot loop's
-  inlined helpers get -O3 whatever their own level. Numba reads the level (``numba.core.config.OPT``)
-  when it builds each library's pass pipeline; :meth:`Kernel.compile` sets
-  it for its own compile under Numba's global compiler lock and puts back
-  the previous value (so a nested callee compile, or another package's
-  kernels in the same process, keep theirs), after re-reading Numba's
-  environment variables as its compiler does (a changed ``NUMBA_*``
-  variable would otherwise reset the level inside the compile).
+  pipeline on every kernel, and again on each caller's module with its callees
+  linked in. Penumbra's kernels are branchy scalar loops that -O3's loop
+  vectorisation and aggressive passes rarely speed up: measured on a cold
+  ``penumbra_casting`` frame, -O1 everywhere cut the compile CPU 28 -> 20 s.
+  Kernels compile at ``COLD`` (-O1) unless they are marked ``HOT`` (-O3: the
+  per-pixel kernels whose warm time was measured to drop with it,
+  ``penumbra_casting``'s cast loop among them). A callee linked into a ``HOT``
+  caller is optimised again at -O3 there, so a hot loop's inlined helpers get
+  -O3 whatever their own level. Numba reads the level
+  (``numba.core.config.OPT``) when it builds each library's pass pipeline;
+  :meth:`Kernel.compile` sets it for its own compile under Numba's global
+  compiler lock and puts back the previous value (so a nested callee compile,
+  or another package's kernels in the same process, keep theirs), after
+  re-reading Numba's environment variables as its compiler does (a changed
+  ``NUMBA_*`` variable would otherwise reset the level inside the compile).
 - **No entry wrappers for kernels that only other kernels call**
   (``inner``). Numba compiles a CPython wrapper (unboxing each argument: a
   named tuple of a dozen arrays unboxes each one) and a cfunc wrapper with

@@ -495,9 +495,9 @@ def test_coarse_sort_is_largest_first_by_bucket():
 
 def test_coarse_sort_takes_a_polygons_area_from_all_its_corners():
     """Blocker polygons (corners past ``nverts`` repeated, as the merge
-    stores them) are bucketed by their whole area: squares of side s (area
-    s^2, closed form) and hexagons of circumradius h (3 sqrt(3) / 2 h^2)
-    among triangles, in any orientation."""
+    stores them) are bucketed by their whole area: regular triangles,
+    squares and hexagons of circumradius r in any orientation, whose area
+    is n sin(2 pi / n) r^2 / 2 (closed form)."""
     rng = np.random.default_rng(9)
     polys, nv, area = [], [], []
     for k in range(300):
