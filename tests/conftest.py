@@ -118,3 +118,14 @@ def factory_scene():
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     return bpy.context.scene
+
+
+@pytest.fixture
+def registered():
+    """Penumbra registered as an add-on for the test (unregistered after)."""
+    import bpy  # noqa: F401  (marks the test as touching bpy)
+    import penumbra
+
+    penumbra.register()
+    yield
+    penumbra.unregister()
