@@ -209,21 +209,6 @@ def open_blend(path: str):
     return scene
 
 
-def load_scene(path: str, frame=None, resolution=None):
-    """Open the .blend and capture it."""
-    from .bridge.capture import capture_scene
-    try:
-        captured = capture_scene(open_blend(path), frame=frame, resolution=resolution)
-    except ValueError as exc:
-        raise UsageError(str(exc))
-    captured.name = _stem(path)
-    return captured
-
-
-def _stem(path: str) -> str:
-    return os.path.splitext(os.path.basename(path))[0]
-
-
 def _available_external():
     import importlib
     try:
@@ -296,6 +281,32 @@ def _summary(result) -> str:
     return "\n".join(lines)
 
 
+def _light_names(text: Optional[str]) -> Optional[List[str]]:
+    """``--lights``: comma-separated light names (None: every light)."""
+    return [s.strip() for s in text.split(",") if s.strip()] if text else None
+
+
+def _request(args, passes, frame=None):
+    """The frame request of ``render`` / ``plan`` (``FrameRequest.from_command_line``)."""
+    from .bridge.pipeline import FrameRequest
+    return FrameRequest.from_command_line(
+        passes, frame=frame, resolution=args.resolution, lights=_light_names(args.lights),
+        samples=getattr(args, "samples", None), seed=getattr(args, "seed", 0),
+        map_size=getattr(args, "map_size", None), error_budget=args.error_budget, pixel_filter=args.pixel_filter)
+
+
+def _prepare(bpy_scene, path, request):
+    """``prepare_frame``, its refusals as one-line usage errors."""
+    from .bridge.pipeline import NoCamera, prepare_frame
+    try:
+        return prepare_frame(bpy_scene, request)
+    except NoCamera:
+        at = f" at frame {request.frame}" if request.frame is not None else ""
+        raise UsageError(f"{path}: the scene has no camera{at}")
+    except ValueError as exc:
+        raise UsageError(str(exc))
+
+
 def cmd_render(args) -> int:
     from .core.planner import resolve_passes
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
@@ -306,75 +317,56 @@ def cmd_render(args) -> int:
         raise UsageError(err)
     from .core.compile_ahead import start_helpers
     from .core.warmup import kernels_cached
-    start_helpers(passes, kernels_cached)   # a cold cache: helpers start while the .blend opens (issue 15)
+    start_helpers(passes, kernels_cached)   # a cold cache: helpers start while the .blend opens
     if args.threads:
         set_threads(args.threads)
     bpy_scene = open_blend(path)
-    if bpy_scene.camera is None:
-        raise UsageError(f"{path}: the scene has no camera")
-    stem = _stem(path)
     frames = args.frames or [args.frame if args.frame is not None else bpy_scene.frame_current]
-    lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
     bar = _Progress(len(frames), args.quiet)
     try:
         for k, frame in enumerate(frames):
-            _render_one(args, bpy_scene, path, out, stem, passes, lights, k, frame, bar)
+            _render_one(args, bpy_scene, path, out, passes, k, frame, bar)
     finally:
         bar.close()
     return 0
 
 
-def _render_one(args, bpy_scene, path, out, stem, passes, lights, k, frame, bar):
+def _render_one(args, bpy_scene, path, out, passes, k, frame, bar):
     """One frame of ``penumbra render``: skipped when written (unless --force)."""
-    from .bridge.pipeline import FrameRequest, NoCamera, prepare_frame
-    from .core.output import output_paths, write_frame
-    done = output_paths(out, stem, frame)["json"]
+    from .bridge.capture import blend_stem
+    from .bridge.pipeline import finish_frame
+    from .core.output import output_paths
+    done = output_paths(out, blend_stem(bpy_scene), frame)["json"]
     if os.path.exists(done) and not args.force:
         bar.write(f"frame {frame}: already written ({os.path.basename(done)}), skipped; --force recomputes it")
         return
-    request = FrameRequest(frame=frame, resolution=args.resolution, use_light_settings=False,
-                           methods=passes, lights=lights, seed=args.seed, samples=args.samples,
-                           map_size=args.map_size, error_budget=args.error_budget,
-                           skip_deleted=False, pixel_filter=args.pixel_filter)
-    try:
-        job = prepare_frame(bpy_scene, request)
-    except NoCamera:
-        raise UsageError(f"{path}: the scene has no camera at frame {frame}")
-    except ValueError as exc:
-        raise UsageError(str(exc))
-    job.captured.name = stem
-    result = job.run(bar.frame(k, frame)).result()
+    job = _prepare(bpy_scene, path, _request(args, passes, frame)).run(bar.frame(k, frame))
+    result, paths = finish_frame(bpy_scene, job, out, store=False, previews=not args.no_previews)
+    if paths is None:
+        raise UsageError(job.warnings[-1] if job.warnings else f"frame {frame}: nothing was computed")
     for n in result.plan.notes:
         bar.write(f"penumbra: {n}")
-    paths = write_frame(result, out, previews=not args.no_previews)
     bar.write(_summary(result))
     bar.write(f"wrote {paths.get('exr', '(no EXR: no lights)')} and {paths['json']}")
 
 
 def cmd_plan(args) -> int:
-    """The decisions ``render`` makes, from the same functions: the planner's
-    rules, then the reach of each light on the camera G-buffer at the plan's
-    resolution (``--resolution``, default the scene's; ``core.planner.plan_frame``)."""
+    """The decisions ``render`` makes, from the same functions: the request,
+    the capture and the steps of ``render``, then the planner on the camera
+    G-buffer at the plan's resolution (``--resolution``, default the
+    scene's; ``core.planner.plan_frame``)."""
     from .core.buffers import FrameBuffers
     from .core.planner import plan_frame, resolve_passes
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     path = _check_blend(args.scene)
-    scene = load_scene(path, resolution=args.resolution)
-    if scene.camera is None:
-        raise UsageError(f"{path}: the scene has no camera")
-    lights = [s.strip() for s in args.lights.split(",") if s.strip()] if args.lights else None
-    W, H = scene.resolution
-    plan, _reach = plan_frame(scene, passes, lights, args.error_budget, FrameBuffers(scene, W, H))
-    print(plan.describe())
-    print(f"pixel filter: {_filter_of(args.pixel_filter).describe()}")
+    job = _prepare(open_blend(path), path, _request(args, passes))
+    scene = job.captured
+    for step in job.steps:
+        plan, _reach = plan_frame(scene, step.passes, step.names, step.error_budget,
+                                  FrameBuffers(scene, *scene.resolution))
+        print(plan.describe())
+    print(f"pixel filter: {job.pixel_filter.describe()}")
     return 0
-
-
-def _filter_of(spec: str):
-    """``--pixel-filter`` on the open scene (``scene``: its render filter)."""
-    import bpy
-    from .bridge import settings
-    return settings.pixel_filter(bpy.context.scene, spec)
 
 
 def cmd_bench(args) -> int:

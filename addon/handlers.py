@@ -34,8 +34,8 @@ from bpy.app.handlers import persistent
 from ..bridge import buffer_cache, compat, settings
 from ..bridge.capture import is_capturing
 from ..bridge.cycles_reference import is_rendering
-from ..bridge.pipeline import (FrameRequest, NoCamera, check_out_dir, compute_frame, first_line,
-                               render_output_folder, write_back)
+from ..bridge.pipeline import (FrameRequest, NoCamera, check_out_dir, compute_frame, finish_frame, first_line,
+                               render_output_folder)
 
 #: what the running render has done: frames computed, files written, errors
 state = {"active": False, "scene": None, "done": set(), "written": [], "errors": [], "notes": []}
@@ -64,26 +64,26 @@ def _report(msg: str):
 def compute_render_frame(scene, depsgraph=None):
     """Compute, store and write the passes of ``scene``'s current frame.
     Returns the written paths, or None (reason in ``state``)."""
-    from ..core.output import write_frame
     frame = int(scene.frame_current)
     out_dir, err = check_out_dir(render_output_folder(scene, frame))
     if err:
         _report(f"frame {frame}: {err}")
         return None
-    request = FrameRequest(depsgraph=depsgraph, mode="AUTO" if depsgraph is not None else "VIEWPORT",
-                           in_render=True, threads=settings.preferred_threads(), skip_deleted=False)
+    request = FrameRequest.from_scene_settings(depsgraph=depsgraph,
+                                               mode="AUTO" if depsgraph is not None else "VIEWPORT",
+                                               in_render=True, skip_deleted=False)
     try:
         job = compute_frame(scene, request)
     except NoCamera as exc:
         _report(f"frame {frame}: {exc}")
         return None
     state["notes"] = list(job.notes)
-    result = job.result()
-    write_back(scene, result)
-    if not result.lights:
+    _result, paths = finish_frame(scene, job, out_dir)
+    for w in job.warnings:
+        _report(f"frame {frame}: {w}")
+    if paths is None:
         state["notes"].append(f"frame {frame}: no light to compute, nothing written")
         return None
-    paths = write_frame(result, out_dir, previews=False)
     state["written"].append(paths)
     return paths
 

@@ -9,7 +9,7 @@ import importlib
 import bpy
 
 from ..bridge import settings
-from ..bridge.jobs import auto_choice_for, resolve_method
+from ..bridge.jobs import asks_for_auto, last_auto
 from . import properties as props
 
 # operator modules whose buttons appear in the render panel, in this order
@@ -55,6 +55,15 @@ def draw_knobs(layout, settings, method_id: str):
             layout.prop(group, name)
 
 
+def _auto_choice(context):
+    """``auto``'s last decision for the light being shown (its object:
+    ``context.object`` when it holds this light, else the first that does)."""
+    ob = context.object
+    if ob is None or ob.data != context.light:
+        ob = next((o for o in context.scene.objects if o.data == context.light), None)
+    return last_auto(context.scene.name, ob.name) if ob is not None else None
+
+
 class PENUMBRA_PT_light(bpy.types.Panel):
     bl_label = "Penumbra"
     bl_space_type = "PROPERTIES"
@@ -80,8 +89,9 @@ class PENUMBRA_PT_light(bpy.types.Panel):
         layout.prop(s, "light_samples")
         layout.prop(s, "map_size")
         if s.method == settings.AUTO:
-            choice = auto_choice_for(s, context.light, context.scene)
-            layout.label(text=f"Auto: {choice.short}", icon="INFO")
+            choice = _auto_choice(context)
+            layout.label(text=f"Auto: {choice.short}" if choice is not None
+                         else "Auto: picked for the scene when computed", icon="INFO")
         op = layout.operator("penumbra.preview", text="Preview This Light", icon="IMAGE_RGB")
         op.only_active = True
 
@@ -103,7 +113,14 @@ class PENUMBRA_PT_light_quality(bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         layout.active = s.enabled
-        draw_knobs(layout, s, resolve_method(s, context.light, context.scene))
+        if not asks_for_auto(s):
+            draw_knobs(layout, s, s.method)
+            return
+        choice = _auto_choice(context)
+        if choice is None:
+            layout.label(text="Auto: the picked method's defaults (compute once to see which)")
+        else:
+            draw_knobs(layout, s, choice.method)
 
 
 class PENUMBRA_PT_render(bpy.types.Panel):

@@ -1,8 +1,8 @@
-"""The Preview's buffers kept from one Preview to the next (issue 15).
+"""The Preview's frame cache kept from one Preview to the next.
 
 While the camera and the geometry do not change, a Preview takes over the
 last one's camera G-buffer, BVHs and the views and passes of the lights that
-did not move (``core.buffers.FrameBuffers.adopt``): moving a light
+did not move (``core.frame_cache.FrameCache``): moving a light
 re-computes only its light view and the filter, and a light whose shape,
 place and method settings did not change is not computed again.
 
@@ -36,7 +36,7 @@ _generation = 0
 @dataclass
 class Ticket:
     """What a Preview's capture was checked against; ``store`` keeps its
-    buffers only under the generation it was prepared in."""
+    cache only under the generation it was prepared in."""
     key: tuple
     generation: int
     captured: object
@@ -45,7 +45,7 @@ class Ticket:
 @dataclass
 class _Entry:
     ticket: Ticket
-    buffers: object
+    cache: object
 
 
 _entry: Optional[_Entry] = None
@@ -64,7 +64,7 @@ def _ignored(update) -> bool:
 
 
 def invalidate() -> None:
-    """Forget the kept buffers (the next Preview builds them anew)."""
+    """Forget the kept cache (the next Preview builds its buffers anew)."""
     global _generation, _entry
     with _lock:
         _generation += 1
@@ -74,7 +74,7 @@ def invalidate() -> None:
 @persistent
 def on_depsgraph_update(scene, depsgraph=None):
     """depsgraph_update_post: anything but a light, the scene or our own
-    images changed -> the kept buffers are stale."""
+    images changed -> the kept cache is stale."""
     if depsgraph is None:
         invalidate()
         return
@@ -110,7 +110,7 @@ def watch() -> None:
 
 
 def unwatch() -> None:
-    """Remove the handlers and forget the buffers (the add-on's unregister)."""
+    """Remove the handlers and forget the cache (the add-on's unregister)."""
     for attr, fn in HANDLERS:
         lst = getattr(bpy.app.handlers, attr)
         for h in [h for h in lst if _ours(fn)(h)]:
@@ -140,22 +140,22 @@ def ticket(scene, captured) -> Optional[Ticket]:
 
 
 def lookup(t: Optional[Ticket]):
-    """The kept buffers when they were built for the same capture under the
+    """The kept cache when it was built for the same capture under the
     current generation, else None."""
     e = _entry
     if t is None or e is None or e.ticket.generation != _generation or t.generation != _generation:
         return None
     if e.ticket.key != t.key or not _same_geometry(e.ticket.captured, t.captured):
         return None
-    return e.buffers
+    return e.cache
 
 
-def store(t: Optional[Ticket], buffers) -> None:
-    """Keep ``buffers`` for the next Preview unless something changed since
+def store(t: Optional[Ticket], cache) -> None:
+    """Keep ``cache`` (a core FrameCache) for the next Preview unless something changed since
     ``t`` was taken."""
     global _entry
-    if t is None or buffers is None:
+    if t is None or cache is None:
         return
     with _lock:
         if t.generation == _generation:
-            _entry = _Entry(t, buffers)
+            _entry = _Entry(t, cache)

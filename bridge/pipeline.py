@@ -31,7 +31,7 @@ import bpy
 from ..core.cancel import CancelToken, Cancelled, watching
 from . import buffer_cache, settings
 from .capture import blend_stem, capture_scene, light_object, render_resolution
-from .jobs import PREVIEW_MAP_SCALE, LightJob, Step, light_jobs, make_steps, resolve_method
+from .jobs import Step, light_jobs, make_steps
 
 Progress = Callable[[str, float], None]
 
@@ -45,49 +45,73 @@ class NoCamera(ValueError):
 
 @dataclass
 class FrameRequest:
-    """What to compute for one frame of a scene.
+    """What to compute for one frame of a scene. Made by one of two
+    constructors: :meth:`from_command_line` (every light alike, the lights'
+    own Penumbra settings do not apply) and :meth:`from_scene_settings`
+    (each light's own method, knobs, samples and map size, the scene's
+    references, seed and error budget: Compute Passes, the Preview, the
+    render handler).
 
     Capture: ``frame`` (None: the current one), ``resolution`` (None: the
-    scene's), ``depsgraph`` (a render's own) or ``mode``.
-    Work, from each light's Penumbra settings: ``methods`` (pass ids for
-    every light instead of its method + the references), ``samples``,
-    ``fast`` (preview: fast methods only, light views at ``map_scale`` of
-    the default map's side, ``jobs.PREVIEW_MAP_SCALE``, and the
-    buffers of the last Preview while the camera and the geometry did not
-    change: ``buffer_cache.py``), ``references``, ``only`` (light
-    object names), ``per_light`` (one step per light). With
-    ``use_light_settings=False`` (the command line) every light gets
-    ``methods``, ``seed``, ``samples`` and ``map_size`` alike, ``lights``
-    names them (None: all) and ``auto`` is the planner's, under
-    ``error_budget``.
-    ``in_render``: inside a render (no Cycles reference); ``threads``: Numba
-    threads (0: all cores, None: unchanged); ``catch_errors``: a failed step
-    ends the job with ``job.error`` instead of raising; ``skip_deleted``:
-    lights deleted between steps are skipped with a warning;
-    ``pixel_filter``: a ``--pixel-filter`` spec (None: the scene's
-    ``scene.penumbra.pixel_filter``; ``bridge.settings.pixel_filter``).
+    scene's), ``depsgraph`` (a render's own) and its ``mode``.
+    Work: ``methods`` (pass ids for every light; None: each light's own),
+    ``lights`` (light object names; None: every light), ``samples``,
+    ``seed``, ``map_size``, ``error_budget`` (the command line's; the scene
+    settings' otherwise), ``references`` (None: the scene's), ``preview``
+    (preview quality: ``bridge/jobs.py``; pixel centres unless
+    ``pixel_filter`` names a filter; the last Preview's buffers while the
+    camera and the geometry did not change: ``buffer_cache.py``),
+    ``pixel_filter`` (a ``--pixel-filter`` spec; None: the scene's).
+    Running: ``in_render`` (inside a render: no Cycles reference),
+    ``threads`` (Numba threads, 0: all cores, None: unchanged),
+    ``per_light`` (one step per light), ``catch_errors`` (a failed step ends
+    the job with ``job.error`` instead of raising), ``skip_deleted`` (lights
+    deleted between steps are skipped with a warning).
     """
     frame: Optional[int] = None
     resolution: Optional[Tuple[int, int]] = None
     depsgraph: object = None
     mode: str = "AUTO"
-    use_light_settings: bool = True
+    light_settings: bool = True
     methods: Optional[Sequence[str]] = None
-    samples: Optional[int] = None
-    fast: bool = False
-    map_scale: Optional[float] = None
-    references: Optional[Sequence[str]] = None
-    only: Optional[Sequence[str]] = None
-    per_light: bool = False
     lights: Optional[Sequence[str]] = None
+    samples: Optional[int] = None
     seed: int = 0
     map_size: Optional[int] = None
     error_budget: Optional[float] = None
+    references: Optional[Sequence[str]] = None
+    preview: bool = False
+    pixel_filter: Optional[str] = None
     in_render: bool = False
     threads: Optional[int] = None
+    per_light: bool = False
     catch_errors: bool = False
     skip_deleted: bool = True
-    pixel_filter: Optional[str] = None
+
+    @classmethod
+    def from_command_line(cls, methods: Sequence[str], *, frame: Optional[int] = None,
+                          resolution: Optional[Tuple[int, int]] = None, lights: Optional[Sequence[str]] = None,
+                          samples: Optional[int] = None, seed: int = 0, map_size: Optional[int] = None,
+                          error_budget: Optional[float] = None, pixel_filter: Optional[str] = None) -> "FrameRequest":
+        """``penumbra render`` / ``plan``: ``methods`` (``auto`` among them
+        resolved per light by the planner) for every light of ``lights``."""
+        return cls(frame=frame, resolution=resolution, light_settings=False, methods=list(methods),
+                   lights=lights, samples=samples, seed=seed, map_size=map_size, error_budget=error_budget,
+                   pixel_filter=pixel_filter, skip_deleted=False)
+
+    @classmethod
+    def from_scene_settings(cls, *, preview: bool = False, methods: Optional[Sequence[str]] = None,
+                            samples: Optional[int] = None, lights: Optional[Sequence[str]] = None,
+                            references: Optional[Sequence[str]] = None,
+                            resolution: Optional[Tuple[int, int]] = None, depsgraph=None, mode: str = "AUTO",
+                            in_render: bool = False, per_light: bool = False, catch_errors: bool = False,
+                            skip_deleted: bool = True, pixel_filter: Optional[str] = None) -> "FrameRequest":
+        """The add-on's frames (Compute Passes, the Preview, the render
+        handler): each light's own settings, the preferences' thread count."""
+        return cls(resolution=resolution, depsgraph=depsgraph, mode=mode, methods=methods, lights=lights,
+                   samples=samples, references=references, preview=preview, pixel_filter=pixel_filter,
+                   in_render=in_render, threads=settings.preferred_threads(), per_light=per_light,
+                   catch_errors=catch_errors, skip_deleted=skip_deleted)
 
 
 # --------------------------------------------------------------------------
@@ -107,20 +131,20 @@ def set_threads(n: int) -> int:
     return n
 
 
-def run_step(captured, step: Step, external=None, progress=None, pixel_filter=None, reuse=None):
+def run_step(captured, step: Step, external=None, progress=None, pixel_filter=None, previous=None):
     """``render_frame`` for the step's lights, filtered by ``pixel_filter``
     (a core PixelFilter; None: pixel centres, ``core.filtered_frame``);
     ``auto``'s decisions go into the result's plan (printed and stored in
-    the JSON like the planner's). ``reuse``: buffers of an earlier step or
-    Preview for the same camera and geometry (``FrameBuffers.adopt``); the
-    result keeps its own buffers."""
+    the JSON like the planner's). ``previous``: the cache of an earlier step
+    or Preview for the same camera and geometry (``core/frame_cache.py``);
+    the result keeps its own (``result.cache``)."""
     from ..core.filtered_frame import render_filtered
     from ..core.planner import record_auto
     passes = [p for p in step.passes if p != "cycles" or (external and "cycles" in external)]
     result = render_filtered(captured, passes, step.names, overrides=step.overrides,
                              method_overrides=step.method_overrides, map_size=step.map_size,
                              progress=progress, external=external, error_budget=step.error_budget,
-                             pixel_filter=pixel_filter, reuse=reuse, keep_buffers=True)
+                             pixel_filter=pixel_filter, previous=previous, keep=True)
     for lp in result.plan.lights:
         if lp.name in step.auto:
             record_auto(lp, step.auto[lp.name])
@@ -131,21 +155,14 @@ def merge_results(captured, results):
     """One FrameResult from the steps' results, lights in capture order,
     layer names unique across steps (as one planner call would make them)."""
     from ..core.frame import FrameResult
-    from ..core.planner import Plan
+    from ..core.planner import Plan, unique_layers
     if len(results) == 1:
         return results[0]
     order = {lt.name: i for i, lt in enumerate(captured.lights)}
     lights = sorted((lr for r in results for lr in r.lights), key=lambda lr: order.get(lr.name, 0))
     plans = {lp.name: lp for r in results for lp in r.plan.lights}
-    used: Dict[str, int] = {}
-    for lr in lights:
-        layer = lr.layer
-        if layer in used:
-            used[layer] += 1
-            layer = f"{layer}_{used[layer]}"
-            lr.layer = layer
-            plans[lr.name].layer = layer
-        used.setdefault(layer, 1)
+    for lr, layer in zip(lights, unique_layers([lr.name for lr in lights])):
+        lr.layer = plans[lr.name].layer = layer
     passes = list(dict.fromkeys(p for r in results for p in r.plan.passes))
     notes = list(dict.fromkeys(n for r in results for n in r.plan.notes))
     plan = Plan(passes, [plans[lr.name] for lr in lights if lr.name in plans], notes)
@@ -169,13 +186,14 @@ def empty_result(captured):
 
 class FrameJob:
     """The steps of one frame; ``step()`` runs the next one, ``result()``
-    merges what ran. The steps share one set of buffers (each takes over the
-    last one's: ``buffers``); a Preview's start from the last Preview's
-    (``bridge/buffer_cache.py``, ``ticket``) and are kept for the next."""
+    merges what ran. The steps share one frame cache (each takes over the
+    last one's buffers: ``cache``, ``core/frame_cache.py``); a Preview's
+    starts from the last Preview's (``bridge/buffer_cache.py``, ``ticket``)
+    and is kept for the next."""
 
     def __init__(self, scene, captured, steps: List[Step], external=None, notes=(),
                  catch_errors: bool = True, skip_deleted: bool = True, pixel_filter=None,
-                 buffers=None, ticket=None):
+                 cache=None, ticket=None):
         self.scene_name = scene.name
         self.pixel_filter = pixel_filter
         self.captured = captured
@@ -188,9 +206,9 @@ class FrameJob:
         self.notes: List[str] = list(notes)
         self.warnings: List[str] = []
         self.error: Optional[str] = None
-        self.buffers = buffers              # core FrameBuffers the next step takes over
+        self.cache = cache                  # core FrameCache the next step takes over
         self.ticket = ticket                # buffer_cache.Ticket of a Preview (None: not kept)
-        self.reused = buffers is not None   # whether it started from a Preview's buffers
+        self.reused = cache is not None     # whether it started from a Preview's cache
 
     @property
     def done(self) -> bool:
@@ -212,11 +230,11 @@ class FrameJob:
             st = Step(alive, st.passes, st.overrides, st.method_overrides, st.map_size,
                       {n: c for n, c in st.auto.items() if n in alive}, st.error_budget)
         try:
-            res = run_step(self.captured, st, self.external, progress, self.pixel_filter, self.buffers)
-            self.buffers, res.buffers = res.buffers, None
+            res = run_step(self.captured, st, self.external, progress, self.pixel_filter, self.cache)
+            self.cache, res.cache = res.cache, None
             self.results.append(res)
             if self.done and self.error is None:
-                buffer_cache.store(self.ticket, self.buffers)
+                buffer_cache.store(self.ticket, self.cache)
         except Cancelled:
             raise
         except Exception as exc:           # a report, not a traceback
@@ -334,8 +352,8 @@ def default_methods() -> List[str]:
     """What a new light computes first: ``auto``'s pick for an area light of
     size 1 under the default budget, and the preview's fast method."""
     from ..core import auto_choice
-    from .jobs import FAST_METHODS
-    return list(dict.fromkeys([auto_choice.choose("area", 1.0).method, FAST_METHODS[0]]))
+    from .jobs import preview_methods
+    return list(dict.fromkeys([auto_choice.choose("area", 1.0).method, preview_methods()[0]]))
 
 
 def warm_up(methods: Optional[Sequence[str]] = None, stop: Optional[threading.Event] = None) -> None:
@@ -402,13 +420,6 @@ def external_producers(scene, captured, passes: Sequence[str], in_render: bool =
                                            pixel_filter=pixel_filter)}, []
 
 
-def _jobs(scene, captured, request: FrameRequest) -> Tuple[List[LightJob], List[str]]:
-    scale = request.map_scale if request.map_scale is not None else (PREVIEW_MAP_SCALE if request.fast else 1.0)
-    return light_jobs(scene, captured, methods=request.methods, samples=request.samples,
-                      fast=request.fast, references=request.references, only=request.only,
-                      map_scale=scale)
-
-
 def _uniform_step(request: FrameRequest) -> Step:
     """The command line's one step: the same passes and settings for every
     light (the lights' own Penumbra settings do not apply)."""
@@ -429,33 +440,35 @@ def prepare_frame(scene, request: FrameRequest) -> FrameJob:
     if captured.camera is None:
         raise NoCamera()
     # a Preview is preview quality: pixel centres, unless the request names a filter
-    flt = settings.pixel_filter(scene, "none" if request.fast and request.pixel_filter is None
+    flt = settings.pixel_filter(scene, "none" if request.preview and request.pixel_filter is None
                                 else request.pixel_filter)
-    if not request.use_light_settings:
+    if not request.light_settings:
         step = _uniform_step(request)
         external, notes = external_producers(scene, captured, step.passes, request.in_render,
                                              samples=request.samples or 64, seed=request.seed,
                                              pixel_filter=flt)
         steps = [step]
     else:
-        jobs, notes = _jobs(scene, captured, request)
+        jobs, notes = light_jobs(scene, captured, methods=request.methods, samples=request.samples,
+                                 preview=request.preview, references=request.references, lights=request.lights)
         all_passes = [p for j in jobs for p in j.passes]
         external, ext_notes = external_producers(scene, captured, all_passes, request.in_render,
                                                  pixel_filter=flt)
         notes = notes + ext_notes
         if "cycles" in all_passes and "cycles" not in external:
+            from ..core.auto_choice import AVERAGE, FALLBACK
             for j in jobs:
-                j.passes = [p for p in j.passes if p != "cycles"] or [resolve_method(None)]
+                j.passes = [p for p in j.passes if p != "cycles"] or [FALLBACK[AVERAGE]]
         steps = make_steps(jobs, request.per_light)
     if request.threads is not None:
         set_threads(request.threads)
-    ticket = buffers = None
-    if request.fast:                      # a Preview: start from the last one's buffers
+    ticket = cache = None
+    if request.preview:                   # a Preview: start from the last one's cache
         buffer_cache.watch()
         ticket = buffer_cache.ticket(scene, captured)
-        buffers = buffer_cache.lookup(ticket)
+        cache = buffer_cache.lookup(ticket)
     return FrameJob(scene, captured, steps, external, notes, request.catch_errors, request.skip_deleted,
-                    flt, buffers, ticket)
+                    flt, cache, ticket)
 
 
 def compute_frame(scene, request: FrameRequest, progress: Optional[Progress] = None) -> FrameJob:
@@ -471,6 +484,31 @@ def no_light_reason(job: FrameJob) -> str:
 
 # --------------------------------------------------------------------------
 # write-back and output folders
+def finish_frame(scene, job: FrameJob, out_dir: Optional[str] = None, *, store: bool = True,
+                 build_nodes: bool = False, previews: bool = False):
+    """The end of every frame, whoever computed it (the command line,
+    Compute Passes, the render handler): merge the steps' results, store
+    the passes as Blender images (``store``; with the compositor's nodes when
+    ``build_nodes``) and write the EXR, the JSON (and the PNG previews when
+    ``previews``) into ``out_dir`` when one is given. Returns (FrameResult,
+    written paths or None); (None, None) when no step ran (``job.error``
+    says why when one failed). A file that cannot be written is a warning in
+    ``job.warnings``: nothing half-written is left."""
+    from ..core.output import write_frame
+    if job.error is not None or not job.results:
+        return None, None
+    result = job.result()
+    if store:
+        write_back(scene, result, build_nodes)
+    written = None
+    if out_dir:
+        try:
+            written = write_frame(result, out_dir, previews=previews)
+        except (OSError, ValueError) as exc:
+            job.warnings.append(f"could not write to {out_dir}: {exc}")
+    return result, written
+
+
 def write_back(scene, result, build_nodes: bool = False) -> List[str]:
     """Store the result's passes as images (and show them in the compositor
     when ``build_nodes``); returns the image names."""

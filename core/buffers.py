@@ -7,25 +7,22 @@ FrameBuffers members that build each, and ``FrameBuffers.view(needs)`` is all
 a method's ``run()`` gets: those members and the frame's inputs
 (``FRAME_INPUTS``); anything else raises ``UndeclaredBufferError``.
 
-Every build is timed once, whoever asks first, and remembers what it was
-built from; a method is billed the build times of the buffers it used and of
-what those were built from (``BufferView.phase_times``), so its phases do not
-depend on which method ran first. ``build_times`` sums them per buffer for
-the JSON's ``buffers_time_s``.
+Each build is timed in the frame's ``BuildLedger`` (``core/ledger.py``): a
+method is billed the builds it used and what they were built from
+(``BufferView.phase_times``), whoever built them.
 """
 from __future__ import annotations
 
-import json
-import time
-from dataclasses import dataclass
 from typing import Callable, Dict, FrozenSet, Iterable, Optional, Set, Tuple
 
-import numba
 import numpy as np
 
 from . import raycast, views
 from .kernels import hit_box
-from .methods.base import GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES, params_dict
+from .ledger import BuildLedger, _closure
+from .methods.base import (GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, MESH_PIECES, PRECOMPUTE, SHADOW_GEOMETRY,
+                           SHADOW_TRIANGLES, params_dict)
+from .methods.surfaces import mesh_pieces
 from .scene import GBuffer, Light, LightView, Scene
 from .sampling import scene_scale
 
@@ -36,11 +33,13 @@ CULL_MIN_FRACTION = 0.1
 
 #: need -> the FrameBuffers members a method that declares it may use
 NEED_BUILDERS: Dict[str, Tuple[str, ...]] = {
-    GBUFFER: ("gbuffer", "receivers", "light_extent"),
+    GBUFFER: ("gbuffer", "receivers", "light_extent", "camera"),
     SHADOW_GEOMETRY: ("shadow_scene", "shadow_scene_for"),
-    SHADOW_TRIANGLES: ("shadow_triangles",),
-    LIGHT_VIEW: ("light_view",),
+    SHADOW_TRIANGLES: ("shadow_triangles", "matte_casters"),
+    LIGHT_VIEW: ("light_view", "object_casts_shadow"),
     LIGHT_SAMPLE_VIEWS: ("sample_view",),
+    MESH_PIECES: ("mesh_pieces", "piece_casts_shadow"),
+    PRECOMPUTE: ("precomputed",),
 }
 #: need -> the needs its buffers are built from (a light view is rendered on a
 #: shadow BVH and fitted to the G-buffer's receivers)
@@ -48,27 +47,23 @@ NEED_BUILT_FROM: Dict[str, Tuple[str, ...]] = {
     LIGHT_VIEW: (GBUFFER, SHADOW_GEOMETRY),
     LIGHT_SAMPLE_VIEWS: (SHADOW_GEOMETRY,),
 }
-#: need -> the phase of a method's cost its build time is billed as (in this order)
+#: need -> the phase of a method's cost its build time is billed as (in this
+#: order); a need without one (a method's own precompute) is billed in the
+#: method's own phases
 NEED_PHASE: Dict[str, str] = {
     GBUFFER: "gbuffer",
     SHADOW_GEOMETRY: "bvh",
     LIGHT_VIEW: "light_view",
     SHADOW_TRIANGLES: "shadow_triangles",
     LIGHT_SAMPLE_VIEWS: "bvh",      # sample views are the method's own work, on the shared BVH
+    MESH_PIECES: "mesh_pieces",
 }
 #: the frame's inputs (not buffers): every method sees them
-FRAME_INPUTS = ("scene", "width", "height", "map_size", "map_size_for", "scale", "frame_memo")
+FRAME_INPUTS = ("width", "height", "map_size_for", "scale", "bounds", "scene", "frame_memo")
 
 
 class UndeclaredBufferError(RuntimeError):
     """A method's ``run()`` used a buffer its ``needs`` do not declare."""
-
-
-@dataclass(frozen=True)
-class _Build:
-    seconds: float
-    phase: str                  # NEED_PHASE value it is billed as
-    built_from: Tuple[str, ...] # keys of the buffers it was built from
 
 
 class FrameBuffers:
@@ -80,25 +75,37 @@ class FrameBuffers:
         self.width = int(width)
         self.height = int(height)
         self.map_size_given = int(map_size) if map_size else None
-        self.map_size = self.map_size_given or views.default_map_size(width, height)   # an area / spot light's
         self._map_base = (self.width, self.height)     # the view the default map sizes follow
-        self.build_times: Dict[str, float] = {}
-        self._builds: Dict[str, _Build] = {}
-        self._used: Optional[Set[str]] = None     # the running view's record (``BufferView``)
+        self.ledger = BuildLedger(dict.fromkeys(NEED_PHASE.values()))
         self._gbuffer: Optional[GBuffer] = None
         self._receivers: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
         self._reach: Dict[str, np.ndarray] = {}   # light -> metrics.reach_mask on the G-buffer
         self._shadow: Optional[raycast.TriangleScene] = None
         self._camera_scene: Optional[raycast.TriangleScene] = None
         self._shadow_triangles: Optional[Tuple[np.ndarray, np.ndarray]] = None
+        self._matte_casters: Optional[tuple] = None
+        self._pieces: Optional[Tuple[np.ndarray, np.ndarray]] = None
         self._views: Dict[Tuple[str, int, str], LightView] = {}   # (light, map size, key)
         self._culled: Dict[str, raycast.TriangleScene] = {}
         self._bvh_key: Dict[str, str] = {}        # light -> key of the BVH its shadow rays use
         self.culling: Dict[str, Dict[str, int]] = {}
-        self._results: Dict[tuple, object] = {}   # ``result_key`` -> a method's MethodResult
-        self._memo: Optional[Dict[tuple, object]] = None   # ``frame_memo`` (``share_frame_memo``)
-        lo, hi = scene.bounds()
-        self.scale = scene_scale(lo, hi)
+        self._precomputed: Optional[Dict[tuple, object]] = None   # ``share_precomputed``
+        self._bounds = scene.bounds()
+        self.scale = scene_scale(*self._bounds)
+
+    @property
+    def build_times(self) -> Dict[str, float]:
+        """Seconds per buffer built in this frame (the JSON's ``buffers_time_s``)."""
+        return self.ledger.build_times
+
+    def bounds(self) -> Tuple[np.ndarray, np.ndarray]:
+        """The scene's axis-aligned bounds (``Scene.bounds``)."""
+        return self._bounds
+
+    @property
+    def camera(self):
+        """The camera the G-buffer is rendered from."""
+        return self.scene.camera
 
     def map_size_for(self, light: Light) -> int:
         """The larger side of ``light``'s maps: the one given, else
@@ -111,23 +118,23 @@ class FrameBuffers:
         """Buffers for ``pixel_filter``'s sub-pixel stage: ``scene`` at the
         supersampled ``width`` x ``height`` with its camera G-buffer given
         (built in ``seconds``; a packed one: the passes are packed too,
-        ``shape``), sharing this frame's BVHs, shadow triangles and
+        ``shape``), sharing this frame's BVHs, shadow triangles, mesh pieces,
         light views (fitted to the pixel-centre receivers; their build time is
-        billed to the pixel-centre stage), its map size and its receivers:
-        what is fitted to them (views, depth tolerances: ``light_extent``) is
-        the pixel-centre stage's, so a sub-pixel receiver is shaded as a pixel
-        centre there would be; their box grows to hold the sub-pixel
-        receivers (occluder culling keeps what can shadow them; the culled
-        BVHs are shared when it did not grow)."""
+        billed to the pixel-centre stage), method precomputes, its map size and
+        its receivers: what is fitted to them (views, depth tolerances:
+        ``light_extent``) is the pixel-centre stage's, so a sub-pixel receiver
+        is shaded as a pixel centre there would be; their box grows to hold the
+        sub-pixel receivers (occluder culling keeps what can shadow them; the
+        culled BVHs are shared when it did not grow)."""
         sub = FrameBuffers(scene, width, height, self.map_size_given)
-        sub.map_size, sub._map_base = self.map_size, self._map_base
+        sub._map_base = self._map_base
         sub._gbuffer = gbuffer
-        sub.build_times["gbuffer"] = float(seconds)
-        sub._builds["gbuffer"] = _Build(float(seconds), NEED_PHASE[GBUFFER], ())
+        sub.ledger.record("gbuffer", NEED_PHASE[GBUFFER], seconds)
         sub._shadow, sub._camera_scene = self._shadow, self._camera_scene
-        sub._shadow_triangles = self._shadow_triangles
+        sub._shadow_triangles, sub._matte_casters = self._shadow_triangles, self._matte_casters
+        sub._pieces = self._pieces
         sub._views = dict(self._views)
-        sub._memo = self._memo
+        sub._precomputed = self._precomputed
         pts, lo, hi = self._receiver_points()
         P = gbuffer.position[gbuffer.hit]
         if lo is not None and len(P):
@@ -138,35 +145,37 @@ class FrameBuffers:
                 sub.culling = dict(self.culling)
         return sub
 
-    def share_frame_memo(self) -> None:
-        """From now on ``frame_memo`` keeps what it builds, for this frame's
+    def share_precomputed(self) -> None:
+        """From now on ``precomputed`` keeps what it builds, for this frame's
         sub-pixel stage (``filtered_frame``; ``supersampled`` hands it on).
         Off by default: buffers that time several runs of a method (the
         study, the benchmark) rebuild its precompute every run."""
-        if self._memo is None:
-            self._memo = {}
+        if self._precomputed is None:
+            self._precomputed = {}
 
-    def frame_memo(self, tag: str, light: Light, params, build: Callable[[], object]):
+    def precomputed(self, tag: str, light: Light, params, build: Callable[[], object]):
         """A method's own light-space precompute (layered's LDI,
-        depth_raytrace's reference maps) for ``light`` and ``params``: with
-        ``share_frame_memo``, built once per frame, from the pixel-centre
-        stage's receivers, and shared with its sub-pixel stage
-        (``supersampled``), which shades other receivers with the same maps:
-        billed where it was built; else ``build()`` every call."""
-        if self._memo is None:
+        depth_raytrace's reference maps) for ``light`` and ``params``
+        (PRECOMPUTE): with ``share_precomputed``, built once per frame, from
+        the pixel-centre stage's receivers, and shared with its sub-pixel
+        stage (``supersampled``), which shades other receivers with the same
+        maps: billed where it was built; else ``build()`` every call."""
+        if self._precomputed is None:
             return build()
-        key = (tag,) + self.result_key(light, tag, params_dict(params))
-        if key not in self._memo:
-            self._memo[key] = build()
-        return self._memo[key]
+        key = (tag, light.name, light_key(light), params_key(params_dict(params)), self.map_size_for(light))
+        if key not in self._precomputed:
+            self._precomputed[key] = build()
+        return self._precomputed[key]
+
+    frame_memo = precomputed
 
     def adopt(self, prev: "FrameBuffers") -> None:
         """Take over what ``prev`` built for the same camera and geometry:
-        the BVHs, the camera G-buffer and its receivers, and each light's
-        views, culled BVH and methods' results (``keep_result``) while that
-        light is unchanged (``light_key``; a moved light gets new ones). The caller vouches that the geometry
-        (triangles, their flags and mattes) did not change since ``prev``
-        was built (the add-on's Preview knows it from the depsgraph,
+        the BVHs, the camera G-buffer and its receivers, the mesh pieces, and
+        each light's views and culled BVH while that light is unchanged
+        (``light_key``; a moved light gets new ones). The caller vouches that
+        the geometry (triangles, their flags and mattes) did not change since
+        ``prev`` was built (the add-on's Preview knows it from the depsgraph,
         ``bridge/buffer_cache.py``); the resolution, the camera and the
         triangle count are checked here (ValueError). Adopted buffers are
         billed 0 s: nothing was built for them in this frame."""
@@ -176,54 +185,25 @@ class FrameBuffers:
                 raycast.camera_params(prev.scene.camera, self.width, self.height),
                 raycast.camera_params(self.scene.camera, self.width, self.height)):
             raise ValueError("buffers of another camera or geometry cannot be reused")
-        same = {lt.name for lt in self.scene.lights
-                if any(p.name == lt.name and light_key(p) == light_key(lt) for p in prev.scene.lights)}
+        same = unchanged_lights(prev.scene, self.scene)
         self._gbuffer, self._receivers = prev._gbuffer, prev._receivers
         self._shadow, self._camera_scene = prev._shadow, prev._camera_scene
-        self._shadow_triangles = prev._shadow_triangles
+        self._shadow_triangles, self._matte_casters = prev._shadow_triangles, prev._matte_casters
+        self._pieces = prev._pieces
         self._views = {k: v for k, v in prev._views.items() if k[0] in same}
         self._culled = {n: b for n, b in prev._culled.items() if n in same}
         self._bvh_key = {n: k for n, k in prev._bvh_key.items() if n in same}
         self.culling = {n: c for n, c in prev.culling.items() if n in same}
         self._reach = {n: m for n, m in prev._reach.items() if n in same}
-        self._results = {k: r for k, r in prev._results.items() if k[0] in same}
-        kept = {"bvh_shadow", "bvh_camera", "gbuffer", "shadow_triangles"}
+        kept = {"bvh_shadow", "bvh_camera", "gbuffer", "shadow_triangles", "matte_casters", "mesh_pieces"}
         kept |= {f"bvh_culled:{n}" for n in same} | {f"light_view:{n}:{ms}:{k}" for n, ms, k in self._views}
-        self._builds = {k: _Build(0.0, b.phase, b.built_from) for k, b in prev._builds.items() if k in kept}
-
-    def result_key(self, light: Light, method_id: str, params: dict) -> tuple:
-        """What a method's result on this frame's buffers is a function of:
-        the light (``light_key``), the method, its parameters, the frame's
-        map size and Numba's thread count (DESIGN.md: the same inputs, seed
-        and thread count give the same bits); the camera and geometry are
-        the buffers' own."""
-        return (light.name, light_key(light), method_id, json.dumps(params, sort_keys=True, default=str),
-                self.map_size_for(light), numba.get_num_threads())
-
-    def kept_result(self, key: tuple):
-        """The MethodResult kept under ``key`` (``keep_result``; taken over by
-        ``adopt`` while the light is unchanged), else None."""
-        return self._results.get(key)
-
-    def keep_result(self, key: tuple, result) -> None:
-        """Keep a method's result for a later frame that adopts these
-        buffers (a Preview after one that changed nothing for this light)."""
-        self._results[key] = result
+        self.ledger.carry(prev.ledger, kept)
 
     def _timed(self, key: str, phase: str, fn, built_from: Iterable[str] = (), total: Optional[str] = None):
-        """Build ``key`` with ``fn``, timed: ``build_times[total or key]``
-        grows by the time, and the build is billed as ``phase``."""
-        t = time.perf_counter()
-        out = fn()
-        dt = time.perf_counter() - t
-        total = total or key
-        self.build_times[total] = self.build_times.get(total, 0.0) + dt
-        self._builds[key] = _Build(dt, phase, tuple(built_from))
-        return out
+        return self.ledger.timed(key, phase, fn, built_from, total)
 
     def _use(self, key: str) -> None:
-        if self._used is not None:
-            self._used.add(key)
+        self.ledger.use(key)
 
     @property
     def shape(self) -> Tuple[int, int]:
@@ -239,13 +219,7 @@ class FrameBuffers:
     def billed(self, used: Iterable[str], needs: Iterable[str]) -> Dict[str, float]:
         """Build times of the buffers ``used`` and of what they were built
         from, summed per phase; every phase ``needs`` call for is present."""
-        closure = _closure((k for k in used if k in self._builds),
-                           lambda k: (d for d in self._builds[k].built_from if d in self._builds))
-        phases = {NEED_PHASE[n] for n in _with_sources(needs)} | {self._builds[k].phase for k in closure}
-        out = {p: 0.0 for p in dict.fromkeys(NEED_PHASE.values()) if p in phases}
-        for k in sorted(closure):
-            out[self._builds[k].phase] += self._builds[k].seconds
-        return out
+        return self.ledger.billed(used, (NEED_PHASE[n] for n in _with_sources(needs) if n in NEED_PHASE))
 
     # -- geometry ---------------------------------------------------------
     def _bvh(self, key, phase, mask, other, other_key, other_mask) -> raycast.TriangleScene:
@@ -276,6 +250,46 @@ class FrameBuffers:
             self._shadow_triangles = self._timed("shadow_triangles", "shadow_triangles", select)
         self._use("shadow_triangles")
         return self._shadow_triangles
+
+    @property
+    def matte_casters(self):
+        """(bool over the shadow-casting triangles: has an alpha matte, an
+        Embree BVH of those), or (None, None) when none has one
+        (``TriangleScene.matte_casters``; SHADOW_TRIANGLES)."""
+        if self._matte_casters is None:
+            self._matte_casters = self._timed("matte_casters", "shadow_triangles",
+                                              lambda: raycast.TriangleScene.matte_casters(self.scene))
+        self._use("matte_casters")
+        return self._matte_casters
+
+    def _mesh_pieces(self) -> Tuple[np.ndarray, np.ndarray]:
+        if self._pieces is None:
+            def build():
+                labels = mesh_pieces(self.scene)
+                casts = np.zeros(len(labels), bool)
+                casts[labels] = self.scene.tri_casts_shadow
+                return labels, casts
+            self._pieces = self._timed("mesh_pieces", "mesh_pieces", build)
+        self._use("mesh_pieces")
+        return self._pieces
+
+    @property
+    def mesh_pieces(self) -> np.ndarray:
+        """int32 per triangle: its connected mesh piece, a surface label finer
+        than the object id (``methods.surfaces.mesh_pieces``; MESH_PIECES)."""
+        return self._mesh_pieces()[0]
+
+    @property
+    def piece_casts_shadow(self) -> np.ndarray:
+        """bool per mesh-piece label: whether the piece casts shadows (its
+        object does)."""
+        return self._mesh_pieces()[1]
+
+    @property
+    def object_casts_shadow(self) -> np.ndarray:
+        """bool per object id: whether the object casts shadows (a light
+        view's id map holds object ids)."""
+        return np.array([o.casts_shadow for o in self.scene.objects], bool)
 
     @property
     def camera_scene(self) -> raycast.TriangleScene:
@@ -444,15 +458,17 @@ def light_key(light: Light) -> tuple:
             np.asarray(light.world_from_light, np.float64).tobytes())
 
 
-def _closure(start: Iterable[str], edges) -> FrozenSet[str]:
-    """``start`` and everything reachable from it along ``edges(node)``."""
-    out, todo = set(), list(start)
-    while todo:
-        n = todo.pop()
-        if n not in out:
-            out.add(n)
-            todo.extend(edges(n))
-    return frozenset(out)
+def unchanged_lights(prev: Scene, scene: Scene) -> Set[str]:
+    """Names of ``scene``'s lights that ``prev`` has with the same
+    ``light_key`` (their views and results still hold)."""
+    return {lt.name for lt in scene.lights
+            if any(p.name == lt.name and light_key(p) == light_key(lt) for p in prev.lights)}
+
+
+def params_key(params: dict) -> str:
+    """A method's parameters as a key (``params_dict`` values, sorted)."""
+    import json
+    return json.dumps(params, sort_keys=True, default=str)
 
 
 def _with_sources(needs: Iterable[str]) -> FrozenSet[str]:
@@ -493,14 +509,12 @@ class BufferView:
                                     f"inputs: {', '.join(FRAME_INPUTS)})")
 
     def __enter__(self):
-        if self._buffers._used is not None:
-            raise RuntimeError("one method runs on a FrameBuffers at a time")
-        self._buffers._used = self.used
+        self._recording = self._buffers.ledger.recording(self.used)
+        self._recording.__enter__()
         return self
 
     def __exit__(self, *exc):
-        self._buffers._used = None
-        return False
+        return self._recording.__exit__(*exc)
 
     def phase_times(self) -> Dict[str, float]:
         """Seconds per buffer phase billed to this method (FrameBuffers.billed)."""

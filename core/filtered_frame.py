@@ -8,9 +8,10 @@ Two stages, both ``frame.render_frame`` with the methods unchanged:
    shadow edge (``pixel_filter.refine_mask``), the G-buffer is traced at the
    ``grid`` x ``grid`` sub-pixel samples of every footprint that needs them
    (the pixel centres of a supersampled view, as a packed list:
-   ``raycast.camera_gbuffer_at(packed=True)``); ``PACKED_PRODUCERS`` run on
-   that packed G-buffer, the other methods on the supersampled image with
-   only those pixels set (``raycast.unpack_gbuffer``). The light views and
+   ``raycast.camera_gbuffer_at(packed=True)``); a method that shades each
+   receiver on its own (``Method.packed``) runs on that packed G-buffer, any
+   other on the supersampled image with only those pixels set
+   (``raycast.unpack_gbuffer``). The light views and
    BVHs of stage 1 are shared.
 
 The resolve (``pixel_filter.resolve``) filters the sub-pixel passes into the
@@ -44,16 +45,6 @@ from .warmup import ensure_filter_compiled
 E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
 
 
-#: producers that run on a packed G-buffer of the sub-pixel receivers: every
-#: core method shades each receiver point on its own (pcf with the camera
-#: footprint at the receiver's own sub-pixel, ``GBuffer.pixel``; single_sample
-#: without its adaptive image walk; layered and depth_raytrace on the maps the
-#: pixel-centre stage built, ``FrameBuffers.frame_memo``); a producer left out
-#: runs on the supersampled image (its other pixels empty)
-PACKED_PRODUCERS = frozenset({"embree", "pcf", "penumbra_casting", "single_sample", "layered", "irregular",
-                              "depth_raytrace"})
-
-
 def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
                     pixel_filter: Optional[PixelFilter] = None, **options) -> FrameResult:
     """``frame.render_frame(scene, passes, light_names, **options)`` with the
@@ -75,7 +66,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                                        None if progress is None else (lambda msg: progress(msg, 0.0)),
                                        _warmup_passes(passes))
     buffers = FrameBuffers(scene, W, H, options.get("map_size"))
-    buffers.share_frame_memo()            # layered's LDI, depth_raytrace's maps: built once for both stages
+    buffers.share_precomputed()           # layered's LDI, depth_raytrace's maps: built once for both stages
     base = render_frame(scene, passes, light_names, buffers=buffers, **options)
     base.compile_s += compile_s           # the filter's kernels: compiled before anything was timed
     t0 = time.perf_counter()
@@ -118,7 +109,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
         g_u = sub_g if len(at) == len(union) else _take(sub_g, at)    # the whole union: itself
         sub_lr, sub_s = None, 0.0
         if len(at):
-            gb = g_u if prod in PACKED_PRODUCERS else raycast.unpack_gbuffer(g_u, SW, SH)
+            gb = g_u if method_registry.producers()[prod].packed else raycast.unpack_gbuffer(g_u, SW, SH)
             t2 = time.perf_counter()
             sub = render_frame(sub_scene, pids, [lr.name], overrides, method_overrides,
                                buffers=buffers.supersampled(sub_scene, SW, SH, gb, tg * len(at) / len(union)))

@@ -13,6 +13,7 @@ import numpy as np
 
 from . import methods as method_registry
 from .buffers import FrameBuffers
+from .frame_cache import FrameCache
 from .compile_ahead import frame_keys, prefetch
 from .methods.base import AVERAGE, IRRADIANCE, params_dict
 from .metrics import errors
@@ -44,7 +45,7 @@ class FrameResult:
     compile_s: float = 0.0          # kernel compilation (``core/warmup.py``), in no method's time
     pixel_filter: Optional[dict] = None     # ``core/pixel_filter.py``: recorded when a filter was asked for
     coverage: Optional[np.ndarray] = None   # float32[H,W] alpha of a filtered frame (None: pixel centres)
-    buffers: Optional[FrameBuffers] = field(default=None, repr=False, compare=False)  # for ``reuse``
+    cache: Optional[FrameCache] = field(default=None, repr=False, compare=False)  # for a later ``previous``
 
     def to_json(self) -> dict:
         return {
@@ -90,7 +91,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                  external: Optional[Mapping[str, Callable]] = None,
                  error_budget: Optional[float] = None,
                  buffers: Optional[FrameBuffers] = None,
-                 reuse: Optional[FrameBuffers] = None, keep_buffers: bool = False) -> FrameResult:
+                 previous: Optional[FrameCache] = None, keep: bool = False) -> FrameResult:
     """Compute ``passes`` for every planned light of ``scene``. ``auto`` among
     them becomes, per light, the method the planner chose under
     ``error_budget`` (``core/auto_choice.py``): the pass is written under that
@@ -102,22 +103,18 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     (``cycles``); its ``params`` field is recorded as the method's params.
     ``buffers``: the frame's buffers when the caller built (or seeded) them
     (``pixel_filter``'s stages); by default new ones at the scene's resolution.
-    ``reuse``: an earlier frame's buffers (``result.buffers``) for the same
-    camera and geometry, whose G-buffer, BVHs and unchanged lights' views
-    are taken over (``FrameBuffers.adopt``; the caller vouches for the
-    geometry); ``keep_buffers``: the result holds this frame's buffers
-    (``result.buffers``, else None) for a later ``reuse``, with each
-    method's result: a frame that adopts them takes a method's result over
-    for a light, method and parameters that did not change
-    (``FrameBuffers.keep_result``; billed 0 s, ``"reused": true`` in its
-    record) instead of running it again.
+    ``previous``: an earlier frame's cache (``result.cache``) for the same
+    camera and geometry (the caller vouches for it): its buffers are taken
+    over and its results for a light, method and parameters that did not
+    change are used instead of running the method again (billed 0 s,
+    ``"reused": true`` in the record; ``core/frame_cache.py``). ``keep``:
+    the result holds this frame's cache (``result.cache``, else None).
     """
     t0 = time.perf_counter()
     W, H = scene.resolution
     if buffers is None:
         buffers = FrameBuffers(scene, W, H, map_size)
-    if reuse is not None:
-        buffers.adopt(reuse)
+    cache = FrameCache.following(previous, buffers) if previous is not None or keep else None
     notify = None if progress is None else (lambda msg: progress(msg, 0.0))
     prefetch(frame_keys(scene, passes, False))            # helper processes compile from the end
     compile_s = ensure_buffers_compiled(scene, notify)   # before the real buffers are built (and timed)
@@ -153,9 +150,9 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                 continue
             m = registry[prod_id]
             params = _params(m, overrides, method_overrides)
-            key = buffers.result_key(light, m.id, params_dict(params))
-            res = buffers.kept_result(key)    # only an adopted frame has any
-            if res is not None:               # an adopted frame's result for this very light: nothing to do
+            key = cache.key(light, m.id, params_dict(params)) if cache is not None else None
+            res = cache.get(key) if cache is not None else None
+            if res is not None:               # the previous frame's result for this very light: nothing to do
                 reused.add(prod_id)
                 phases = buffers.billed((), m.needs)
                 phases.update({k2: 0.0 for k2 in res.time_s if k2 != "total"})
@@ -164,8 +161,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                     res = m.run(view, light, params)
                 phases = view.phase_times()   # the buffers it used, whoever built them
                 phases.update({k2: v for k2, v in res.time_s.items() if k2 != "total"})
-                if keep_buffers:
-                    buffers.keep_result(key, res)
+                if cache is not None:
+                    cache.put(key, res)
             phases = {k2: round(v, 6) for k2, v in phases.items()}
             phases["total"] = round(sum(phases.values()), 6)
             done[prod_id] = (m, params, res, phases)
@@ -201,4 +198,4 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     if progress:
         progress("done", 1.0)
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
-                       time.perf_counter() - t0, compile_s, buffers=buffers if keep_buffers else None)
+                       time.perf_counter() - t0, compile_s, cache=cache if keep else None)

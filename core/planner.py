@@ -24,6 +24,21 @@ def layer_name(light_name: str) -> str:
     return light_name.replace(".", "_") or "_"
 
 
+def unique_layers(light_names: Sequence[str]) -> List[str]:
+    """The EXR layers of lights in this order: ``layer_name``, a second light
+    of the same layer name gets ``_2``, and so on."""
+    used: Dict[str, int] = {}
+    out = []
+    for name in light_names:
+        layer = layer_name(name)
+        if layer in used:
+            used[layer] += 1
+            layer = f"{layer}_{used[layer]}"
+        used.setdefault(layer, 1)
+        out.append(layer)
+    return out
+
+
 @dataclass
 class LightPlan:
     name: str
@@ -136,6 +151,21 @@ def alpha_notes(scene: Scene) -> List[str]:
     return notes
 
 
+def auto_choice_for(scene: Scene, light: Light, error_budget: Optional[float] = None,
+                    visibility: str = auto_choice.AVERAGE, auto_table=auto_choice.PACKAGED):
+    """``auto``'s decision (``core.auto_choice.AutoChoice``) for ``light`` of
+    the captured ``scene``, whose shape (shadow-casting triangles, pixels,
+    light size) scales the measured times (``auto_choice`` rule 5): the one
+    resolver of the command line, ``plan``, Compute Passes, the Preview and
+    the render handler. ``error_budget``: RMSE (default
+    ``auto_choice.DEFAULT_BUDGET``); a bad one is a PlanError."""
+    budget = auto_choice.DEFAULT_BUDGET if error_budget is None else float(error_budget)
+    try:
+        return auto_choice.choose_for_light(light, visibility, budget, auto_table, scene=scene)
+    except ValueError as exc:                # bad budget / definition
+        raise PlanError(str(exc))
+
+
 def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
               error_budget: Optional[float] = None, visibility: str = auto_choice.AVERAGE,
               auto_table=auto_choice.PACKAGED) -> Plan:
@@ -153,22 +183,12 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
             if n not in names:
                 raise PlanError(f"unknown light {n!r} (scene has: {', '.join(sorted(names)) or 'none'})")
         lights = [lt for lt in lights if lt.name in set(light_names)]
-    budget = auto_choice.DEFAULT_BUDGET if error_budget is None else float(error_budget)
-    used_layers: Dict[str, int] = {}
     out = []
-    for lt in lights:
-        layer = layer_name(lt.name)
-        if layer in used_layers:
-            used_layers[layer] += 1
-            layer = f"{layer}_{used_layers[layer]}"
-        used_layers.setdefault(layer, 1)
+    for lt, layer in zip(lights, unique_layers([lt.name for lt in lights])):
         choice = None
         mine = list(passes)
         if AUTO in passes:
-            try:
-                choice = auto_choice.choose_for_light(lt, visibility, budget, auto_table, scene=scene)
-            except ValueError as exc:                # bad budget / definition
-                raise PlanError(str(exc))
+            choice = auto_choice_for(scene, lt, error_budget, visibility, auto_table)
             mine = list(dict.fromkeys(choice.method if p == AUTO else p for p in passes))
         producers = producers_for(mine)
         buffers = buffers_for(producers)

@@ -11,7 +11,7 @@ import bpy
 from ..bridge import compositor, settings
 from ..bridge.capture import light_object
 from ..bridge.images import pass_image_name
-from ..bridge.jobs import resolve_method
+from ..bridge.jobs import asks_for_auto, last_auto
 from ..bridge.pipeline import default_exr_path
 
 
@@ -34,29 +34,24 @@ def exr_layers(path: str) -> Dict[str, List[str]]:
 def scene_lights(scene) -> List[Tuple[str, str]]:
     """(light object name, EXR layer) of the scene's rendered lights, in the
     planner's layer naming (dots -> underscores, repeats numbered)."""
-    from ..core.planner import layer_name
-    used: Dict[str, int] = {}
-    out = []
-    for ob in sorted((o for o in scene.objects if o.type == "LIGHT" and not o.hide_render),
-                     key=lambda o: o.name):
-        layer = layer_name(ob.name)
-        if layer in used:
-            used[layer] += 1
-            layer = f"{layer}_{used[layer]}"
-        used.setdefault(layer, 1)
-        out.append((ob.name, layer))
-    return out
+    from ..core.planner import unique_layers
+    names = sorted(o.name for o in scene.objects if o.type == "LIGHT" and not o.hide_render)
+    return list(zip(names, unique_layers(names)))
 
 
 def light_method(light_name: str, requested: str = "", scene=None) -> str:
     """The pass shown as "the method" for a light: ``requested``, else the
-    light's Penumbra method (``auto`` resolved as Compute Passes resolves it,
-    ``bridge.jobs.resolve_method``)."""
+    light's Penumbra method (``auto``: what it last resolved to for this
+    scene, ``bridge.jobs.last_auto``; '' when it never ran: then the light's
+    first non-reference pass is shown)."""
     if requested:
         return requested
     ob = light_object(light_name)
     s = settings.light_settings(ob.data) if ob is not None else None
-    return resolve_method(s, ob.data if ob is not None else None, scene)
+    if not asks_for_auto(s):
+        return s.method
+    choice = last_auto(scene.name, light_name) if scene is not None else None
+    return choice.method if choice is not None else ""
 
 
 def _fallback_method(method: str, available: List[str]) -> str:

@@ -16,25 +16,8 @@ from typing import Optional
 import bpy
 
 from ..bridge import settings
-from ..bridge.pipeline import FrameJob, FrameRequest, check_out_dir, scaled_resolution, write_back
+from ..bridge.pipeline import FrameJob, FrameRequest, check_out_dir, finish_frame, scaled_resolution
 from .modal_job import ModalFrameJob
-
-
-def finish(job: FrameJob, scene, out_dir: Optional[str], build_nodes: bool):
-    """Merge, store images, build the compositor nodes and write files.
-    Returns (FrameResult or None when nothing was computed, written paths)."""
-    if job.error is not None or not job.results:
-        return None, None
-    from ..core.output import write_frame
-    result = job.result()
-    write_back(scene, result, build_nodes)
-    written = None
-    if out_dir and result.lights:
-        try:
-            written = write_frame(result, out_dir, previews=False)
-        except (OSError, ValueError) as exc:
-            job.warnings.append(f"could not write to {out_dir}: {exc}")
-    return result, written
 
 
 class PENUMBRA_OT_compute_passes(ModalFrameJob, bpy.types.Operator):
@@ -75,18 +58,15 @@ class PENUMBRA_OT_compute_passes(ModalFrameJob, bpy.types.Operator):
             except PlanError as exc:
                 self.report({"ERROR"}, f"Penumbra: {exc}")
                 return None
-        if scene.camera is None:
-            self.report({"ERROR"}, "Penumbra: the scene has no camera")
-            return None
         self._out_dir = None
         if settings.output_folder(scene):
             self._out_dir, err = check_out_dir(settings.output_folder(scene))
             if err:
                 self.report({"ERROR"}, f"Penumbra: {err}")
                 return None
-        request = FrameRequest(resolution=scaled_resolution(scene, self.resolution_scale),
-                               methods=methods, samples=self.samples or None, per_light=per_light,
-                               threads=settings.preferred_threads(), catch_errors=True)
+        request = FrameRequest.from_scene_settings(resolution=scaled_resolution(scene, self.resolution_scale),
+                                                   methods=methods, samples=self.samples or None,
+                                                   per_light=per_light, catch_errors=True)
         return self._plan_job(scene, request)
 
     def _conclude(self, context, job: FrameJob):
@@ -96,7 +76,7 @@ class PENUMBRA_OT_compute_passes(ModalFrameJob, bpy.types.Operator):
             self.report({"ERROR"}, f"Penumbra: computing failed: {job.error}")
             return {"CANCELLED"}
         scene = bpy.data.scenes.get(job.scene_name) or context.scene
-        result, written = finish(job, scene, self._out_dir, self.build_nodes)
+        result, written = finish_frame(scene, job, self._out_dir, build_nodes=self.build_nodes)
         for w in job.warnings:
             self.report({"WARNING"}, f"Penumbra: {w}")
         if result is None:

@@ -1,13 +1,13 @@
 """Preview: a fast method at reduced resolution, shown in the image
 "Penumbra Preview" (updated in place, so an Image Editor showing it refreshes).
 
-Each enabled light uses its own method when that is fast (``FAST_METHODS``),
-else pcf, with no references. Several lights combine as their
-energy-weighted mean visibility (1 = every light fully visible). In the UI
-it computes in a worker thread (``modal_job.py``); headless, at once.
-Preview quality (``FrameRequest.fast``): light views at
-``jobs.PREVIEW_MAP_SCALE`` of the output's larger side, the fast methods at
-``jobs.PREVIEW_PARAMS`` (said in the report), and the last Preview's camera
+Each enabled light uses its own method when that has preview settings
+(``Method.preview_params``), else pcf, with no references. Several lights
+combine as their energy-weighted mean visibility (1 = every light fully
+visible). In the UI it computes in a worker thread (``modal_job.py``);
+headless, at once. Preview quality (``FrameRequest.preview``): light views at
+``jobs.PREVIEW_MAP_SCALE`` of the default map's side, the methods at their
+preview settings (said in the report), and the last Preview's camera
 G-buffer, and the views and passes of the lights that did not change, while
 the camera and the geometry do not change (``bridge/buffer_cache.py``).
 """
@@ -17,15 +17,15 @@ import bpy
 
 from ..bridge import settings
 from ..bridge.images import combine, show_preview
-from ..bridge.jobs import PREVIEW_PARAMS
 from ..bridge.pipeline import FrameRequest, scaled_resolution
 from .modal_job import ModalFrameJob
 
 
 def preview_label(pass_id: str) -> str:
-    """A pass id with the preview's own settings of it (``jobs.PREVIEW_PARAMS``),
+    """A pass id with the preview's own settings of it (``Method.preview_params``),
     for the report: "single_sample (preview settings: blocker nearest, ...)"."""
-    ps = PREVIEW_PARAMS.get(pass_id)
+    from ..core import methods as registry
+    ps = registry.producer_of(pass_id).preview_params if pass_id in registry.pass_ids(external=False) else None
     if not ps:
         return pass_id
     return f"{pass_id} (preview settings: {', '.join(f'{k} {v}' for k, v in ps.items())})"
@@ -67,9 +67,6 @@ class PENUMBRA_OT_preview(ModalFrameJob, bpy.types.Operator):
 
     def _prepare(self, context, per_light: bool = False):
         scene = context.scene
-        if scene.camera is None:
-            self.report({"ERROR"}, "Penumbra: the scene has no camera")
-            return None
         only = None
         if self.only_active:
             ob = context.object
@@ -79,8 +76,8 @@ class PENUMBRA_OT_preview(ModalFrameJob, bpy.types.Operator):
             only = [ob.name]
         ss = settings.scene_settings(scene)
         side = self.max_size or (int(ss.preview_size) if ss is not None else 256)
-        request = FrameRequest(resolution=scaled_resolution(scene, 1.0, side), fast=True, references=(),
-                               only=only, per_light=per_light, threads=settings.preferred_threads())
+        request = FrameRequest.from_scene_settings(resolution=scaled_resolution(scene, 1.0, side), preview=True,
+                                                   references=(), lights=only, per_light=per_light)
         return self._plan_job(scene, request)
 
     def _conclude(self, context, job):

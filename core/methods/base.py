@@ -20,6 +20,8 @@ LIGHT_VIEW = "light_view"           # depth + object-id map(s) from the light ce
 SHADOW_GEOMETRY = "shadow_geometry" # Embree BVH of the shadow-casting triangles
 SHADOW_TRIANGLES = "shadow_triangles"  # the shadow-casting triangles themselves (no BVH)
 LIGHT_SAMPLE_VIEWS = "light_sample_views"  # depth maps from N points on the light
+MESH_PIECES = "mesh_pieces"         # connected mesh pieces: surface labels finer than objects
+PRECOMPUTE = "precompute"           # a method's light-space precompute, shared by a frame's two stages
 
 AVERAGE = "average"        # Agrawala et al. equation 2
 IRRADIANCE = "irradiance"  # equation 1 with / without V
@@ -42,6 +44,13 @@ class Method:
     needs: FrozenSet[str] = frozenset()
     Params: type = object
     physical: bool = False                  # claims to converge to the reference
+    #: shades each receiver of a packed G-buffer on its own (a filtered pass's
+    #: sub-pixel receivers as a list); False: it needs an image, and runs on
+    #: the supersampled view with only the sub-pixel receivers set
+    packed: bool = False
+    #: the Preview's settings of this method, under a light's own knobs (which
+    #: win); None: too slow for the Preview, which runs ``pcf`` instead
+    preview_params: Optional[Mapping[str, object]] = None
 
     def run(self, buffers, light, params) -> MethodResult:  # pragma: no cover - abstract
         """``buffers``: the frame's ``FrameBuffers``, or the view of it that

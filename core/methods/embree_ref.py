@@ -156,6 +156,7 @@ class EmbreeReference(Method):
     paper = "reference: Monte Carlo shadow rays against the real triangles"
     passes = {"embree": AVERAGE, "embree_irr": IRRADIANCE}
     needs = frozenset({GBUFFER, SHADOW_GEOMETRY})
+    packed = True                # shades each receiver of a packed G-buffer on its own
     Params = EmbreeParams
     physical = True
 

@@ -1129,6 +1129,7 @@ class LayeredAttenuationMaps(Method):
     paper = "Agrawala, Ramamoorthi, Heirich, Moll 2000, section 4"
     passes = {"layered": AVERAGE}
     needs = frozenset({GBUFFER, SHADOW_GEOMETRY, LIGHT_SAMPLE_VIEWS})
+    packed = True                # shades each receiver of a packed G-buffer on its own
     Params = LayeredParams
     physical = True
 

@@ -1041,6 +1041,11 @@ class PercentageCloserFiltering(Method):
     paper = "Reeves, Salesin, Cook 1987"
     passes = {"pcf": AVERAGE}
     needs = frozenset({GBUFFER, LIGHT_VIEW})
+    packed = True                # shades each receiver of a packed G-buffer on its own
+    #: the Preview: a quarter of the light-sized region's samples, V at one pixel in each 2 x 2
+    #: block shared by the block's pixels on its surface, no pixel footprint in the region
+    preview_params = {"BlockerSamples": 8, "PenumbraSamples": 16, "pixel_step": 2, "step_fill": "copy",
+                      "ResFactor": 0.0}
     Params = PCFParams
 
     def run(self, buffers, light, params: PCFParams) -> MethodResult:

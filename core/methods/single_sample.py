@@ -1120,6 +1120,10 @@ class SingleSampleSoftShadows(Method):
     paper = "Brabec, Seidel 2002"
     passes = {"single_sample": AVERAGE}
     needs = frozenset({GBUFFER, LIGHT_VIEW})
+    packed = True                # shades each receiver of a packed G-buffer on its own
+    #: the Preview: the paper's nearest blocker on object ids, section 4.3's adaptive
+    #: groups every 8th pixel
+    preview_params = {"blocker": "nearest", "surfaces": "object", "block": 8}
     Params = SingleSampleParams
 
     def run(self, buffers, light, params: SingleSampleParams) -> MethodResult:

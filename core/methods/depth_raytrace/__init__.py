@@ -550,6 +550,7 @@ class DepthRaytrace(Method):
     paper = "Agrawala, Ramamoorthi, Heirich, Moll 2000, section 5"
     passes = {"depth_raytrace": AVERAGE, "depth_raytrace_irr": IRRADIANCE}
     needs = frozenset({GBUFFER, SHADOW_GEOMETRY, SHADOW_TRIANGLES, LIGHT_SAMPLE_VIEWS})
+    packed = True                # shades each receiver of a packed G-buffer on its own
     Params = DepthRaytraceParams
     physical = True
 

@@ -479,6 +479,7 @@ class SoftIrregularShadowMapping(Method):
     paper = "Johnson, Hunt, Hux, Mark, Burns, Junkins 2009"
     passes = {"irregular": AVERAGE}
     needs = frozenset({GBUFFER, SHADOW_TRIANGLES})
+    packed = True                # shades each receiver of a packed G-buffer on its own
     Params = IrregularParams
 
     def run(self, buffers, light, params: IrregularParams) -> MethodResult:

@@ -768,6 +768,7 @@ class PenumbraCasting(Method):
     paper = "Laine, Aila 2005: Hierarchical Penumbra Casting"
     passes = {"penumbra_casting": AVERAGE}
     needs = frozenset({GBUFFER, SHADOW_TRIANGLES})   # it casts the triangles themselves: no BVH
+    packed = True                # shades each receiver of a packed G-buffer on its own
     Params = PenumbraCastingParams
     physical = True
 
