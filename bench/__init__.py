@@ -2,7 +2,7 @@
 the extension; ``blender_manifest.toml`` excludes ``/bench/``).
 
 - :mod:`.phases`: per-phase wall times of the pipeline and the start-up table (``--part skeleton``),
-- :mod:`.methods`: the per-method tables of issues 3-5 (``--part methods``),
+- :mod:`.methods`: each method's table of its switches against ``embree`` (``--part methods``),
 - :mod:`.scaling`: embree and penumbra_casting against triangle count (``--part scaling``),
 - :mod:`.study`: accuracy versus time and the planner's table (``--part study``),
 - :mod:`.pixel_filter`: the cost and error of filtered passes (``--part filter``),
@@ -46,13 +46,13 @@ def run_bench(args) -> int:
         run_method_benchmarks(args.out, repeats, args.quick)
     if args.part in ("all", "filter"):
         from .pixel_filter import bench_pixel_filter
-        print("filtered passes (issue 14)")
+        print("filtered passes")
         from .pixel_filter import SCENES as FILTER_SCENES
         print(bench_pixel_filter(args.out, repeats, args.quick,
                                  getattr(args, "study_scenes", None) or FILTER_SCENES))
     if args.part in ("all", "scaling"):
         from .scaling import COLUMNS as SCALING_COLUMNS, bench_scaling
-        # scaling_run.md: scaling.md holds the hand-written history and analysis of issue 17
+        # scaling_run.md: scaling.md is a hand-written analysis the run must not overwrite
         md = write_results(bench_scaling(repeats, args.quick), args.out, "scaling_run", SCALING_COLUMNS)
         print(f"triangle-count scaling, embree beside penumbra_casting, medians of {repeats} warm runs")
         print(md)

@@ -1,8 +1,10 @@
-"""Per-method benchmark tables (issues 3-5), run by ``penumbra bench``.
+"""Per-method benchmark tables, run by ``penumbra bench --part methods``.
 
-Each table is the shape the issue asks for; all times are medians of
-``repeats`` warm runs (JIT compiled, shared buffers built) in seconds, with
-the per-phase split each method reports. Written to ``bench/results/methods.md``.
+Each table sets a method's switches (the paper's accelerations, its
+departures) side by side on the sample scenes, most against ``embree``;
+all times are medians of ``repeats`` warm runs (JIT compiled, shared
+buffers built) in seconds, with the per-phase split each method reports.
+Written to ``bench/results/methods.md``.
 """
 from __future__ import annotations
 
@@ -90,7 +92,7 @@ def layered_table(tb: Tables) -> List[str]:
 def depth_raytrace_table(tb: Tables) -> List[str]:
     m = tb.reg["depth_raytrace"]
     lines = ["## depth_raytrace (Agrawala et al. 5, figure 10 middle): 512x512, grids and sun_pillars "
-             "(issue 17: thin pillars under a 4-degree sun)", "",
+             "(thin pillars under a 4-degree sun)", "",
              "| scene | samples | no accel | accel | accel + coherence | rays/pixel | embree | speed-up vs embree |",
              "|---|---|---|---|---|---|---|---|"]
     cases = [("grids", (16, 64) if tb.quick else (64, 256, 1024)), ("sun_pillars", (16,) if tb.quick else (64, 256))]
@@ -153,7 +155,7 @@ def _interleaved(fns: Dict[str, Callable], repeats: int):
 
 
 def alpha_cards_rows(tb: Tables, m) -> List[str]:
-    """Issue 18: penumbra_casting with alpha-matte blockers against embree on
+    """penumbra_casting with alpha-matte blockers against embree on
     leaf_cards at 960x540 and 1920x1080 (quick: 480x270), 64 spp: the
     paper's texture fetch (default) and Embree rays through the mattes
     (``alpha_fetch`` off), interleaved runs, wall and CPU time, and the load
@@ -188,7 +190,7 @@ def alpha_cards_rows(tb: Tables, m) -> List[str]:
 
 def irregular_table(tb: Tables) -> List[str]:
     m = tb.reg["irregular"]
-    lines = ["## irregular (Johnson et al.): 512x512, grids at four light sizes and foliage (issue 17: "
+    lines = ["## irregular (Johnson et al.): 512x512, grids at four light sizes and foliage ("
              "overlapping occluders, the overlap C sampled or the paper's C = 0)", "",
              "| scene | light size x | silhouettes from | overlap C | time | phases |", "|---|---|---|---|---|---|"]
     cases = [("grids", scale, mode, "sampled") for scale in (0.5, 1.0, 2.0, 4.0) for mode in ("centre", "light")]

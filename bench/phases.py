@@ -1,11 +1,17 @@
-"""The pipeline's phases (issue 2's benchmark, ``--part skeleton``): G-buffer,
-light depth map, the ``pcf`` filter and the ``embree`` trace on ``grids``,
-``pcf`` at 1920x1080. Written as ``skeleton.csv`` / ``skeleton.md`` beside
-``machine.json``; the start-up table (issue 15: ``penumbra render`` per
-method and all seven from a fresh Numba cache, cold and warm,
-``bench_startup``) as ``startup.csv`` / ``startup.md``; the 1080p buffer table (issue 15: each buffer beside raw
-embreex for its rays, ``bench_buffers``, and the Preview end to end,
-``bench_preview``) as ``buffers.csv`` / ``buffers.md``.
+"""The pipeline's phases and its start-up (``--part skeleton``, ``--part startup``).
+
+- ``bench_skeleton``: G-buffer, light depth map, the ``pcf`` filter and the
+  ``embree`` trace on ``grids``, ``pcf`` at 1920x1080: ``skeleton.csv`` /
+  ``skeleton.md`` beside ``machine.json``;
+- ``bench_buffers``: at 1920x1080 each buffer beside raw embreex for its
+  rays, and ``bench_preview``: the Preview end to end: ``buffers.csv`` /
+  ``buffers.md``;
+- ``bench_startup``: ``penumbra render`` per core method and all seven in
+  one run from a fresh Numba cache, cold and warm: ``startup.csv`` /
+  ``startup.md``.
+
+The targets are data (the buffer rows' ``target``, ``PREVIEW_TARGET_S``,
+``STARTUP_TARGETS``); each row says what it was measured against.
 """
 from __future__ import annotations
 
@@ -30,8 +36,8 @@ from .harness import TESTS, load_sample, machine, median_run, open_sample
 
 #: the columns of skeleton.csv / skeleton.md
 COLUMNS = ["scene", "size", "phase", "method", "threads", "samples", "seconds", "rays_per_s"]
-#: the columns of buffers.csv / buffers.md (issue 15: buffers at Embree's cost): wall seconds and
-#: their ratio, and the same in CPU seconds (user + sys of the process: robust on a loaded machine)
+#: the columns of buffers.csv / buffers.md (each buffer beside raw Embree for its rays): wall seconds
+#: and their ratio, and the same in CPU seconds (user + sys of the process: robust on a loaded machine)
 BUFFER_COLUMNS = ["scene", "size", "buffer", "rays", "threads", "embree_1t_s", "seconds", "ratio", "target",
                   "embree_1t_cpu_s", "cpu_s", "cpu_ratio", "load"]
 #: the scenes of the 1080p buffer table
@@ -127,7 +133,7 @@ def _ratios(raw, own):
 
 
 def bench_buffers(repeats: int, quick: bool):
-    """Issue 15's 1080p buffer table: per scene, the camera G-buffer and each
+    """The 1080p buffer table: per scene, the camera G-buffer and each
     light's view beside raw embreex on one thread for the same rays (the
     ratio's target: 1.5), and ``pcf``'s whole time from a fresh frame
     (buffers, BVHs and filter) against the raw primary-ray time (target 4);
@@ -172,12 +178,12 @@ def bench_buffers(repeats: int, quick: bool):
     return rows
 
 
-#: the Preview's target, end to end (issue 15: "at most 0.25 s ... capture included")
+#: the Preview's target in seconds, end to end, capture included
 PREVIEW_TARGET_S = 0.25
 
 
 def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
-    """Issue 15's Preview figure: Preview (``prepare_frame`` with
+    """The Preview's figure: Preview (``prepare_frame`` with
     ``fast=True`` -> run -> the "Penumbra Preview" image, capture included)
     of ``name`` at 1920x1080 on an unchanged camera, warm (kernels compiled,
     the camera G-buffer kept from the Preview before), for pcf and
@@ -232,12 +238,12 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
     return rows
 
 
-#: the columns of startup.csv / startup.md (issue 15's start-up table)
+#: the columns of startup.csv / startup.md
 STARTUP_COLUMNS = ["scene", "size", "methods", "runs", "cold_s", "warm_s", "cold_minus_warm_s", "cold_minus_warm_range",
                    "one_process_cold_minus_warm_s",
                    "cold_cpu_s", "warm_cpu_s",
                    "compile_s", "target_s", "met", "load"]
-#: the core methods of the start-up table and their targets (issue 15: cold minus warm wall time)
+#: the core methods of the start-up table and their targets (cold minus warm wall seconds; None: no target)
 STARTUP_TARGETS = {"pcf": 10.0, "single_sample": 10.0, "layered": 10.0, "penumbra_casting": 15.0,
                    "irregular": 15.0, "depth_raytrace": 30.0, "embree": None}
 #: all seven in one run: at most this much more than warm
@@ -258,7 +264,7 @@ def _cli_run(args, env):
 
 def bench_startup(quick: bool = False, scene: str = "sphere_plane", size: str = "128x128", repeats: int = 1,
                   methods=None):
-    """Issue 15's start-up table: per core method, and all seven in one run,
+    """The start-up table: per core method, and all seven in one run,
     ``penumbra render`` at ``size`` from a fresh Numba cache folder (cold)
     and again on the cache it left (warm), each in a new process; wall and
     CPU (user + sys, robust on a loaded machine; the helper processes'

@@ -1,4 +1,4 @@
-"""Triangle-count scaling (issue 17): ``embree`` and ``penumbra_casting`` side
+"""Triangle-count scaling (``--part scaling``): ``embree`` and ``penumbra_casting`` side
 by side at 10K, 100K and 1M triangles, and where penumbra casting's time goes
 on foliage.
 
@@ -129,7 +129,7 @@ COLUMNS = ["scene", "triangles", "size", "samples", "embree_s", "penumbra_castin
            "phases"] + list(WHERE)
 SPHERE_TRIANGLES = (10_000, 100_000)   # then the 1M sample scene dense_sphere
 FOLIAGE_LEVELS = (0, 1, 2)             # 12.8K, 43K, 164K triangles; then dense_foliage (577K)
-#: dense_foliage's samples at 1080p: 64 (at 256 its casting takes tens of minutes here)
+#: dense_foliage's samples at 1080p (at the other rows' 256 its casting would outlast the whole table)
 DENSE_FOLIAGE_SAMPLES = 64
 
 
@@ -162,7 +162,7 @@ def _pair(name, scene, res, samples, repeats, rows):
 
 
 def bench_scaling(repeats: int, quick: bool):
-    """Issue 17's tables: cost against triangle count (smooth sphere 10K,
+    """The scaling tables: cost against triangle count (smooth sphere 10K,
     100K and the 1M sample ``dense_sphere`` at 1080p, 64 samples; foliage
     split to 164K at 1080p, 256 samples, and the 577K sample
     ``dense_foliage``, ``DENSE_FOLIAGE_SAMPLES``) and the foliage sample at

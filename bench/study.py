@@ -1,4 +1,4 @@
-"""The accuracy-versus-time study (issue 7): every method and quality knob on
+"""The accuracy-versus-time study (``--part study``): every method and quality knob on
 the sample scenes at two resolutions, against a converged reference.
 
 For each run: median wall time per phase over ``repeats`` warm runs, and the
@@ -34,14 +34,15 @@ from .harness import ROOT, load_sample
 REFERENCE_SAMPLES = 1024
 SCENES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards")
 #: per scene, the two sizes a full run measures (the larger one is the Pareto
-#: plot's, the contact sheet's and the auto table's); chosen so the whole study
-#: fits a working session on the shared 2-core machine (README "Accuracy versus time")
+#: plot's, the contact sheet's and the auto table's); small, so a full run of
+#: every scene stays affordable on a 2-core machine (README "Accuracy versus time")
 SIZES = {name: ((128, 128), (256, 256)) for name in SCENES}
 QUICK_SIZES = ((48, 48), (64, 64))
 
 # method id -> list of (label, params) or (label, params, light kinds it runs
 # for). The knobs each paper names; "paper:" rows are the paper's version
-# where a default departs from it (issue 17: the study shows both).
+# where a default departs from it, so the study shows both. The entry whose
+# params are {} or {"samples": 64} is the method's default (``default_setting``).
 SWEEPS: Dict[str, List] = {
     # the default (issue 18): the filter region from the light's size at the mean blocker depth
     # (PCSS-like); the paper's figure-4 region behind region="figure4"
@@ -155,7 +156,7 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
     ref = ref_m.run(fb, light, ref_p)
     ref_time = time.perf_counter() - t0
     mask = reach_mask(fb.gbuffer, light)
-    whole = mask & whole_light_mask(fb.gbuffer, light)    # issue 17's measure: the whole light in front
+    whole = mask & whole_light_mask(fb.gbuffer, light)    # the receivers with the whole light in front
     refs = {"average": ref.passes["embree"], "irradiance": ref.passes["embree_irr"]}
     sheet = {"reference (embree)": refs["average"]}
     common = dict(scene=name, size=f"{res[0]}x{res[1]}", threads=numba.get_num_threads(),
@@ -221,7 +222,7 @@ _INTS = ("threads", "repeats", "triangles", "mattes")
 
 def kept_rows(csv_path: str, rerun) -> List[dict]:
     """The rows of ``csv_path`` (if any) of scenes not in ``rerun``, numbers
-    parsed (a row written before rows carried their light has none)."""
+    parsed (a row without its light's columns has none of them)."""
     if not os.path.exists(csv_path):
         return []
     with open(csv_path, newline="") as f:
@@ -311,7 +312,7 @@ def write_outputs(rows, sheets, out_dir):
              + (f", 1-minute load average {min(loads):.1f}-{max(loads):.1f} (per scene in study.csv)" if loads else "")
              + f"; errors against embree ({', '.join(sorted({r['setting'] for r in rows if 'reference' in r['method']}))})"
              " over the pixels the light reaches; \"whole light\": over those that see the whole light above"
-             " their tangent plane (issue 17's measure, ``metrics.whole_light_mask``).", "",
+             " their tangent plane (``metrics.whole_light_mask``).", "",
              "| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra "
              "| rmse whole light | rmse penumbra whole light |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -409,7 +410,7 @@ def install_table(src: str, dst: str = None) -> str:
 
 
 def scene_columns(rows) -> List[dict]:
-    """``rows`` (of a study.csv written before rows carried them) with each
+    """``rows`` (of a study.csv without these columns) with each
     scene's light kind and size, triangles, relative light size and alpha
     mattes filled in from the captured sample scene (what they are, not a
     measurement)."""

@@ -1,5 +1,5 @@
 """Alpha mattes: the texture-driven transparency of leaf cards, fences and
-hair cards (issue 18), as Cycles sees it.
+hair cards, as Cycles sees it.
 
 A surface point on triangle ``t`` with alpha ``a`` lets ``1 - a`` of a
 shadow ray through (Cycles multiplies ``1 - a`` over every surface a shadow

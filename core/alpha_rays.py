@@ -1,4 +1,4 @@
-"""Rays through alpha mattes (issue 18) on an Embree BVH: a shadow ray's
+"""Rays through alpha mattes on an Embree BVH: a shadow ray's
 transmittance, and the first surface a primary ray stops at.
 
 Transmittance (``transmittance``): as Cycles computes a shadow ray through
@@ -154,8 +154,8 @@ def clear_hits(prim, u, v, tri_index, mattes, cut, clear):
     """clear[i]: hit i (local primitive, -1 = none) is on a matte whose alpha
     there is below ``cut[i]`` (a primary ray passes through it). Hits on
     triangles without a matte are decided here, without a call of
-    ``alpha_at`` (most hits of a light map: the call per hit cost 4x the
-    rest of this loop on leaf_cards)."""
+    ``alpha_at`` (most hits of a light map: the call per hit costs more
+    than the rest of this loop)."""
     tri_matte = mattes.tri_matte
     for i in range(prim.shape[0]):
         clear[i] = False

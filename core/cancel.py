@@ -1,5 +1,5 @@
-"""Cancelling a running frame between chunks of work (issue 15: Esc cancels
-within a second).
+"""Cancelling a running frame between chunks of work (Esc in the add-on
+stops a frame within one chunk's time).
 
 A :class:`CancelToken` belongs to one job. The thread that runs the job
 makes it current (``with watching(token):``); the loops that split long

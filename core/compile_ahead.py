@@ -1,7 +1,7 @@
-"""Cold-start kernel compilation on every core (issue 15).
+"""Cold-start kernel compilation on every core.
 
 Numba compiles one kernel at a time per process (a global compiler lock),
-so a cold frame's 10-90 s of compilation ran on one core of two. The
+so a cold frame's compilation would run on one core alone. The
 kernels a cold frame compiles, and the order it compiles them in, are known
 ahead: ``kernel_plan.json`` (recorded by ``scripts/record_kernel_plan.py``
 from cold frames on the warm-up scene, ``core/warmup.py``) lists, per
@@ -13,7 +13,7 @@ caller before its callees).
 end* into Numba's on-disk cache, while this process compiles from its start
 as it always did: the two meet in the middle. Read backwards, the list puts
 callees before their callers, so a large kernel's callees (pcf's filter
-kernel: 2.6 s of its own, 6.6 s in its callees) are split between the
+kernel spends most of its compile time in them) are split between the
 processes instead of landing on one. Every process claims a kernel when it
 starts compiling it (a claim file, ``O_EXCL``; a callee when a caller's
 typing reaches it: :func:`_hook` wraps the dispatcher's ``compile``) and
@@ -46,7 +46,7 @@ import time
 PLAN_FILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "kernel_plan.json")
 ENV_PROCESSES = "PENUMBRA_COMPILE_PROCESSES"
 MAX_PROCESSES = 4
-MIN_ITEMS = 4                      # fewer uncached kernels than this: no helper (its start-up costs ~1 s)
+MIN_ITEMS = 4                      # fewer uncached kernels than this: no helper (its start-up would not pay)
 _PKG = __name__.rsplit(".", 2)[0] if __name__ != "__main__" else None    # "penumbra" or "bl_ext.<repo>.penumbra"
 
 _lock = threading.Lock()

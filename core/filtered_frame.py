@@ -36,8 +36,8 @@ from .frame import REFERENCE_FOR, FrameResult, render_frame
 from .methods.base import IRRADIANCE
 from .methods.embree_ref import unshadowed_irradiance
 from .metrics import errors, reach_mask
-from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, V_TESTS, PixelFilter, coverage, footprint_flat,
-                           refine_mask, resolve_samples)
+from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footprint_flat, refine_mask,
+                           resolve_samples)
 from .scene import GBuffer, Scene
 from .compile_ahead import frame_keys, prefetch
 from .warmup import ensure_filter_compiled
@@ -57,8 +57,6 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     flt = pixel_filter or PixelFilter()
     if flt.is_none:
         return render_frame(scene, passes, light_names, **options)
-    if flt.v_test not in V_TESTS:
-        raise ValueError(f"pixel filter: unknown v_test {flt.v_test!r} ({' | '.join(V_TESTS)})")
     W, H = scene.resolution
     progress = options.get("progress")
     prefetch(frame_keys(scene, _warmup_passes(passes), True))   # helper processes compile from the end
@@ -87,8 +85,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     masks = [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
     if not units:
         masks = [_refined(flt, g, [], taps.size > 0)]
-    flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice,
-                           flt.shade_footprint)
+    flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
             for refine, full in masks]
     samples = [(f // SW, f % SW) for f in flat]
     traced = np.zeros(SH * SW, bool)      # the union of every list: one flag per sub-pixel
@@ -156,8 +153,7 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool):
     elif any_taps:
         stack = np.ascontiguousarray(np.stack(values) if len(values) else np.zeros((0, H, W)), np.float32)
         refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
-                    DEPTH_JUMP, NORMAL_COS, flt.v_test == "curvature", refine, float(flt.sharp), full,
-                    float(flt.geo_v))
+                    DEPTH_JUMP, NORMAL_COS, refine, float(flt.sharp), full, float(flt.geo_v))
     return refine, full
 
 

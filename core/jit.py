@@ -1,14 +1,14 @@
-"""How Penumbra's Numba kernels are compiled (issue 15: compile time is a
-cost every user pays on a cold start): ``kernel`` and ``inner``, the two
-decorators every kernel in ``core`` uses instead of ``numba.njit``.
+"""How Penumbra's Numba kernels are compiled (compile time is a cost every
+user pays on a cold start): ``kernel`` and ``inner``, the two decorators
+every kernel in ``core`` uses instead of ``numba.njit``.
 
 - **An LLVM optimisation level per kernel** (``opt``). Numba runs LLVM's -O3
   pipeline on every kernel, and again on each caller's module with its callees
   linked in. Penumbra's kernels are branchy scalar loops that -O3's loop
-  vectorisation and aggressive passes rarely speed up: measured on a cold
-  ``penumbra_casting`` frame, -O1 everywhere cut the compile CPU 28 -> 20 s.
+  vectorisation and aggressive passes rarely speed up, while its compile time
+  grows with every inlined callee.
   Kernels compile at ``COLD`` (-O1) unless they are marked ``HOT`` (-O3: the
-  per-pixel kernels whose warm time was measured to drop with it,
+  per-pixel kernels whose warm time drops with it,
   ``penumbra_casting``'s cast loop among them). A callee linked into a ``HOT``
   caller is optimised again at -O3 there, so a hot loop's inlined helpers get
   -O3 whatever their own level. Numba reads the level
@@ -21,8 +21,8 @@ decorators every kernel in ``core`` uses instead of ``numba.njit``.
 - **No entry wrappers for kernels that only other kernels call**
   (``inner``). Numba compiles a CPython wrapper (unboxing each argument: a
   named tuple of a dozen arrays unboxes each one) and a cfunc wrapper with
-  every dispatcher; a helper called only from kernels uses neither, yet paid
-  for them (pcf's ``sample_shadow``: 0.45 -> 0.14 s of CPU without them).
+  every dispatcher; a helper called only from kernels uses neither, yet would
+  pay for both at every cold start.
   ``inner`` compiles the native function alone, as Numba does for its own
   ``@overload`` implementations. Such a dispatcher has no entry for Python
   (Numba would jump through a null pointer), so a call from Python goes to
@@ -34,7 +34,7 @@ decorators every kernel in ``core`` uses instead of ``numba.njit``.
   the inner kernel's cache key.
 
 Cached kernels keep the level they were compiled at; a source change
-invalidates a module's entries, as before.
+invalidates a module's entries.
 """
 from __future__ import annotations
 

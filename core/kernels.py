@@ -91,8 +91,8 @@ def each_range(fn, n: int, threads=None, grain: int = 4096, per_worker: int = 1)
     ``per_worker`` per thread (Numba's thread count, or ``threads``) of at
     least ``grain`` items, through ``each_in_threads``: for serial ``nogil``
     kernels replacing a ``prange`` loop of equal, independent iterations
-    (issue 15: the parfor's lowering costs more compile time than the loop
-    takes); ``per_worker`` > 1 lets a thread that finishes early take the
+    (a parfor's lowering costs more compile time than the loop takes);
+    ``per_worker`` > 1 lets a thread that finishes early take the
     next range (iterations cheap in one part of the image, e.g. sky)."""
     workers = max(1, int(threads or numba.get_num_threads()))
     n = int(n)
@@ -121,8 +121,8 @@ def borrowed(typingctx, value):
     copy of an array variable a kernel makes (an inlined call's argument, a
     tuple field) otherwise costs an atomic increment and decrement of its
     count, which a serial ``nogil`` kernel replacing a ``parallel=True`` one
-    pays in its inner loops (issue 15: the depth-image tracer ran 1.8x the
-    CPU; 2 threads also contend for the shared counts). Only for a kernel's
+    pays in its inner loops (threads also contend for the shared counts'
+    cache lines). Only for a kernel's
     own arguments, whose owner (the caller) outlives the call; never
     returned or stored."""
     if not isinstance(value, (types.Array, types.BaseTuple)):
@@ -167,9 +167,9 @@ def pick_face(faces, x, y, z):
 def hit_box(points, hit):
     """(xmin, ymin, zmin, xmax, ymax, zmax): the least and greatest
     ``points[i]`` (float64[N, 3]) per axis over the i with ``hit[i]``;
-    (+inf, ..., -inf, ...) where there is none. One pass, no gather (issue
-    15: NumPy's gather and per-axis reductions of a 1080p G-buffer's hits
-    took ~40 ms); scalars, not arrays, so it compiles no allocation."""
+    (+inf, ..., -inf, ...) where there is none. One pass, no gather
+    (NumPy would copy the hits, then read them once per axis and bound);
+    scalars, not arrays, so it compiles no allocation."""
     x0, y0, z0 = np.inf, np.inf, np.inf
     x1, y1, z1 = -np.inf, -np.inf, -np.inf
     for i in range(points.shape[0]):

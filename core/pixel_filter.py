@@ -1,47 +1,58 @@
-"""Pixel filters as the renderers define them, the sub-pixel sample grid, and
-the resolve of sub-pixel passes into filtered pixels (issue 14).
+"""Pixel filters as the renderers define them, and the filtered pass built
+from them: which pixels need sub-pixel samples, which samples, their resolve.
 
-Cycles (``intern/cycles/scene/film.cpp``, ``filter_table``) weights a camera
-sample at offset (x, y) from the pixel centre by f(x) f(y) (it importance-
-samples x and y from one 1-D table each), with the user's width w:
+``PixelFilter`` (``parse``: ``none | scene | KIND:W[:G]``):
 
-    box              f = 1                                |v| <= 1/2  (Blender's
-                     sync forces w = 1 for BOX: the width field is ignored)
-    gaussian         f = exp(-2 (6 v / 3w)^2) = exp(-8 v^2 / w^2)   |v| <= 1.5 w
-                     (sigma = w / 4; the table spans width*3)
-    blackman-harris  f = 0.35875 - 0.48829 cos(a) + 0.14128 cos(2a) - 0.01168 cos(3a),
-                     a = 2 pi (v / 2w + 1/2)                         |v| <= w
-                     (the table spans width*2: w is the half-width)
+    kind        "none"  box | gaussian | blackman-harris | eevee; none: pixel centres
+    width       1.5     Cycles' filter_width, EEVEE's filter_size (pixels)
+    grid        4       G: sub-pixel samples per axis where a footprint is refined (1..16)
+    threshold   0.07    V's second difference that refines a pixel (< 0: all, full grid)
+    sharp       0.2     V's second difference beyond which a pixel reads the full grid
+    shade_grid  2       samples per axis of the lattice a mildly kinked pixel reads
+    geo_v       0.02    V's difference across a geometry edge that refines it (>= 0)
+    edge_tail   0.01    the filter's share an edge beyond ``reach`` may carry
 
-EEVEE (``eevee_film``: ``film_filter_weight``) weights by the distance r to the
-pixel centre: exp(-r^2 / (2 (0.284 R)^2)) for r <= R = ``render.filter_size``
-(a Gaussian fitted to Blackman-Harris, its precomputed sample table holding
-the samples within R), and no filter at one render sample; checked against
-Blender's eevee_film.cc / eevee_film_shared.hh.
+Filters. Cycles (``intern/cycles/scene/film.cpp``, ``filter_table``) weights
+a camera sample at offset (x, y) from the pixel centre by f(x) f(y):
 
-A pixel's filtered value is the filter-weighted integral over its footprint,
-which reaches into the neighbouring pixels. Here it is the quadrature over a
-regular grid of ``grid`` x ``grid`` sub-pixel samples per pixel (sample (I, J)
-of the supersampled image sits at ((J + 0.5) / grid, (I + 0.5) / grid) pixels):
+    box              f = 1                               |v| <= 1/2 (sync forces w = 1)
+    gaussian         f = exp(-8 v^2 / w^2), sigma = w/4  |v| <= 1.5 w (table spans 3w)
+    blackman-harris  f = 0.35875 - 0.48829 cos a + 0.14128 cos 2a - 0.01168 cos 3a,
+                     a = 2 pi (v / 2w + 1/2)             |v| <= w (table spans 2w)
 
-    average pass     V = sum w V_k / sum w                 (world samples: V = 1)
-    irradiance pass  V = sum w E0_k V_k / sum w E0_k       (world samples: E0 = 0)
+EEVEE (``eevee_film.cc``, ``film_filter_weight``) weights by the distance r
+to the pixel centre: exp(-r^2 / (2 (0.284 R)^2)) for r <= R = filter_size
+(a Gaussian fitted to Blackman-Harris); no filter at one render sample.
+
+Resolve (``resolve``). A pixel's filtered value is the quadrature of the
+filter over its footprint, which reaches into its neighbours, on the
+G x G sub-pixel samples (sample (I, J) of the supersampled view sits at
+((J + 0.5) / G, (I + 0.5) / G) pixels):
+
+    average pass     V = sum w V_k / sum w                (world samples: V = 1)
+    irradiance pass  V = sum w E0_k V_k / sum w E0_k      (world samples: E0 = 0)
     coverage (alpha)   = sum w hit_k / sum w
 
-so that unshadowed render x irradiance pass = shadowed render for the
-filtered renders. Samples outside the image are left out (the weights are
-renormalised over the ones inside: the border ring differs from Cycles',
-which traces rays beyond the frame).
+so unshadowed render x irradiance pass = shadowed render. The samples are a
+packed list (``footprint_flat``): no supersampled image is made.
 
-Adaptive cost: only pixels whose neighbours within ``reach`` differ from them
-in hit, object id, depth or normal, or where V is not locally linear (a
-second difference beyond ``threshold``) are resolved from sub-pixel samples
-(``refine_mask``); the others keep their pixel-centre value, which equals
-the filtered value of a locally linear V (the filters are symmetric). A
-refined pixel reads the full grid where the geometry differs or V jumps
-beyond ``sharp``, a ``shade_grid`` lattice where only V's mild kinks (a soft
-penumbra's ends, a method's own noise) flag it. The sub-samples are a packed list (``footprint_samples``, ``resolve``): no
-supersampled image is made.
+Refinement (``refine_mask``). The centre sample of a symmetric normalised
+filter integrates a locally linear V exactly, so a pixel keeps its
+pixel-centre value unless a neighbour within ``reach`` (the smallest n >= 1
+whose 1-D filter tail beyond n px is at most edge_tail) differs from it in
+hit, or in object id, depth or normal with a pass differing by more than
+geo_v across the two, or V's second difference V[p+d] + V[p-d] - 2 V[p]
+over opposite neighbours exceeds threshold (a jump between two centres
+shows as one of its height). Geometry edges and second differences beyond
+sharp (hard shadow edges) read the footprint's full grid; pixels flagged
+only by V's mild kinks (a soft penumbra's ends, a method's noise) read a
+shade_grid x shade_grid lattice of their own pixel, symmetric about its
+centre so a linear V is still integrated exactly (``shade_lattice``).
+
+Departures from Cycles: samples outside the image are left out and the
+weights renormalise over those inside (Cycles traces beyond the frame: the
+border ring differs); the refinement samples only where V or the geometry
+needs it (Cycles' every pixel on the full grid: threshold < 0).
 """
 from __future__ import annotations
 
@@ -65,7 +76,6 @@ DEFAULT_SHADE_GRID = 2         # sub-pixel samples per axis where only V is mild
 DEFAULT_SHARP = 0.2            # V's second difference beyond which a shadow edge gets the full grid
 DEFAULT_GEO_V = 0.02           # V's difference across a discontinuity of the geometry that refines it
 DEFAULT_THRESHOLD = 0.07       # V's second difference between pixel centres that marks a shadow edge
-V_TESTS = ("curvature", "variation")   # refine_mask's test of V (PixelFilter.v_test)
 EDGE_TAIL = 0.01               # PixelFilter.reach: an edge it misses moves a pixel by <= 1 % of the jump
 TAIL_STEPS = 4096
 DEPTH_JUMP = 0.05              # relative depth difference that marks a silhouette
@@ -85,25 +95,20 @@ class PixelFilter:
     width: float = 1.5
     grid: int = DEFAULT_GRID
     threshold: float = DEFAULT_THRESHOLD   # refine_mask's V threshold; < 0: refine every pixel
-    v_test: str = V_TESTS[0]     # refine_mask's test of V: "curvature" | "variation" (the first version)
     edge_tail: float = EDGE_TAIL  # ``reach``: the filter's share an edge it misses may carry
-    shade_grid: int = DEFAULT_SHADE_GRID   # sub-samples per axis where only V's mild kinks need them;
-                                           # must divide ``grid``; = grid: the first version (full grid)
+    shade_grid: int = DEFAULT_SHADE_GRID   # sub-samples per axis where only V's mild kinks need them
+                                           # (a divisor of ``grid``; otherwise, or = grid: the full grid)
     sharp: float = DEFAULT_SHARP  # V's test beyond which a shadow edge gets the full grid
-    geo_v: float = DEFAULT_GEO_V  # a discontinuity is refined where V differs across it by more
-                                  # than this (< 0: every discontinuity, the first version)
-    shade_footprint: bool = False  # a pixel refined for V alone reads the lattice of its own pixel
-                                   # (and of refined neighbours'); True: of its whole footprint
-                                   # (the first version)
+    geo_v: float = DEFAULT_GEO_V  # a geometry edge is refined where V differs across it by more than this
 
     @property
     def shade_lattice(self) -> np.ndarray:
         """bool[grid]: the sub-rows (and sub-columns) of each pixel that the
         pixels refined for V alone read: ``shade_grid`` of the ``grid``,
         placed symmetrically about the pixel centre (each pixel's samples'
-        centroid is its centre, so a linear V is integrated exactly: the
-        first version's every ``grid / shade_grid``-th sub-row was not);
-        all of them when ``shade_grid`` does not divide ``grid`` or equals it."""
+        centroid is its centre, so a linear V is integrated exactly; every
+        ``grid / shade_grid``-th sub-row would not be); all of them when
+        ``shade_grid`` does not divide ``grid`` or equals it."""
         g, v = int(self.grid), int(self.shade_grid)
         keep = np.ones(g, np.bool_)
         if 0 < v < g and g % v == 0:
@@ -172,8 +177,7 @@ class PixelFilter:
         it and one of them; the smallest n >= 1 whose 1-D tail (the
         filter's share beyond n px, ``tail``) is at most ``edge_tail``, so
         an edge it misses moves the pixel's filtered value by at most that
-        share of the jump (``edge_tail`` 0: the whole footprint, the first
-        version's ceil(radius + 1/2) but for integer radii)."""
+        share of the jump (``edge_tail`` 0: the whole footprint)."""
         n = 1
         while n < self.radius and self.tail(n) > self.edge_tail:
             n += 1
@@ -263,35 +267,33 @@ def from_render_settings(engine: str, cycles_type: Optional[str], cycles_width: 
 # --------------------------------------------------------------------------
 # which pixels need sub-pixel samples
 
-def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out,
+def refine_mask(hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, out,
                 sharp, full, geo_v, threads=None):
     """out[r, c] = True where pixel (r, c)'s neighbours within ``reach``
     differ from it in hit, or in object id, depth (relative ``depth_jump``)
     or normal (cosine below ``normal_cos``) with one of ``values[k]`` (the
     pixel-centre passes) differing by more than ``geo_v`` between the two
-    (a discontinuity V does not see changes no filtered pass; ``geo_v`` < 0:
-    every discontinuity, the first version), or where one of ``values[k]`` is
-    not locally linear: ``curvature``: a second
-    difference V[p + d] + V[p - d] - 2 V[p] over a pair of opposite
-    neighbours beyond ``threshold`` (a linear ramp across the footprint is
-    integrated exactly by the centre sample of a symmetric normalised
-    filter, so only V's deviation from linear needs sub-pixel samples; a
-    jump between two centres shows as a second difference of its height);
-    else (``variation``, the first version) a difference to a neighbour
-    beyond ``threshold``. ``full[r, c]``: the pixel needs the full sub-pixel
-    grid: an edge of the geometry, or V's test beyond ``sharp`` (a hard
-    shadow edge); the others only V's mild kinks and noise."""
+    (a discontinuity V does not see changes no filtered pass), or where one
+    of ``values[k]`` is not locally linear: a second difference
+    V[p + d] + V[p - d] - 2 V[p] over a pair of opposite neighbours beyond
+    ``threshold`` (a linear ramp across the footprint is integrated exactly
+    by the centre sample of a symmetric normalised filter, so only V's
+    deviation from linear needs sub-pixel samples; a jump between two
+    centres shows as a second difference of its height). ``full[r, c]``:
+    the pixel needs the full sub-pixel grid: an edge of the geometry, or
+    V's test beyond ``sharp`` (a hard shadow edge); the others only V's mild
+    kinks and noise."""
     each_range(lambda r0, r1: _refine_rows(r0, r1, hit, obj, depth, normal, values, int(reach), float(threshold),
-                                           float(depth_jump), float(normal_cos), bool(curvature), out,
+                                           float(depth_jump), float(normal_cos), out,
                                            float(sharp), full, float(geo_v)), hit.shape[0], threads, grain=8)
 
 
 @kernel(nogil=True)
-def _refine_rows(r0, r1, hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, curvature, out,
+def _refine_rows(r0, r1, hit, obj, depth, normal, values, reach, threshold, depth_jump, normal_cos, out,
                  sharp, full, geo_v):
     """``refine_mask`` for rows r0 .. r1 - 1 (a serial ``nogil`` kernel on
-    worker threads, ``kernels.each_range``: issue 15, a parfor's compile
-    cost more than the loop takes)."""
+    worker threads, ``kernels.each_range``: a parfor's lowering costs more
+    compile time than the loop takes)."""
     H, W = hit.shape
     for r in range(r0, r1):
         for c in range(W):
@@ -317,48 +319,36 @@ def _refine_rows(r0, r1, hit, obj, depth, normal, values, reach, threshold, dept
                               + normal[r, c, 2] * normal[rr, cc, 2]) < normal_cos:
                             edge = True
                         if edge:
-                            if geo_v < 0.0:
-                                geo = True
-                            else:
-                                for k in range(values.shape[0]):
-                                    if abs(values[k, r, c] - values[k, rr, cc]) > geo_v:
-                                        geo = True
-                                        break
+                            for k in range(values.shape[0]):
+                                if abs(values[k, r, c] - values[k, rr, cc]) > geo_v:
+                                    geo = True
+                                    break
                     if geo:
                         continue
-                    if curvature:
-                        ro, co = r - dr, c - dc           # the opposite neighbour
-                        if ro < 0 or ro >= H or co < 0 or co >= W:
-                            continue
-                        for k in range(values.shape[0]):
-                            d = abs(values[k, rr, cc] + values[k, ro, co] - 2.0 * values[k, r, c])
-                            if d > threshold:
-                                vflag = True
-                                geo = d > sharp
-                                break
-                    else:
-                        for k in range(values.shape[0]):
-                            d = abs(values[k, r, c] - values[k, rr, cc])
-                            if d > threshold:
-                                vflag = True
-                                geo = d > sharp
-                                break
+                    ro, co = r - dr, c - dc               # the opposite neighbour
+                    if ro < 0 or ro >= H or co < 0 or co >= W:
+                        continue
+                    for k in range(values.shape[0]):
+                        d = abs(values[k, rr, cc] + values[k, ro, co] - 2.0 * values[k, r, c])
+                        if d > threshold:
+                            vflag = True
+                            geo = d > sharp
+                            break
             out[r, c] = geo or vflag
             full[r, c] = geo
 
 
 @kernel(nogil=True)
-def _footprint_rows(refine, full, grid, m0, k, lattice, shade_footprint, out):
+def _footprint_rows(refine, full, grid, m0, k, lattice, out):
     """``footprint_samples``' kernel: ``out`` (bool[SH * SW], row-major, all
     False) gets True at the sub-samples some refined pixel reads: a
     ``full`` one its whole footprint (sub-rows grid r + m0 ... + k - 1, the
     same for columns), another the sub-samples with ``lattice[I % grid]``
-    and ``lattice[J % grid]`` of its own pixel (``shade_footprint``: of its
-    footprint, the first version)."""
+    and ``lattice[J % grid]`` of its own pixel."""
     H, W = refine.shape
     SH, SW = grid * H, grid * W
     reads = np.zeros((H, SW), np.bool_)        # pixel row r's footprints read sub-column J on every sub-row
-    sparse = np.zeros((H, SW), np.bool_)       # ... on the lattice's sub-rows (of the footprint or the pixel)
+    sparse = np.zeros((H, SW), np.bool_)       # ... on the lattice's sub-rows of the pixel
     rows_used = np.zeros(H, np.bool_)
     rows_sparse = np.zeros(H, np.bool_)
     for r in range(H):
@@ -372,9 +362,8 @@ def _footprint_rows(refine, full, grid, m0, k, lattice, shade_footprint, out):
                             reads[r, J] = True
                 else:
                     rows_sparse[r] = True
-                    lo, n = (grid * c + m0, k) if shade_footprint else (grid * c, grid)
-                    for b in range(n):
-                        J = lo + b
+                    for b in range(grid):
+                        J = grid * c + b
                         if 0 <= J < SW and lattice[J % grid]:
                             sparse[r, J] = True
     for I in range(SH):
@@ -385,37 +374,36 @@ def _footprint_rows(refine, full, grid, m0, k, lattice, shade_footprint, out):
                 for J in range(SW):
                     out[base + J] |= reads[r, J]
         if lattice[I % grid]:
-            if not shade_footprint:
-                r0 = r1 = I // grid
-            for r in range(r0, r1 + 1):
-                if rows_sparse[r]:
-                    for J in range(SW):
-                        out[base + J] |= sparse[r, J]
+            r = I // grid
+            if rows_sparse[r]:
+                for J in range(SW):
+                    out[base + J] |= sparse[r, J]
 
 
 def footprint_flat(refine: np.ndarray, grid: int, m0: int, k: int, full: Optional[np.ndarray] = None,
-                   lattice: Optional[np.ndarray] = None, shade_footprint: bool = True) -> np.ndarray:
+                   lattice: Optional[np.ndarray] = None) -> np.ndarray:
     """int64[N]: the sub-samples the refined pixels read, as sorted flat
     indices I * SW + J of the supersampled view: a ``full`` pixel (None:
     all are) its footprint (taps ``m0``, size ``k``), another only the
-    sub-samples whose sub-row and sub-column within their pixel the
-    bool[grid] ``lattice`` keeps (``PixelFilter.shade_lattice``; None: all),
-    in its footprint (``shade_footprint``) or in its own pixel. No
-    supersampled image is made, only one flag per sub-sample."""
+    sub-samples of its own pixel whose sub-row and sub-column the bool[grid]
+    ``lattice`` keeps (``PixelFilter.shade_lattice``; None: all); its
+    footprint then reads those and what its refined neighbours list (the
+    resolve renormalises over them). No supersampled image is made, only one
+    flag per sub-sample."""
     refine = np.ascontiguousarray(refine, np.bool_)
     full = refine if full is None else np.ascontiguousarray(full, np.bool_)
     lattice = np.ones(grid, np.bool_) if lattice is None else np.ascontiguousarray(lattice, np.bool_)
     H, W = refine.shape
     flags = np.zeros(grid * H * grid * W, np.bool_)
-    _footprint_rows(refine, full, int(grid), int(m0), int(k), lattice, bool(shade_footprint), flags)
+    _footprint_rows(refine, full, int(grid), int(m0), int(k), lattice, flags)
     return np.flatnonzero(flags)
 
 
 def footprint_samples(refine: np.ndarray, grid: int, m0: int, k: int, full: Optional[np.ndarray] = None,
-                      lattice: Optional[np.ndarray] = None, shade_footprint: bool = True):
+                      lattice: Optional[np.ndarray] = None):
     """(rows int64[N], cols int64[N]): ``footprint_flat``'s sub-samples as
     supersampled pixels (rows[n], cols[n]), row-major."""
-    flat = footprint_flat(refine, grid, m0, k, full, lattice, shade_footprint)
+    flat = footprint_flat(refine, grid, m0, k, full, lattice)
     SW = int(grid) * refine.shape[1]
     return flat // SW, flat % SW
 

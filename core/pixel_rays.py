@@ -5,11 +5,11 @@ works on a band of rows ``[row0, row1)`` (its arrays hold that band only) and
 releases the GIL, so ``raycast`` runs bands on several threads, each one
 generating, tracing (embreex releases the GIL too) and finishing its own.
 
-The formulas are ``views.camera_rays`` / ``views.face_rays`` and the hit
-post-processing that ``raycast`` did in NumPy, operation for operation, so
-the buffers stay bit-identical (NumPy's 3x3 products go through BLAS, which
-may fuse multiply-adds: those agree with these to the float64 ulp, and the
-float32 ray each feeds Embree is the same).
+The formulas are ``views.camera_rays`` / ``views.face_rays`` and the
+G-buffer's hit post-processing written in NumPy, operation for operation, so
+the buffers are bit-identical to those (NumPy's 3x3 products go through
+BLAS, which may fuse multiply-adds: those agree with these to the float64
+ulp, and the float32 ray each feeds Embree is the same).
 
 A view is packed as float64[RAY_PARAMS] (``pack_rays``): world-from-view
 rotation (row-major), eye, view-plane window (xmin, xmax, ymin, ymax: at
@@ -97,7 +97,7 @@ def make_rays_list(p, width, height, cols, rows, org, dirs, tfar):
 @kernel(nogil=True)
 def pixel_ray_batch(p, width, height, row0, row1, cols, rows, org, dirs, tfar):
     """``make_rays`` (``cols`` empty) or ``make_rays_list``: one kernel for
-    both (issue 15: each compiled ``_put_ray`` again)."""
+    both (two kernels would each compile the inlined ``_put_ray``)."""
     if cols.shape[0] == 0:
         for row in range(row0, row1):
             for col in range(width):

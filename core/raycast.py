@@ -144,7 +144,7 @@ class TriangleScene:
             o = np.ascontiguousarray(origins[s:e], np.float32)
             d = np.ascontiguousarray(dirs[s:e], np.float32)
             r = self._scene.run(o, d, output=1, **kw)
-            if self.alpha is not None:     # alpha-tested like the light maps (issue 18)
+            if self.alpha is not None:     # alpha-tested like the light maps
                 tf = (np.array(tfar[s:e], np.float32) if tfar is not None
                       else np.full(e - s, np.inf, np.float32))
                 alpha_rays.pass_through(self, lambda: (o, d, tf), r["primID"], r["u"], r["v"], r["tfar"])
@@ -167,8 +167,8 @@ def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, heigh
     primID, u, v, tfar, ...; None when the BVH is empty: every ray misses;
     dirs: the band's float32 ray directions).
     Bands hold at most BAND_RAYS rays, and there are at least
-    BANDS_PER_THREAD per thread (a Preview's 960 x 779 light view made 3
-    bands for 2 threads: one thread traced alone for a third of the time).
+    BANDS_PER_THREAD per thread (with as few bands as threads, one slow
+    band leaves the other threads idle until it ends).
     The bands write disjoint rows, so the result does not depend on
     ``threads``."""
     workers = max(1, int(threads or numba.get_num_threads()))
@@ -290,7 +290,7 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
 
     each_in_threads(chunk, [(a, min(m, a + BAND_RAYS)) for a in range(0, m, BAND_RAYS)],
                     max(1, int(threads or numba.get_num_threads())))
-    if tri_scene.alpha is not None:          # issue 18: the camera sees through clear texels
+    if tri_scene.alpha is not None:          # the camera sees through clear texels
         _see_through_mattes(tri_scene, cam, tri_object, pos, nrm, depth, obj, tri)
     g = GBuffer(position=pos.reshape(1, m, 3), normal=nrm.reshape(1, m, 3), depth=depth.reshape(1, m),
                 object_id=obj.reshape(1, m), triangle_id=tri.reshape(1, m), hit=(tri >= 0).reshape(1, m),
@@ -315,7 +315,7 @@ def unpack_gbuffer(g: GBuffer, width: int, height: int) -> GBuffer:
 
 
 def _see_through_mattes(tri_scene: TriangleScene, cam: Camera, tri_object, pos, nrm, depth, obj, tri) -> None:
-    """Post-step of ``camera_gbuffer`` (issue 18): pixels whose surface is a
+    """Post-step of ``camera_gbuffer``: pixels whose surface is a
     matte clear there (alpha below ``alpha_rays.ALPHA_CUTOFF``) are re-traced
     from just past it along the same ray (from the eye through the point;
     orthographic: along the view axis) to the far clip plane, and get the
@@ -366,7 +366,7 @@ def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray
                 threads: Optional[int] = None):
     """Depth (float32, -z in view space, +inf where empty) and object-id maps
     of one face, by rays through its pixel centres (``pixel_rays.depth_pixels``).
-    Alpha mattes are tested (issue 18): a ray passes through texels with
+    Alpha mattes are tested: a ray passes through texels with
     alpha below an ordered-dither cutoff (``alpha_rays.DITHER``), so maps
     hold leaf shapes, not cards, and a surface of alpha a in a share a of
     the pixels."""

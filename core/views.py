@@ -2,7 +2,8 @@
 
 The camera follows Blender's ``BKE_camera_params_compute_viewplane`` (sensor
 fit, shift, pixel aspect); light views are fitted to the receivers the camera
-sees (issue 2, "Buffers"), so no texel is spent where nothing is shaded.
+sees (DESIGN.md, "Where the buffers come from"), so no texel is spent where
+nothing is shaded.
 """
 from __future__ import annotations
 
@@ -23,8 +24,8 @@ FIT_MARGIN = 0.03
 
 def _rows(m: np.ndarray) -> np.ndarray:
     """``m[:3, :3].T`` as a contiguous array: ``points @`` it is NumPy's
-    BLAS product (a transposed view of a 4x4's corner is not, and took
-    50 ms for 64K points; the same bits, checked on the sample scenes)."""
+    BLAS product (a transposed view of a 4x4's corner is not: NumPy falls
+    back to its generic loop); the product's bits are the same."""
     return np.ascontiguousarray(np.asarray(m, np.float64)[:3, :3].T)
 
 
@@ -162,14 +163,10 @@ def default_map_size(width: int, height: int, kind: str = "area") -> int:
     """A light map's larger side when none is set, for a light of ``kind``:
     sqrt(width x height), rounded, so a map fitted to the receivers holds at
     most as many texels as the output has pixels (the output's larger side
-    for a square one); a sun's: the output's larger side. Issue 15: the
-    output's larger side gave a 1920 x 1908 map at 1920 x 1080, 1.8x the
-    camera's rays; at sqrt pcf's RMSE against embree went 0.0924 -> 0.0909
-    on grids and 0.0192 -> 0.0193 on sphere_plane at 1080p, leaf_cards,
-    foliage and torus_plane within 0.0003 at 960 x 540, single_sample's
-    0.0701 -> 0.0714 and layered's 0.047 -> 0.051 on grids at 512 x 288;
-    a sun's orthographic view spreads its texels over the whole receiver
-    box: sun_pillars 0.0435 -> 0.0536 at 960 x 540, so it keeps the side."""
+    for a square one): a map that is a wide frame's larger side squared
+    costs more rays than the camera's for an error the methods' own
+    sampling hides. A sun's: the output's larger side, as its orthographic
+    view spreads its texels over the whole receiver box."""
     if kind == "sun":
         return max(1, int(width), int(height))
     return max(1, int(round(math.sqrt(float(width) * float(height)))))

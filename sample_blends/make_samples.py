@@ -12,22 +12,22 @@ Writes, next to this script, eight .blend files (Cycles, 512x512 at 100 %):
   The dot in the light's name exercises EXR layer-name sanitising.
 * ``torus_plane.blend``  - Brabec & Seidel 2002, figure 7: a torus above a
   ground plane, lit by a spot light of non-zero radius from above.
-* ``foliage.blend``      - issue 17: a shrub of ~3,000 small, randomly oriented,
+* ``foliage.blend``      - a shrub of ~3,000 small, randomly oriented,
   single-sided leaves on thin stems over a ground plane, under a 1.5 x 0.8 m
   rectangular area light (about the leaf cluster's size). Many small occluders.
-* ``sun_pillars.blend``  - issue 17: two colonnades of thin pillars and arches
+* ``sun_pillars.blend``  - two colonnades of thin pillars and arches
   over a ground plane, under a low sun of 4 degrees angular diameter.
-* ``dense_sphere.blend`` - issue 17, production triangle counts: the contact
+* ``dense_sphere.blend`` - a production triangle count: the contact
   scene of ``bench/scaling.py`` (a smooth sphere resting on a ground plane
   under a 1 m square area light) with the sphere a 64 x 32 UV sphere under a
   Catmull-Clark Subdivision Surface modifier of 4 levels: 1,032,192 triangles
   once evaluated, a few KB of mesh in the file.
-* ``dense_foliage.blend`` - issue 17: ``foliage``'s shrub (the same stems,
+* ``dense_foliage.blend`` - ``foliage``'s shrub (the same stems,
   leaf placements and light) with every leaf one hexagon under a
   Catmull-Clark Subdivision Surface modifier of 3 levels and a Displace
   modifier (Clouds texture, along the normals): curved leaves of 192
   triangles, 576K leaf triangles once evaluated.
-* ``leaf_cards.blend``   - issue 18: alpha-matte occluders under an area light:
+* ``leaf_cards.blend``   - alpha-matte occluders under an area light:
   36 leaf cards with a binary leaf matte (Closest), a chain-link fence card
   (binary, tiled), and four cards with a soft leaf matte (Linear). Each matte
   is an Image Texture whose Alpha drives the Principled BSDF's Alpha; the
@@ -74,7 +74,7 @@ FOLIAGE_CROWN_CENTRE = (0.0, 0.0, 1.25)
 FOLIAGE_CROWN_RADII = (0.75, 0.45, 0.45)   # ellipsoid the branch tips fill
 FOLIAGE_LIGHT_SIZE = (1.5, 0.8)            # rectangle, about the crown's size
 
-# dense scenes (issue 17: production triangle counts, made by modifiers)
+# dense scenes (production triangle counts, made by modifiers)
 DENSE_SPHERE_LEVELS = 4          # Catmull-Clark levels on a 64 x 32 UV sphere: 1,032,192 triangles
 DENSE_LEAF_LEVELS = 3            # Catmull-Clark levels on a hexagonal leaf: 192 triangles
 DENSE_LEAF_DISPLACE = 0.02       # Displace strength (m) along the leaf normal (Clouds, midlevel 0.5)

@@ -1,4 +1,4 @@
-"""Where a cold start's compile time goes (issue 15): one ``penumbra render``
+"""Where a cold start's compile time goes: one ``penumbra render``
 in this process on a fresh Numba cache folder, with a listener on Numba's
 ``numba:compile`` events; prints each dispatcher's compile CPU (the
 compiling thread's CPU time: robust on a loaded machine), self (without the
