@@ -76,11 +76,7 @@ SWEEPS: Dict[str, List] = {
                 ("paper: 4-neighbour splat, nearest pixel, object ids",
                  {"samples": 64, "splat": "neighbours", "bilinear": False, "surfaces": "object"})],
     "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
-                       ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False}),
-                       # issue 17: the sun's reference windows fitted to the receivers (the first version)
-                       ("sun windows fitted to receivers", {"samples": 64, "fit_window": "receivers"}, ("sun",)),
-                       # issue 17: a sun's maps from map_scale alone (no 1024^2 minimum)
-                       ("sun maps from map_scale alone", {"samples": 64, "sun_min_map": 0}, ("sun",))],
+                       ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False})],
     "penumbra_casting": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
                          ("samples=256", {"samples": 256}),
                          # the paper's per-triangle blockers (no coplanar polygons, no interior slices)
@@ -88,7 +84,7 @@ SWEEPS: Dict[str, List] = {
                                                "interior_blockers": False})],
     "irregular": [("silhouettes from centre", {}), ("overlap C=0 (paper)", {"overlap": "zero"}),
                   ("silhouettes from light", {"silhouette_from": "light"}),
-                  # issue 17: V at most the light above the receiver's tangent plane (not the default)
+                  # V at most the light above the receiver's tangent plane (not the default)
                   ("silhouettes from centre, horizon", {"horizon": True})],
 }
 

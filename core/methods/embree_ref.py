@@ -1,31 +1,40 @@
-"""The ray-traced references ``embree`` (average visibility, Agrawala et al.
-equation 2) and ``embree_irr`` (irradiance ratio, equation 1 with / without V).
+"""Monte Carlo shadow rays against the real triangles, method id ``embree``:
+the reference every other method is measured against. Two passes from one
+set of rays:
 
-Per camera pixel, ``samples`` stratified jittered points on the light's
-domain (DESIGN.md "Light domains"), jittered independently per pixel (counter
-hash of seed, pixel, sample), one shadow ray each against the real triangles.
-One set of rays gives both passes (v_i in [0, 1]: a ray's transmittance
-through alpha mattes, issue 18, ``alpha_rays.transmittance``; 0 or 1 in a
-scene without them):
+  * ``embree``: average visibility, Agrawala et al. equation 2,
+    V_avg = (1/N) sum_i v_i;
+  * ``embree_irr``: the irradiance ratio, equation 1 with / without V,
+    V_irr = sum_i w_i v_i / sum_i w_i, w_i = cos(theta_r) cos(theta_l) / d^2
+    (sun: w_i = cos(theta_r)); theta_r at the receiver (normal facing the
+    camera), theta_l at the light (area: its -Z emitting side; sphere: the
+    disk facing the point, as its sampling does). Where sum w_i = 0 (the
+    light cannot reach the point) V_irr = 0; the error measures exclude
+    those pixels.
 
-    V_avg = (1/N) sum_i v_i
-    V_irr = sum_i w_i v_i / sum_i w_i,   w_i = cos(theta_r) cos(theta_l) / d^2
-                                         (sun: w_i = cos(theta_r))
+v_i in [0, 1] is a ray's transmittance: 0 or 1 past opaque triangles, the
+product of (1 - alpha) through alpha mattes (``alpha_rays.transmittance``).
 
-with theta_r at the receiver (normal facing the camera) and theta_l at the
-light (area: its -Z emitting side; sphere: the disk faces the point, as its
-own sampling does). Where sum w_i = 0 (the light cannot reach the point)
-V_irr = 0; those pixels are excluded from every error measure.
+Parameters:
 
-Rays start at the G-buffer point moved off its surface by
-``sampling.offset_origin`` (Wächter & Binder, scaled to the scene extent).
+  ==========  =======  ==================================================
+  samples     64       shadow rays per pixel (1 for a light of size zero)
+  seed        0        seed of the counter hash that jitters the samples
+  ==========  =======  ==================================================
 
-Speed: work is split into batches of about 2^18 rays; each batch is
-generated (a Numba kernel that releases the GIL), traced (embreex ``run()``,
-which measured here scales across threads: 8.6 M rays/s in one thread, 15.7
-M/s in two, so it does not hold the GIL in 4.4.0.post1) and reduced, on one
-worker thread per Numba thread. Each pixel's rays depend only on the seed and
-the pixel, so any thread count gives the same bits.
+Sampling: ``samples`` strata of the light's unit square (``sampling.strata``,
+nx x ny), one jittered point in each, mapped onto the light's domain
+(DESIGN.md "Light domains"); the jitter is a counter hash of (seed, pixel,
+stratum) (``sampling.reference_sample``), so every pixel draws its own,
+decorrelated samples and any method that shoots "the reference's own
+samples" draws the same ones. Rays start at the G-buffer point moved off its
+surface by ``sampling.offset_origin`` (Wächter & Binder, scaled to the scene
+extent).
+
+Rays are generated, traced (embreex's ``run()``, which releases the GIL)
+and reduced in batches of about ``RAYS_PER_BATCH``, one worker thread per
+Numba thread; a pixel's rays depend only on the seed and the pixel, so any
+thread count gives the same bits.
 """
 from __future__ import annotations
 
@@ -79,10 +88,10 @@ def generate_shadow_rays(P, Nrm, pix, lp, ns, seed, scale, org, dirs, tfar, w):
 
 @kernel(opt=HOT, nogil=True)
 def reduce_visibility(trans, w, ns, v_avg, v_irr):
-    """trans: each ray's transmittance (0 or 1 past opaque triangles; issue
-    18: Cycles' product of (1 - alpha) through mattes) -> per-pixel V (eq. 2,
-    eq. 1 ratio). A ray with nothing let through adds nothing (its weight
-    is not multiplied by 0)."""
+    """trans: each ray's transmittance (0 or 1 past opaque triangles, the
+    product of (1 - alpha) through mattes) -> per-pixel V (eq. 2, eq. 1
+    ratio). A ray with nothing let through adds nothing (its weight is not
+    multiplied by 0)."""
     n = v_avg.shape[0]
     for i in range(n):
         lit = 0.0

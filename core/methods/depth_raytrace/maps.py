@@ -24,7 +24,7 @@
   vertices inside the bounding box of receivers and light: an occluder the
   camera does not see (off screen, hidden) still has to be in the map for the
   rays that cross it. A sun's orthographic windows are fitted to what the
-  receivers' rays can pass behind instead (``window``, ``fit_window``).
+  receivers' rays can pass behind instead (``window``).
 
 * Per map: the floor depths with the shadow bias added (``Zp``), the min / max
   depth quadtrees and the connectedness quadtree (section 5.1.1, "Hierarchical
@@ -290,10 +290,10 @@ def _levels(w: int, h: int):
 
 
 def _sun_blockers(buffers, light: Light, pts: np.ndarray, casters: np.ndarray, bounds, map_size: int, bias):
-    """(fit points, pad) of a sun's windows for ``fit_window="blockers"``
-    (``window``): the blocker texels of one view along the sun's centre
-    direction fitted to ``pts`` (the receivers), padded by 2 of its texels;
-    (pts, None) - the receivers' window - when nothing can be blocked."""
+    """(fit points, pad) of a sun's windows (``window``): the blocker texels
+    of one view along the sun's centre direction fitted to ``pts`` (the
+    receivers), padded by 2 of its texels; (pts, None) - the receivers'
+    window - when nothing can be blocked."""
     faces = views.light_view_faces(light, pts, bounds, map_size)
     if not faces:
         return pts, None
@@ -313,12 +313,10 @@ def _sun_blockers(buffers, light: Light, pts: np.ndarray, casters: np.ndarray, b
 def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
                          bias_abs: Optional[float], bias_texels: float, slope_bias: float,
                          gap_abs: Optional[float], gap_texels: float,
-                         threads: Optional[int] = None, fit_window: str = "blockers") -> ReferenceMaps:
-    """``fit_window`` (suns only): "blockers" fits the orthographic windows to
-    the geometry the receivers' rays can pass behind (``window``),
-    "receivers" to every visible receiver (the method's first version)."""
-    if fit_window not in ("blockers", "receivers"):
-        raise ValueError(f"depth_raytrace: unknown fit_window {fit_window!r}")
+                         threads: Optional[int] = None) -> ReferenceMaps:
+    """The reference maps of ``light`` (module docstring), ``map_size`` on a
+    side; a sun's orthographic windows fitted to the geometry the receivers'
+    rays can pass behind (``window``)."""
     scene = buffers.scene
     buffers.shadow_scene      # built here, not in the render threads
     eyes = reference_eyes(light, ref_points)
@@ -331,7 +329,7 @@ def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
     bt = 0.0 if bias_abs is not None else float(bias_texels)
     sb = 0.0 if bias_abs is not None else float(slope_bias)
     pad = None
-    if light.kind == "sun" and fit_window == "blockers" and len(pts):
+    if light.kind == "sun" and len(pts):
         pts, pad = _sun_blockers(buffers, light, pts, buffers.shadow_triangles[0], bounds, map_size,
                                  (ba, bt, sb, ga, gt))
     face_lists = [[_overlapping(f) for f in views.light_view_faces(lt, pts, bounds, map_size, eye, pad)]

@@ -540,7 +540,7 @@ def trace_ray(refs, ox, oy, oz, ex, ey, ez, t_end, sw, ws):
     for q in range(nf):
         f = ws_order[q]
         Lf = ws_line[f]
-        n2 = np.int64(0)     # not the literal 0: _trace_piece would compile twice (issue 15)
+        n2 = np.int64(0)     # not the literal 0: _trace_piece would compile twice
         m = nu if occl else 1
         for j in range(m):
             a = U[j, 0] if occl else 0.0

@@ -2,20 +2,18 @@
 
 The paper "places no restrictions on the position and orientation of the
 reference views" and leaves choosing them open (section 5.1.2, footnote 4).
-Fitting a sun's window to every visible receiver (``fit_window="receivers"``,
-the method's first version) spends the map on ground nothing shadows: on
-``sample_blends/sun_pillars.blend`` the window is 29 m wide, a texel 5.7 cm,
-a 12 cm pillar 2 texels, and the pillars' silhouettes, quantised to texel
-edges (floors and walls), put 0.07 RMSE into the penumbra.
+A window fitted to every visible receiver spends the map on ground nothing
+shadows: under a low sun over a wide ground, thin pillars are a texel or two
+wide, and their silhouettes, quantised to texel edges (floors and walls),
+spread into their penumbrae.
 
 A ray needs the depth images only where it can be blocked, so the window
 only has to hold the *blockers*: the geometry some visible receiver's cone
-of shadow rays can pass behind (``fit_window="blockers"``). Found on one
-orthographic view along the sun's centre direction, fitted to the receivers
-(the old window, same size): a ray from receiver p (depth z_p) leaving at
-most alpha = the sun's half-angle from the view axis lies, at lateral
-distance rho from p, at depth <= z_p - rho cot(alpha). It can therefore be
-behind the floor Zp(q) of texel q only if
+of shadow rays can pass behind. Found on one orthographic view along the
+sun's centre direction, fitted to the receivers: a ray from receiver p
+(depth z_p) leaving at most alpha = the sun's half-angle from the view axis
+lies, at lateral distance rho from p, at depth <= z_p - rho cot(alpha). It
+can therefore be behind the floor Zp(q) of texel q only if
 
     Zp(q) < F(q) = max_p  z_p - cot(alpha) * rho(p, q),
 
@@ -23,9 +21,11 @@ the upper envelope of the receivers' cones, computed with the chessboard
 distance (<= the Euclidean one, so F is over- rather than under-estimated)
 by a two-pass distance transform (``cone_envelope``). The floors carry the
 method's bias, which keeps a receiver in front of its own texel's floor, so
-the receivers' own surfaces do not count. Rays leaving the window are
-unresolved there, which the tracer already treats as unblocked once no image
-knows more (section 5.1: "until ... we pass through all the shadow maps").
+the receivers' own surfaces do not count. Thin caster triangles the render
+can miss between texel centres are added by their vertices
+(``thin_blockers``). Rays leaving the window are unresolved there, which the
+tracer already treats as unblocked once no image knows more (section 5.1:
+"until ... we pass through all the shadow maps").
 """
 from __future__ import annotations
 

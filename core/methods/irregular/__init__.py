@@ -1,115 +1,86 @@
 """Soft irregular shadow mapping (Johnson, Hunt, Hux, Mark, Burns, Junkins
 2009), method id ``irregular``: average visibility (equation 2) exactly at
-the camera's visible points, from the triangles.
+the camera's visible points, from the shadow-casting triangles.
 
-Figure 2, step by step:
-  (a) receiver points: the camera G-buffer hits, moved off their surface by
-      ``sampling.offset_origin`` (the self-intersection scheme the Embree
-      reference uses), stored in a light-space grid (``grid``): a
-      perspective grid from the light centre (one face, or cube faces when
-      the receivers spread wider than 60 degrees), orthographic for a sun;
-      columns x depth slices, receivers stored contiguously by counting sort.
-  (b) umbra (section 2.4): each triangle's light-view projection is tested
-      against the receivers of the columns it covers; the count of triangles
-      between each receiver and the light centre (the "depth complexity") is
-      exact at the receiver points (watertight 3D orientation tests).
-  (c) penumbra quads (2.2): one per silhouette edge w.r.t. the light centre
-      (adjacency from hashing vertex positions, ``mesh``), sized from the
-      light radius and the largest receiver depth, sorted into bins; with
-      ``bin_refine`` each bin rebuilds the quad from its own largest receiver
-      depth, with ``wedge_test`` each column starts at the depth where the
-      edge's penumbra wedge enters it (2.5).
-  (d) for every receiver under a quad, the edge is projected from the
-      receiver onto the light's plane, clipped to the light and measured by
-      equation 3 (disk, ellipse, sphere, sun) or the rectangle kernel
-      (square / rectangle area lights), signed by the edge equation (2.3).
-  Composition: equation 5, V = 1 - clamp(umbra + penumbra - C, 0, 1), with
-      the overlap C between occluders (``overlap``): "sampled" (default)
-      estimates it from the depth complexity at an m x m grid of light
-      samples (Laine et al. 2005's counts, the bitmask section 5.2 mentions):
-      each penumbra term also adds its sign at the samples inside the region
-      it measures, so umbra + counts = the occluders covering each sample and
-      C = mean_j max(count_j - 1, 0); where occluders do not overlap C = 0
-      and V stays the analytic one (no sampling noise), the umbra stays
-      exact. "zero" is the paper's C = 0 (equation 4), bit for bit.
+Parameters (``IrregularParams``):
 
-Per light type (DESIGN.md light domains):
-  * sphere (point / spot, radius r): the disk of radius r through the centre
-    facing each receiver, exactly as the reference samples it (the paper's
-    "disk-projected spherical light"); frame per receiver.
-  * area disk / ellipse: the light's own plane, scaled to the unit disk (an
-    affine map keeps area fractions, so equation 3 stays exact).
-  * area square / rectangle: ``rect_kernel`` (default) uses the exact
-    rectangle kernel section 2.3 allows (Assarsson et al. 2003); off, the
-    disk kernel on the ellipse of equal area and aspect (an approximation;
-    its error is measured in the tests and the report).
-  * sun (angle a): gnomonic projection of directions around the sun
-    direction, where the cone of half-angle a/2 is the disk of radius
-    tan(a/2); the kernel treats that disk as uniform (the reference is
-    uniform in solid angle: relative weight cos^3 of the angle from the
-    axis, 1 - 1e-4 for the real sun's 0.5 degrees).
+  ================  =========  ===============================================
+  silhouette_from   "centre"   silhouettes and layers seen from the light's
+                               centre (5.1) | "light" (see departures)
+  silhouettes       True       penumbra from silhouette edges only (2.1)
+  adjacency         True       adjacency from hashed vertex positions (2.1);
+                               False: "all edges are silhouettes"
+  bin_refine        True       quad width per bin (2.5, first reduction)
+  wedge_test        True       wedge / grid column test (2.5, second one)
+  rect_kernel       True       rectangle kernel for square / rectangle lights
+  overlap           "sampled"  equation 5's C: "sampled" | "zero"
+  overlap_samples   12         light samples per side that estimate C
+  horizon           False      V <= the light above the tangent plane
+  samples_per_cell  16.0       receivers per light-view grid column
+  depth_slices      16         depth cells per grid column (figure 3)
+  bin_size          16         grid columns per side of a bin
+  brute_force       False      every edge at every receiver (ground truth)
+  ================  =========  ===============================================
 
-Departures from the paper, each stated:
-  * the footprint radius R = r (1/z_q - 1/z_p) of section 2.3 is evaluated at
-    both endpoints of the edge (the edge is projected from the receiver onto
-    the light's plane in homogeneous coordinates) rather than at the single
-    point q nearest p; for an edge at constant depth this is the same, for
-    others it is the exact projection;
-  * occluders are counted once per layer: for closed meshes only the faces
-    through which rays from the light centre enter the solid (or leave it,
-    when the centre is inside), so front and back faces of one solid are not
-    summed twice (section 5.2's C = 0 would otherwise double every penumbra
-    of a closed object); open surfaces count every triangle;
-  * the overlap C of equation 5 is estimated on light samples (above)
-    rather than set to 0 (5.2), which over-darkens wherever occluders
-    overlap (foliage at 256^2: RMSE 0.101 -> 0.022, in the penumbra 0.270
-    -> 0.055); its error is the samples' estimate of the overlapping area
-    only;
-  * the remaining approximation is the paper's own: silhouettes from the
-    light centre only (5.1). At a receiver turned partly away from the
-    light (a curved object's terminator, a leaf at a steep angle) the
-    centre's silhouettes miss part of what its own surface hides. With
-    ``horizon`` (issue 17; off by default) V is at most the share of the
-    light above its tangent plane (``horizon.horizon_share``), exact for a
-    convex object, which lies wholly below that plane. 256 x 256 against
-    1024-sample ``embree``, every pixel the light reaches (over the pixels
-    that see the whole light nothing changes): torus_plane 0.0167 ->
-    0.0027, grids 0.0267 -> 0.0194, foliage 0.0323 -> 0.0278, sun_pillars
-    0.0078 -> 0.0051, but sphere_plane 0.0066 -> 0.0100: there the
-    reference sees the whole light from terminator points whose facet
-    plane hides up to half of it (share 0.24-0.45, reference 0.9-1.0):
-    its rays start a few 1e-4 off the facet (``sampling.offset_origin``)
-    and at grazing angles cross the facet's plane beyond its edge, where
-    the tessellated sphere has fallen away.
+Algorithm (figure 2): (a) the receivers, the G-buffer hits moved off their
+surface by ``sampling.offset_origin`` (as the reference), are counting-sorted
+into a light-space grid (``grid``); (b) umbra (2.4, ``umbra``): the count of
+triangles between each receiver and the light's centre, exact at the
+receiver (watertight orientation tests); (c) one penumbra quad per
+silhouette record (2.2, ``mesh``, ``penumbra``), sized from the light radius
+and the largest receiver depth, sorted into bins; (d) every receiver under
+a quad gets the edge projected from it onto the light (``light``), clipped
+and measured by equation 3 or the rectangle kernel, signed by the edge
+equation (2.3, ``geom``). V = 1 - clamp(umbra + penumbra - C, 0, 1) (eq. 5).
 
-Cost per phase: ``silhouettes`` (adjacency + records), ``grid`` (faces,
-counting sort, receiver frames), ``umbra``, ``penumbra`` (quads, binning,
-kernel, sample counts), ``overlap`` (C from the counts).
+Departures from the paper:
+  * the footprint radius R = r (1/z_q - 1/z_p) (2.3) is taken at both edge
+    endpoints (the edge projected from the receiver in homogeneous
+    coordinates), not at the one point q nearest p: the exact projection;
+  * occluders count once per layer: of a closed mesh only the faces through
+    which rays from the light's centre enter it (leave it, when the centre
+    is inside); C = 0 would otherwise double every penumbra of a solid;
+  * C is estimated from the depth complexity at an m x m grid of light
+    samples (Laine et al. 2005's counts; m = ``overlap_samples``): each
+    penumbra term adds its sign at the samples inside the region it
+    measures and C = mean_j max(count_j - 1, 0); without overlap C = 0 and
+    V stays analytic. The paper's version: ``overlap="zero"`` (C = 0,
+    overlapping occluders over-darken);
+  * square / rectangle lights: the exact rectangle kernel (2.3 allows
+    Assarsson et al.'s kernels); the paper's disk kernel, on the ellipse of
+    equal area and aspect: ``rect_kernel=False``;
+  * ``silhouette_from="light"``: edges that are silhouettes from any point of
+    the light, layers counted from each receiver, exact for one closed
+    occluder where the paper's single point of projection (5.1) misses what
+    a receiver's own surface hides. The paper's version: "centre";
+  * ``horizon`` (off: the paper's) bounds V by ``horizon.horizon_share``,
+    exact for a convex object; at a tessellated sphere's terminator it is
+    further from the reference, whose offset rays pass the facet's plane;
+  * alpha-matte casters (not in the paper) are traced apart by the
+    reference's rays (``matte_visibility``) and multiplied into V.
+
+Phases timed: ``silhouettes``, ``grid``, ``umbra``, ``penumbra``,
+``overlap``, ``mattes``, ``horizon``.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ... import raycast, views
-from ..embree_ref import trace_visibility
+from ... import raycast
 from ...sampling import offset_points
-from ..registry import register
-from ..horizon import horizon_share
-from .geom import (SHAPE_DISK, SHAPE_SQUARE, SILHOUETTE_CENTRE, SILHOUETTE_LIGHT, light_samples,
-                   overlap_from_counts)
-from .grid import (QUAD_WHOLE_FACE, BinList, Bins, FaceBounds, KernelLight, LightSamples, Occluders, Quads,
-                   ReceiverGrid, Receivers, Records, assign_faces, bin_entries_from_ranges, bin_quads,
-                   counting_sort_cells, edge_quads, penumbra_bins, penumbra_brute_force, rect_k, triangle_ranges,
-                   umbra_bins, umbra_brute_force)
-from .mesh import classify, mesh_adjacency
 from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
-
-SINGLE_FACE_HALF_ANGLE = math.radians(60.0)   # as views.MAX_SINGLE_VIEW_HALF_ANGLE
-MAX_GRID_SIDE = 4096
+from ..embree_ref import trace_visibility
+from ..horizon import horizon_share
+from ..registry import register
+from .geom import SILHOUETTE_CENTRE, SILHOUETTE_LIGHT, light_samples, overlap_from_counts
+from .grid import BinList, Bins, FaceBounds, Grid, LightSamples, Occluders, ReceiverGrid, Receivers, Records
+from .light import KernelLight, light_model, receiver_frames
+from .mesh import classify, mesh_adjacency
+from .penumbra import QUAD_WHOLE_FACE, Quads, bin_quads, edge_quads, penumbra_bins, penumbra_brute_force
+from .umbra import bin_entries_from_ranges, triangle_ranges, umbra_bins, umbra_brute_force
 
 
 @dataclass
@@ -124,221 +95,17 @@ class IrregularParams:
     wedge_test: bool = True         # 2.5, 2nd overdraw reduction: wedge / grid-column intersection
     rect_kernel: bool = True        # rectangle kernel for square / rectangle lights (False: equal-area disk kernel)
     samples_per_cell: float = 16.0  # receivers per light-view grid column on average (the paper keeps one light-view
-                                    # sample per eye pixel and several per cell; 16 measured fastest on GRIDS 512^2)
+                                    # sample per eye pixel and several per cell)
     depth_slices: int = 16          # depth cells per column of the 3D perspective grid (figure 3)
     bin_size: int = 16              # grid columns per side of a bin (Larrabee sort-middle bins)
     brute_force: bool = False       # every edge against every receiver (ground truth for the quads)
     overlap: str = "sampled"        # 5.2, equation 5's overlap C between occluders: "sampled" (C from the depth
                                     # complexity at overlap_samples^2 light points, so overlapping occluders unite)
                                     # | "zero" (the paper: C = 0, overlapping occluders over-darken)
-    horizon: bool = False           # issue 17: V <= the share of the light above the receiver's tangent plane
-                                    # (its own surface; off by default: worse on sphere_plane, module doc)
+    horizon: bool = False           # V <= the share of the light above the receiver's tangent plane (its own
+                                    # surface hides the rest; off: the paper's silhouettes alone)
     overlap_samples: int = 12       # light samples per side of the grid of equal cells that estimates C (memory:
-                                    # one byte per sample per receiver; foliage 256^2 RMSE 0.040 / 0.022 / 0.016
-                                    # at 8 / 12 / 16, penumbra time +110% / +130% / +160%)
-
-
-# --------------------------------------------------------------------------
-def _basis(n: np.ndarray):
-    """Duff et al. orthonormal basis around unit vectors n[..., 3]."""
-    nx, ny, nz = n[..., 0], n[..., 1], n[..., 2]
-    s = np.where(nz >= 0.0, 1.0, -1.0)
-    a = -1.0 / (s + nz)
-    b = nx * ny * a
-    e1 = np.stack([1.0 + s * nx * nx * a, s * b, -s * nx], -1)
-    e2 = np.stack([b, s + ny * ny * a, -ny], -1)
-    return e1, e2
-
-
-@dataclass
-class LightModel:
-    """The light as the kernels see it."""
-    is_sun: bool
-    shape: int              # SHAPE_DISK | SHAPE_SQUARE
-    centre: np.ndarray      # local: light centre; sun: unit direction towards the sun
-    rL: float               # bounding radius of the light (sun: tan of the half angle)
-    s1: float = 0.0         # half extents of the normalized shape (area lights)
-    s2: float = 0.0
-    approx: str = ""        # which approximation applies, if any
-
-    @property
-    def zero(self) -> bool:
-        return not (self.rL > 0.0)
-
-
-LINE_ASPECT = 1e-6
-
-
-def light_model(light, rect_kernel: bool = True) -> LightModel:
-    if light.kind == "sun":
-        return LightModel(True, SHAPE_DISK, -light.direction, light.sun_spread,
-                          approx="gnomonic disk treated as uniform")
-    c = light.position
-    if light.kind == "sphere":
-        return LightModel(False, SHAPE_DISK, c, float(light.radius))
-    hx, hy = light.half_size
-    # a line light (one side 0): a rectangle / ellipse of relative width
-    # LINE_ASPECT, so the kernels' divisions by the half sizes stay finite
-    hx, hy = max(hx, LINE_ASPECT * hy), max(hy, LINE_ASPECT * hx)
-    if light.is_round:
-        return LightModel(False, SHAPE_DISK, c, max(hx, hy), hx, hy)
-    if rect_kernel:
-        return LightModel(False, SHAPE_SQUARE, c, math.hypot(hx, hy), hx, hy)
-    k = 2.0 / math.sqrt(math.pi)      # ellipse of the rectangle's area and aspect
-    return LightModel(False, SHAPE_DISK, c, max(hx, hy) * k, hx * k, hy * k,
-                      approx="rectangle as equal-area ellipse")
-
-
-def receiver_frames(light, lm: LightModel, Ps: np.ndarray) -> np.ndarray:
-    """float64[n, 12]: e1/s1, e2/s2, n, h_p, p2x, p2y per receiver (see
-    ``geom.penumbra_term``); h_p <= 0 marks receivers without penumbra."""
-    n = len(Ps)
-    RF = np.zeros((n, 12))
-    if n == 0 or lm.zero:
-        return RF
-    if lm.is_sun:
-        w = np.asarray(lm.centre, np.float64)
-        e1, e2 = _basis(w[None])
-        RF[:, 0:3] = e1[0] / lm.rL
-        RF[:, 3:6] = e2[0] / lm.rL
-        RF[:, 6:9] = w
-        RF[:, 9] = 1.0
-        return RF
-    c = np.asarray(lm.centre, np.float64)
-    d = Ps - c
-    if light.kind == "sphere":
-        h = np.linalg.norm(d, axis=1)
-        nrm = d / np.where(h > 0, h, 1.0)[:, None]
-        e1, e2 = _basis(nrm)
-        RF[:, 0:3] = e1 / lm.rL
-        RF[:, 3:6] = e2 / lm.rL
-        RF[:, 6:9] = nrm
-        RF[:, 9] = np.where(h > lm.rL * 1e-9, h, 0.0)
-        return RF
-    ax, ay, az = light.axes
-    side = np.where(d @ az >= 0.0, 1.0, -1.0)
-    nrm = side[:, None] * az[None]
-    h = np.einsum("ij,ij->i", d, nrm)
-    RF[:, 0:3] = ax / lm.s1
-    RF[:, 3:6] = ay / lm.s2
-    RF[:, 6:9] = nrm
-    RF[:, 9] = np.where(h > 1e-12 * max(lm.rL, 1e-300), h, 0.0)
-    RF[:, 10] = d @ (ax / lm.s1)
-    RF[:, 11] = d @ (ay / lm.s2)
-    return RF
-
-
-def grid_faces(light, pts: np.ndarray, bounds):
-    """The light-view faces of the receiver grid (views.py's projections)."""
-    if light.kind == "sun":
-        return views.light_view_faces(light, pts, bounds, 64)
-    eye = light.position
-    fwd = light.direction
-    d = pts - eye
-    dist = np.linalg.norm(d, axis=1)
-    if (dist > 0).all():
-        cosang = (d @ fwd) / dist
-        if cosang.min() >= math.cos(SINGLE_FACE_HALF_ANGLE):
-            f = views.fit_perspective_face(eye, fwd, pts, 64)
-            if f is not None:
-                return [f]
-    return views.cube_faces(eye, pts, 64)
-
-
-def _sized(face, n: int, spc: float):
-    cols = max(1.0, n / max(spc, 1e-3))
-    l, r, b, t = face.bounds
-    aspect = (r - l) / (t - b)
-    gw = int(min(MAX_GRID_SIDE, max(1, round(math.sqrt(cols * aspect)))))
-    gh = int(min(MAX_GRID_SIDE, max(1, round(cols / gw))))
-    return dataclasses.replace(face, width=gw, height=gh)
-
-
-class Grid:
-    """The receiver grid of one light (figure 3) and its per-face data."""
-
-    def __init__(self, light, lm: LightModel, P: np.ndarray, bounds, params: IrregularParams):
-        self.n = len(P)
-        faces = grid_faces(light, P, bounds)
-        packed = np.stack([f.packed() for f in faces]) if faces else np.zeros((0, 24))
-        fu, fv, fz = (np.empty(self.n) for _ in range(3))
-        face = assign_faces(P, packed, fu, fv, fz) if len(faces) else np.full(self.n, -1, np.int64)
-        keep = [f for f in range(len(faces)) if (face == f).any()]
-        counts = [int((face == f).sum()) for f in keep]
-        faces = [_sized(faces[f], c, params.samples_per_cell) for f, c in zip(keep, counts)]
-        self.faces = faces
-        F = len(faces)
-        self.packed = np.stack([f.packed() for f in faces]) if F else np.zeros((0, 24))
-        if F:
-            face = assign_faces(P, self.packed, fu, fv, fz)
-        else:
-            face = np.full(self.n, -1, np.int64)
-        self.face = face
-        gw = np.array([f.width for f in faces], np.int64)
-        gh = np.array([f.height for f in faces], np.int64)
-        B = max(1, int(params.bin_size))
-        self.B = B
-        self.col_base = np.concatenate([[0], np.cumsum(gw * gh)]).astype(np.int64)
-        self.nbx = ((gw + B - 1) // B).astype(np.int64)
-        nby = ((gh + B - 1) // B).astype(np.int64)
-        self.bin_base = np.concatenate([[0], np.cumsum(self.nbx * nby)]).astype(np.int64)
-        self.logz = np.array([not f.ortho for f in faces], np.bool_)
-        zlo = np.zeros(F)
-        zhi = np.zeros(F)
-        for f in range(F):
-            z = fz[face == f]
-            zlo[f], zhi[f] = float(z.min()), float(z.max())
-        self.zlo, self.zhi = zlo, zhi
-        self.gd = max(1, int(params.depth_slices))
-        self.order, self.cell_start, self.colmax, self.binmax = counting_sort_cells(
-            face, fu, fv, fz, self.packed, self.col_base, self.gd, zlo, zhi, self.logz,
-            int(self.col_base[-1]), B, self.bin_base, self.nbx)
-        # face-plane coordinates and depth of the sorted receivers (wedge test)
-        o = self.order
-        self.xyz = np.empty((len(o), 3))
-        if len(o):
-            fo = face[o]
-            fpk = self.packed[fo]
-            self.xyz[:, 0] = fpk[:, 17] + fu[o] / fpk[:, 21] * (fpk[:, 18] - fpk[:, 17])
-            self.xyz[:, 1] = fpk[:, 20] - fv[o] / fpk[:, 22] * (fpk[:, 20] - fpk[:, 19])
-            self.xyz[:, 2] = fz[o]
-        nb = int(self.bin_base[-1])
-        self.bin_face = np.zeros(nb, np.int64)
-        self.bin_bx = np.zeros(nb, np.int64)
-        self.bin_by = np.zeros(nb, np.int64)
-        for f in range(F):
-            ids = np.arange(self.bin_base[f], self.bin_base[f + 1])
-            loc = ids - self.bin_base[f]
-            self.bin_face[ids] = f
-            self.bin_bx[ids] = loc % self.nbx[f]
-            self.bin_by[ids] = loc // self.nbx[f]
-        self.perm = np.random.default_rng(0x15A).permutation(nb).astype(np.int64)
-        # per-face constants of the quad bound (module docstring of grid)
-        self.par = np.zeros(F, np.bool_)
-        self.k = np.ones(F)
-        self.rho = np.zeros(F)
-        self.near = np.zeros(F)          # penumbra: edges clipped to depth >= near
-        self.rnear = np.zeros(F)         # ... unless closer than this to the light centre
-        self.near_u = np.zeros(F)        # umbra: triangles clipped to depth >= near_u
-        axis = None
-        if light.kind == "area":
-            axis = light.axes[2]
-        for f, fc in enumerate(faces):
-            if fc.ortho:
-                continue
-            vz = np.asarray(fc.view_from_world)[2, :3]
-            self.par[f] = axis is not None and abs(float(vz @ axis)) > 1.0 - 1e-12
-            l, r, b, t = fc.bounds
-            self.k[f] = 1.0 if self.par[f] else float(rect_k(l, r, b, t))
-            self.rho[f] = 0.0 if self.par[f] else lm.rL
-            tiny = 1e-7 * zlo[f]
-            self.near[f] = max(2.0 * self.rho[f], tiny)
-            self.rnear[f] = lm.rL + self.k[f] * (self.near[f] + lm.rL)
-            self.near_u[f] = tiny
-
-    @property
-    def shape(self):
-        return [(f.width, f.height) for f in self.faces]
+                                    # one byte per sample per receiver; more: a finer estimate of the overlap)
 
 
 def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams, scale: float,
@@ -461,13 +228,13 @@ MATTE_SAMPLES = 64
 
 
 def matte_visibility(mattes, P, Nrm, idx, light, scale) -> np.ndarray:
-    """Alpha-matte blockers (issue 18; not in the paper): the receivers'
-    average transmittance through them, by the reference's shadow rays
+    """Alpha-matte blockers (not in the paper): the receivers' average
+    transmittance through them, by the reference's shadow rays
     (``embree_ref.trace_visibility``, MATTE_SAMPLES per receiver) against a
     BVH of the matte triangles alone. The opaque triangles go through the
-    algorithm as before and the two are multiplied: the paper's own
-    independence of occluders (C = 0, section 5.2), here between the opaque
-    and the matte layers."""
+    algorithm and the two are multiplied: the paper's own independence of
+    occluders (C = 0, section 5.2), here between the opaque and the matte
+    layers."""
     ns = 1 if light.is_zero_size else MATTE_SAMPLES
     va, _, _ = trace_visibility(mattes, P, Nrm, idx, light, ns, 0, scale)
     return va

@@ -12,17 +12,19 @@ import numba
 import numpy as np
 import pytest
 
+from penumbra.core import views
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.methods import producer_of
+from penumbra.core.methods.depth_raytrace import DepthRaytraceParams, resolve_map_size
+from penumbra.core.methods.depth_raytrace.benchmark import benchmark_table, format_table
 from penumbra.core.methods.depth_raytrace.coherence import inv_concentric, project_to_light
-from penumbra.core.methods.depth_raytrace.maps import fit_points, reference_eyes
+from penumbra.core.methods.depth_raytrace.maps import FP_FOOT, fit_points, reference_eyes
 from penumbra.core.methods.depth_raytrace.window import cone_envelope
-from penumbra.core import views
-from penumbra.core.methods.depth_raytrace import benchmark_table, format_table
 from penumbra.core.metrics import errors, reach_mask
 from penumbra.core.sampling import concentric_disk, light_sample, pack_light
 from penumbra.core.scene import Camera, Light, ObjectInfo, Scene
+from helpers import buffers_of, embree_pass, in_range, rmse, run_method
 from synthetic import (area_light, box, half_plane_scene, light_matrix, pixel_world_y, quad, sphere_light,
                        sun_light, sun_pillars_scene, top_ortho_camera)
 
@@ -30,21 +32,15 @@ HL, HO = 4.0, 2.0     # light and occluder heights of half_plane_scene
 
 
 def run(scene, fb=None, **over):
-    m = producer_of("depth_raytrace")
-    fb = fb or FrameBuffers(scene, *scene.resolution)
-    return m.run(fb, scene.lights[0], m.make_params(over)), fb
+    """``depth_raytrace``'s MethodResult for the scene's light on ``fb`` (or
+    the scene's own buffers), and the buffers."""
+    fb = fb or buffers_of(scene)
+    return run_method("depth_raytrace", fb, scene.lights[0], **over), fb
 
 
-def run_embree(fb, light, samples, seed=0):
-    m = producer_of("embree")
-    return m.run(fb, light, m.make_params({"samples": samples, "seed": seed}))
-
-
-def rmse(a, b, mask=None):
-    d = (np.asarray(a, np.float64) - np.asarray(b, np.float64))
-    if mask is not None:
-        d = d[mask]
-    return float(np.sqrt(np.mean(d * d)))
+def run_embree(fb, light, samples):
+    """The reference's MethodResult (both passes, ``embree`` and ``embree_irr``)."""
+    return run_method("embree", fb, light, samples=samples)
 
 
 # ---------------------------------------------------------------------------
@@ -88,7 +84,7 @@ def test_square_light_half_plane_closed_form():
     expect = np.clip((a / 2 + ys) / a, 0, 1)
     assert np.abs(v.mean(axis=1) - expect).max() < 0.02
     assert v[ys > a].min() == 1.0 and v[ys < -a].max() == 0.0
-    e = run_embree(fb, scene.lights[0], 256).passes["embree"]
+    e = embree_pass(fb, scene.lights[0], 256)
     assert rmse(v, e) < 0.012
 
 
@@ -127,7 +123,7 @@ def test_zero_size_light_is_the_hard_shadow():
     scene = half_plane_scene(area_light(0.0), res=48)
     r, fb = run(scene, samples=256)
     v = r.passes["depth_raytrace"]
-    e = run_embree(fb, scene.lights[0], 1).passes["embree"]
+    e = embree_pass(fb, scene.lights[0], 1)
     assert set(np.unique(v)) <= {0.0, 1.0}
     assert np.mean(v != e) < 0.03
     assert r.stats["samples"] == 1 and r.stats["reference_eyes"] == 1
@@ -140,13 +136,11 @@ SAMPLE_CASES = {
     # Bounds: the method and the reference shoot the same rays, so the
     # difference is the depth images' discretisation (rays passing within
     # about a texel of a silhouette, thin geometry narrower than a texel,
-    # surfaces seen edge-on from the light). Measured (128 px): grids 0.024
-    # (avg) / 0.022 (irr) with the paper's 1024^2 maps - its 0.07-unit bars
-    # are 4 texels wide there -, sphere_plane 0.010 / 0.016 with maps twice
-    # the image (the paper's ratio). For scale, the reference's own Monte
-    # Carlo RMSE at 256 samples is about 0.02 in a penumbra, so these
-    # differences are at the level of the noise the paper calls "no visible
-    # difference"; the bounds leave 1.5x headroom.
+    # surfaces seen edge-on from the light): grids with the paper's 1024^2
+    # maps (its 0.07-unit bars are 4 texels wide there), sphere_plane with
+    # maps twice the image (the paper's ratio). The bounds sit at the level
+    # of the reference's own Monte Carlo noise at 256 samples in a penumbra,
+    # what the paper calls "no visible difference".
     "grids": (96, 1024, 0.04, 0.04),
     "sphere_plane": (96, None, 0.02, 0.03),
 }
@@ -184,7 +178,7 @@ def test_matches_embree_reference(sample_runs, name):
         assert ei["rmse"] < bound_irr, ei
         assert abs(ea["mean_signed"]) < 0.01, ea      # no systematic darkening / light leaks
         for v in res.passes.values():
-            assert np.isfinite(v).all() and v.min() >= 0 and v.max() <= 1
+            assert in_range(v)
         bg = ~d["fb"].gbuffer.hit
         assert (res.passes["depth_raytrace"][bg] == 1).all()
 
@@ -211,13 +205,13 @@ def test_coherent_sampler_driving_embree():
     scene = load_sample("sphere_plane", (64, 64))
     fb = FrameBuffers(scene, 64, 64)
     light = scene.lights[0]
-    e = run_embree(fb, light, 256)
+    e = embree_pass(fb, light, 256)
     mask = reach_mask(fb.gbuffer, light)
     coh, _ = run(scene, fb, samples=256, tracer="embree")
     plain, _ = run(scene, fb, samples=256, tracer="embree", coherence=False)
-    d = plain.passes["depth_raytrace"] - e.passes["embree"]
+    d = plain.passes["depth_raytrace"] - e
     assert np.mean(d[mask] != 0) < 0.02 and rmse(d, 0, mask) < 0.01
-    assert rmse(coh.passes["depth_raytrace"], e.passes["embree"], mask) < 0.01
+    assert rmse(coh.passes["depth_raytrace"], e, mask) < 0.01
     assert coh.stats["rays_per_pixel"] < 0.5 * 256
 
 
@@ -267,7 +261,7 @@ def ablation():
 
     def go(**over):
         return m.run(fb, light, m.make_params(dict(base, **over)), maps=maps).passes["depth_raytrace"]
-    return go, go(), reach_mask(fb.gbuffer, light), run_embree(fb, light, 64).passes["embree"]
+    return go, go(), reach_mask(fb.gbuffer, light), embree_pass(fb, light, 64)
 
 
 def test_hierarchical_connectedness_is_exact(ablation):
@@ -296,10 +290,9 @@ def test_minmax_clipping_is_exact(ablation):
 def test_image_combination_switches_change_little(ablation):
     """Ranking, the clear miss and occlusion intervals change which reference
     image decides a ray, and the images disagree by up to their
-    discretisation (here 128^2 maps: measured 3-5 % of pixels differ, RMSE
-    0.009-0.017 between settings). None of them is less accurate: every
-    setting stays within 0.005 of the full method's RMSE against the reference
-    (measured: 0.016-0.018)."""
+    discretisation (here 128^2 maps: a few per cent of the pixels differ
+    between settings). None of them is less accurate: every setting stays
+    within 0.005 of the full method's RMSE against the reference."""
     go, full, mask, ref = ablation
     base_err = rmse(full, ref, mask)
     for over in ({"rank_images": False}, {"occlusion_intervals": False},
@@ -315,7 +308,7 @@ def test_image_combination_switches_change_little(ablation):
 
 
 # ---------------------------------------------------------------------------
-# a sun's windows (issue 17: thin pillars under a 4-degree sun)
+# a sun's windows and maps (thin pillars under a 4-degree sun)
 def test_cone_envelope_is_the_chessboard_upper_envelope():
     """window.cone_envelope = max_q R(q) - step * chessboard distance, brute force."""
     rng = np.random.default_rng(4)
@@ -333,92 +326,67 @@ def test_cone_envelope_is_the_chessboard_upper_envelope():
 @pytest.fixture(scope="module")
 def sun_pillars():
     """Thin pillars (6 cm) under a 4-degree sun at 20 degrees, the camera seeing
-    the ground far beyond their shadows: the receivers' window is about 40 m
-    wide, a texel of its 128^2 maps over 20 cm, several pillar widths."""
+    the ground far beyond their shadows: a window holding every receiver is
+    about 40 m wide, a texel of 128^2 maps over it 20 cm, several pillar
+    widths."""
     scene = sun_pillars_scene(64)
     fb = FrameBuffers(scene, 64, 64)
     light = scene.lights[0]
-    e = run_embree(fb, light, 64).passes["embree"]
+    e = embree_pass(fb, light, 64)
     mask = reach_mask(fb.gbuffer, light)
-    out = {}
-    for fw in ("blockers", "receivers"):
-        m = producer_of("depth_raytrace")
-        p = m.make_params({"samples": 64, "fit_window": fw})
-        out[fw] = (m.run(fb, light, p).passes["depth_raytrace"], m.build_maps(fb, light, p))
-    return fb, light, e, mask, out
+    m = producer_of("depth_raytrace")
+    p = m.make_params({"samples": 64})
+    return scene, fb, light, e, mask, m.run(fb, light, p).passes["depth_raytrace"], m.build_maps(fb, light, p)
 
 
 def test_sun_thin_pillars_match_embree(sun_pillars):
     """Fitted to what can block, the windows hold the pillars at a texel of a
-    few cm and the method matches the reference's rays (same samples); fitted
-    to every receiver (the first version) the pillars fall between texel
-    centres and most of their shadows vanish. Measured on the ground: RMSE
-    0.010 (penumbra 0.046, 186 pixels) with 128^2 maps against 0.079 (0.30);
-    the bounds leave about 1.5x headroom (with the 512^2 maps of
-    ``sun_min_map``, the default here: 0.0027 / 0.012)."""
-    fb, light, e, mask, out = sun_pillars
+    few cm and the method matches the reference's rays (same samples) on the
+    ground and in the pillars' penumbrae; a window fitted to every receiver
+    would give the same maps texels of 20 cm and more, wider than a pillar,
+    which falls between texel centres."""
+    _, fb, light, e, mask, vb, mb = sun_pillars
     ground = mask & (fb.gbuffer.object_id == 0)
     pen = ground & (e > 0.02) & (e < 0.98)
-    (vb, mb), (vr, mr) = out["blockers"], out["receivers"]
     assert pen.sum() > 100
     assert rmse(vb, e, ground) < 0.02 and rmse(vb, e, pen) < 0.07
     assert rmse(vb, e, mask) < 0.04           # the pillars' own faces, a few pixels each
     assert abs(np.mean((vb - e)[mask])) < 0.005
-    assert rmse(vr, e, ground) > 4 * rmse(vb, e, ground)
-    # the texels: receivers' windows 30 cm, the blockers' a few cm
-    from penumbra.core.methods.depth_raytrace.maps import FP_FOOT
-    assert mr.faces[:, FP_FOOT].min() > 0.2 and mb.faces[:, FP_FOOT].max() < 0.05
+    # the texels: the receivers' windows (at 128^2) 30 cm, the blockers' a few cm
+    casters = fb.shadow_triangles[0].reshape(-1, 3).astype(np.float64)
+    pts = fit_points(fb, light, casters)
+    receivers = [f for _, lt in reference_eyes(light, 4)
+                 for f in views.light_view_faces(lt, pts, fb.scene.bounds(), 128)]
+    foot = [0.5 * ((f.bounds[1] - f.bounds[0]) / f.width + (f.bounds[3] - f.bounds[2]) / f.height)
+            for f in receivers]
+    assert min(foot) > 0.2 and mb.faces[:, FP_FOOT].max() < 0.05
 
 
-def test_sun_min_map_sharpens_the_pillars_penumbrae():
-    """Issue 17: with the windows fitted to the blockers, the texel follows
-    the pillars' extent, not the output's pixels, and at 64 px the 128^2
-    maps (map_scale 2) quantise the pillars' silhouettes into their
-    penumbrae. ``sun_min_map`` (default 1024, the paper's maps, here up to
-    4 x 128 = 512) against the reference's own rays (same samples, so its
-    noise cancels): ground penumbra RMSE measured 0.046 (128^2), 0.027
-    (256^2), 0.012 (512^2), 0.0094 (1024^2): falling with the texel. Other
-    lights and the receivers' windows keep map_scale alone, and so does a
-    tiny output (the warm-up's 8 px: 64^2 maps, not 1024^2)."""
-    from penumbra.core.methods.depth_raytrace import DepthRaytraceParams, resolve_map_size
-    scene = sun_pillars_scene(64)
-    fb = FrameBuffers(scene, 64, 64)
-    light = scene.lights[0]
+def test_sun_maps_are_at_least_the_papers_size(sun_pillars):
+    """With the windows fitted to the blockers, the texel follows the
+    pillars' extent, not the output's pixels, and at 64 px maps of
+    map_scale x 64 = 128 quantise the pillars' silhouettes into their
+    penumbrae. A sun's maps are at least ``SUN_MIN_MAP`` (the paper's 1024)
+    on a side, at most ``SUN_MIN_MAP_REACH`` x the map_scale side (here 512):
+    against the reference's own rays (same samples, so its noise cancels)
+    the ground penumbra's error falls with the texel. Other lights keep
+    map_scale alone, and so does a tiny output (8 px: 64^2 maps, not
+    1024^2)."""
+    scene, fb, light, e, mask, v_default, _ = sun_pillars
     assert resolve_map_size(DepthRaytraceParams(), 256, 256, light) == 1024
     assert resolve_map_size(DepthRaytraceParams(), 64, 64, light) == 512
     assert resolve_map_size(DepthRaytraceParams(), 8, 8, light) == 64
-    assert resolve_map_size(DepthRaytraceParams(sun_min_map=0), 64, 64, light) == 128
-    assert resolve_map_size(DepthRaytraceParams(fit_window="receivers"), 64, 64, light) == 128
     assert resolve_map_size(DepthRaytraceParams(map_size=96), 64, 64, light) == 96
     assert resolve_map_size(DepthRaytraceParams(), 64, 64, area_light(1.0)) == 128
     assert resolve_map_size(DepthRaytraceParams(), 1024, 512, light) == 2048
-    e = run_embree(fb, light, 64).passes["embree"]
-    mask = reach_mask(fb.gbuffer, light)
     pen = mask & (fb.gbuffer.object_id == 0) & (e > 0.02) & (e < 0.98)
     err = {}
-    for mm in (0, 256, 512):
-        v, _ = run(scene, fb, samples=64, sun_min_map=mm)
-        err[mm] = rmse(v.passes["depth_raytrace"], e, pen)
-    assert err[512] < 0.02 and err[512] < 0.5 * err[0] and err[256] < err[0], err
-
-
-def test_sun_receivers_window_is_the_first_version(sun_pillars):
-    """``fit_window="receivers"`` places the views as the method's first
-    version did (views fitted to every receiver, padded by the cone across the
-    scene); the switch changes nothing for other lights."""
-    fb, light, _, _, out = sun_pillars
-    _, mr = out["receivers"]
-    casters = fb.shadow_triangles[0].reshape(-1, 3).astype(np.float64)
-    pts = fit_points(fb, light, casters)
-    faces = [f for _, lt in reference_eyes(light, 4)
-             for f in views.light_view_faces(lt, pts, fb.scene.bounds(), 128)]
-    assert len(faces) == mr.face_count
-    for n, f in enumerate(faces):
-        np.testing.assert_array_equal(mr.faces[n, 17:23], np.r_[f.bounds, f.width, f.height])
-    scene = half_plane_scene(area_light(1.0), res=24)
-    a, fb2 = run(scene, samples=16)
-    b, _ = run(scene, fb2, samples=16, fit_window="receivers")
-    np.testing.assert_array_equal(a.passes["depth_raytrace"], b.passes["depth_raytrace"])
+    for side in (128, 256, 512):
+        v, _ = run(scene, fb, samples=64, map_size=side)
+        err[side] = rmse(v.passes["depth_raytrace"], e, pen)
+        if side == 512:                       # the default's maps at 64 px
+            np.testing.assert_array_equal(v.passes["depth_raytrace"], v_default)
+    assert err[512] < 0.02 and err[512] < 0.5 * err[128] and err[256] < err[128], err
 
 
 # ---------------------------------------------------------------------------
@@ -537,7 +505,7 @@ def hard_cases():
 def test_hard_cases_finite_and_in_range(name, scene):
     r, fb = run(scene, samples=16)
     for v in r.passes.values():
-        assert v.dtype == np.float32 and np.isfinite(v).all() and v.min() >= 0 and v.max() <= 1
+        assert in_range(v)
         assert (v[~fb.gbuffer.hit] == 1).all()
     if name == "light_in_box":   # a closed box around the light: (almost) everything blocked
         v = r.passes["depth_raytrace"][fb.gbuffer.hit]
@@ -548,7 +516,7 @@ def test_hard_cases_finite_and_in_range(name, scene):
     # (its corners see the occluder edge-on: rays leak, +0.19)
     if name in ("contact", "coplanar", "behind_light", "tiny_scene", "huge_scene", "sphere",
                 "sun", "ellipse", "spot"):
-        e = run_embree(fb, scene.lights[0], 16).passes["embree"]
+        e = embree_pass(fb, scene.lights[0], 16)
         m = reach_mask(fb.gbuffer, scene.lights[0])
         assert rmse(r.passes["depth_raytrace"], e, m) < 0.08, name
 
@@ -574,12 +542,11 @@ def test_deterministic_and_thread_count_independent():
 
 def test_tile_workers_do_not_change_the_result(monkeypatch):
     """The tracer's tiles run on worker threads (serial ``nogil`` kernels,
-    ``_trace_tiles``): 1 and 3 workers give the same bits."""
-    import penumbra.core.methods.depth_raytrace as dr
+    ``tiles.trace_tiles``): 1 and 3 workers give the same bits."""
     scene = half_plane_scene(area_light(1.0), res=40)
-    monkeypatch.setattr(dr.numba, "get_num_threads", lambda: 1)
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 1)
     a, fb = run(scene, samples=64)
-    monkeypatch.setattr(dr.numba, "get_num_threads", lambda: 3)
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 3)
     b, _ = run(scene, fb, samples=64)
     for k in a.passes:
         np.testing.assert_array_equal(a.passes[k], b.passes[k])

@@ -1,20 +1,17 @@
-"""The ray-traced references against closed forms (no bpy)."""
-import math
-
+"""The ray-traced references ``embree`` / ``embree_irr`` against closed
+forms (no bpy)."""
 import numpy as np
 import pytest
 
-from penumbra.core.buffers import FrameBuffers
-from penumbra.core.methods import producer_of
+from helpers import buffers_of, in_range, run_method
 from synthetic import area_light, half_plane_scene, pixel_world_y, sphere_light, sun_light
 
 HL, HO = 4.0, 2.0   # light and occluder heights used by half_plane_scene
 
 
 def run_embree(scene, samples=256, seed=0):
-    m = producer_of("embree")
-    fb = FrameBuffers(scene, *scene.resolution)
-    return m.run(fb, scene.lights[0], m.make_params({"samples": samples, "seed": seed}))
+    """The reference's MethodResult (both passes) on the scene's own buffers."""
+    return run_method("embree", buffers_of(scene), scene.lights[0], samples=samples, seed=seed)
 
 
 def row_means(img):
@@ -116,4 +113,4 @@ def test_values_finite_and_in_range():
     scene = half_plane_scene(area_light(size=2.0, shape="ELLIPSE", size_y=0.5), res=32)
     r = run_embree(scene, samples=32)
     for v in r.passes.values():
-        assert np.isfinite(v).all() and v.min() >= 0 and v.max() <= 1
+        assert in_range(v)
