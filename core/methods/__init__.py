@@ -19,16 +19,28 @@ EXTERNAL_PASSES = {
     "cycles": (IRRADIANCE, "Cycles render with / without the light's shadow"),
 }
 
+#: the order methods are listed in (the UI, ``--methods all``): the papers',
+#: then the references
+ORDER = ("pcf", "single_sample", "layered", "depth_raytrace", "penumbra_casting", "irregular", "embree")
+
+
 def _load():
-    # import order = display order
     from . import (pcf, embree_ref, single_sample, layered, depth_raytrace,  # noqa: F401
                    penumbra_casting, irregular)
 
 
-def pass_ids(external: bool = True) -> List[str]:
-    """Every pass id a registered method writes, then the external ones."""
+def producers() -> Dict[str, Method]:
+    """Every registered method by id, in ``ORDER`` (others after it)."""
     _load()
-    return list(_PASS_TO_PRODUCER) + (list(EXTERNAL_PASSES) if external else [])
+    rank = {mid: i for i, mid in enumerate(ORDER)}
+    return {mid: _PRODUCERS[mid] for mid in sorted(_PRODUCERS, key=lambda m: rank.get(m, len(rank)))}
+
+
+def pass_ids(external: bool = True) -> List[str]:
+    """Every pass id a registered method writes, in producer order, then
+    the external ones."""
+    own = [pid for m in producers().values() for pid in m.passes]
+    return own + (list(EXTERNAL_PASSES) if external else [])
 
 
 def is_external(pass_id: str) -> bool:
@@ -45,7 +57,3 @@ def producer_of(pass_id: str) -> Method:
     _load()
     return _PRODUCERS[_PASS_TO_PRODUCER[pass_id]]
 
-
-def producers() -> Dict[str, Method]:
-    _load()
-    return dict(_PRODUCERS)

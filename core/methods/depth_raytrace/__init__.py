@@ -71,8 +71,8 @@ import numpy as np
 from ... import sampling
 from ...sampling import strata
 from ...scene import Light
-from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, SHADOW_TRIANGLES,
-                    Method, MethodResult, PhaseTimer)
+from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, PRECOMPUTE, SHADOW_GEOMETRY,
+                    SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer)
 from ..registry import register
 from .coherence import M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_RAYS, M_SEEDED, M_SIZE, Points, Sampler
 from .maps import ReferenceMaps, build_reference_maps
@@ -134,7 +134,7 @@ class DepthRaytrace(Method):
     id = "depth_raytrace"
     paper = "Agrawala, Ramamoorthi, Heirich, Moll 2000, section 5"
     passes = {"depth_raytrace": AVERAGE, "depth_raytrace_irr": IRRADIANCE}
-    needs = frozenset({GBUFFER, SHADOW_GEOMETRY, SHADOW_TRIANGLES, LIGHT_SAMPLE_VIEWS})
+    needs = frozenset({GBUFFER, SHADOW_GEOMETRY, SHADOW_TRIANGLES, LIGHT_SAMPLE_VIEWS, PRECOMPUTE})
     packed = True                # shades each receiver of a packed G-buffer on its own
     Params = DepthRaytraceParams
     physical = True
@@ -184,7 +184,7 @@ class DepthRaytrace(Method):
         elif params.tracer == "depth":
             if maps is None:
                 with timer("reference_maps"):
-                    maps = buffers.frame_memo("depth_raytrace.maps", light, params,
+                    maps = buffers.precomputed("depth_raytrace.maps", light, params,
                                               lambda: self.build_maps(buffers, light, params))
             stats["reference_faces"] = maps.face_count
             stats["reference_eyes"] = int(len(maps.eyes))

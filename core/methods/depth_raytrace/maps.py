@@ -317,12 +317,11 @@ def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
     """The reference maps of ``light`` (module docstring), ``map_size`` on a
     side; a sun's orthographic windows fitted to the geometry the receivers'
     rays can pass behind (``window``)."""
-    scene = buffers.scene
     buffers.shadow_scene      # built here, not in the render threads
     eyes = reference_eyes(light, ref_points)
     casters = buffers.shadow_triangles[0].reshape(-1, 3).astype(np.float64)
     pts = fit_points(buffers, light, casters)
-    bounds = scene.bounds()
+    bounds = buffers.bounds()
     ga = float(gap_abs) if gap_abs is not None else 0.0
     gt = 0.0 if gap_abs is not None else float(gap_texels)
     ba = float(bias_abs) if bias_abs is not None else 0.0

@@ -201,7 +201,7 @@ def coherent_order(idx: np.ndarray, width: int, tile: int):
 
 def camera_footprint(buffers) -> np.ndarray:
     """Camera pixel footprint (scene units) at each pixel's depth, float64[H*W]."""
-    cam = buffers.scene.camera
+    cam = buffers.camera
     W, H = buffers.width, buffers.height
     xmin, xmax, _, _ = views.camera_viewplane(cam, W, H)
     per = (xmax - xmin) / W

@@ -69,7 +69,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ... import raycast
 from ...sampling import offset_points
 from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 from ..embree_ref import trace_visibility
@@ -256,11 +255,11 @@ class SoftIrregularShadowMapping(Method):
         with timer("select"):
             idx, P, Nrm = g.hit_points()
             tris, tobj = buffers.shadow_triangles
-            has, mattes = raycast.TriangleScene.matte_casters(buffers.scene)
+            has, mattes = buffers.matte_casters
             if has is not None:
                 tris, tobj = tris[~has], tobj[~has]
         V, _, _, stats = soft_irregular(P, Nrm, tris, tobj, light, params, buffers.scale, timer,
-                                        bounds=buffers.scene.bounds())
+                                        bounds=buffers.bounds())
         if mattes is not None:
             with timer("mattes"):
                 V = V * matte_visibility(mattes, P, Nrm, g.seed_ids(idx), light, buffers.scale)
