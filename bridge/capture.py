@@ -517,7 +517,7 @@ def _assemble(scene, depsgraph, resolution, pieces, infos, lights, mattes) -> Sc
 
 def _assemble_mattes(pieces, mattes: MatteCapture):
     """AlphaMattes over the concatenated (object-ordered) pieces, or None
-    when no piece has a matte (the scene is then captured as before)."""
+    when no piece has a matte (the scene is then captured without mattes)."""
     if all(p[2] is None for p in pieces):
         return None
     tri_matte = np.concatenate([p[2][0] if p[2] is not None else np.full(len(p[1]), -1, np.int32)

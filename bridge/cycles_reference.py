@@ -18,7 +18,7 @@ event estimation only, no adaptive sampling, no denoising, no light-sampling
 threshold, no clamping, no time limit; the world is removed for the render
 (it would light the scene too) and so are the other lights (``hide_render``).
 
-Alpha mattes (issue 18): an override replaces every material, so a scene
+Alpha mattes: an override replaces every material, so a scene
 whose materials hold a matte (``bridge/mattes.py`` reads them as the capture
 does) is rendered without ``material_override``: every material slot gets the
 white diffuse instead, except those with a matte, which get a white copy that
@@ -27,7 +27,7 @@ the same image node, interpolation, extension and UV map, or the constant),
 and ``transparent_max_bounces`` is 64 (at 0 alpha cards cast solid shadows;
 BLENDER_NOTES "Alpha mattes"). Checked in bpy 5.0.1. Materials the capture
 treats as opaque are white and opaque here too. Scenes without mattes render
-exactly as before (the override, no transparent bounces).
+with the override and no transparent bounces.
 
 The renders go to a temporary folder as multilayer EXR (the "Render Result"
 image has no pixels in background mode; checked in bpy 5.0.1) and the Diffuse

@@ -1,4 +1,4 @@
-"""Alpha mattes from Blender materials (issue 18): the capture side of
+"""Alpha mattes from Blender materials: the capture side of
 ``core/alpha.py``.
 
 A material's alpha as Cycles sees it, read from its node tree (the Surface

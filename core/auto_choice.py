@@ -1,7 +1,7 @@
 """``auto``: per light, the cheapest method whose measured error meets the
-scene's error budget (issue 6, "Only the effects a scene calls for").
+scene's error budget.
 
-The measurements are the accuracy study's (``bench/study.py``, issue 7): every
+The measurements are the accuracy study's (``bench/study.py``): every
 method on the sample scenes against ``embree`` at 1024 samples. The study
 writes ``bench/results/auto_table.json``; a full run (``make bench``) also
 installs it here as ``core/auto_table.json`` (``python -m penumbra.bench.study
@@ -18,8 +18,8 @@ The rules, in order (each decision says which one in its reason):
 3. Scene matching: the table's scenes lit by the same kind of light (area,
    sphere, sun); when none is, every measured scene. With the scene at hand
    (rule 5), of those the ones that, like it, have (or have not) shadow-casting
-   alpha mattes (issue 18: rays through mattes cost what the triangle count
-   does not say), when the table has any. The light's size is not
+   alpha mattes (rays through mattes cost what the triangle count does not
+   say), when the table has any. The light's size is not
    matched: the scenes' penumbra widths depend on size *relative to* their
    distances, which a size alone does not give. A method counts with its
    *worst* RMSE over the matched scenes (so it meets the budget only if it
@@ -106,7 +106,7 @@ class SceneShape:
     triangles: int               # shadow-casting triangles
     pixels: int                  # output pixels
     light_relative: float        # light extent / distance from the light to the casters' centre
-    mattes: int = 0              # shadow-casting triangles with an alpha matte (issue 18)
+    mattes: int = 0              # shadow-casting triangles with an alpha matte
 
     def describe(self) -> str:
         return (f"{self.triangles:,} triangles" + (f" ({self.mattes:,} alpha-matted)" if self.mattes else "")
@@ -134,16 +134,12 @@ def scene_shape(scene, light) -> SceneShape:
 #: a number b: time x (T ratio)^b; a pair (b_up, b_down): b_up for a scene with
 #: more triangles than the measured one, b_down for fewer; light: time x
 #: (relative size ratio)^c.
-#: embree and penumbra_casting: bench/scaling.py. Penumbra casting's cost is
-#: linear in the triangles whose penumbra covers a receiver: the sample scenes
-#: dense_foliage (foliage's leaves curved, 12.8K -> 577K triangles, 480x270,
-#: 64 samples: 82x the time, T^1.16; embree 2.9x) and dense_sphere (smooth
-#: sphere 10K -> 1M at 1080p: 14.6x, T^0.58, the closed-solid levers; embree
-#: 1.5x, the log model). Taken as T^1.2 up and T^1 down, on the side of
-#: picking the reference; the paper's table 2 gives pixels^0.6-0.8 and 4x
-#: light area -> 2-5x time.
-#: The map methods: one rasterization of the triangles and a per-pixel filter
-#: (assumed, not measured at 1M triangles).
+#: embree and penumbra_casting: fitted to ``bench/scaling.py``'s runs on the
+#: dense sample scenes (``bench/results/scaling.md``); penumbra casting's
+#: cost is linear in the triangles whose penumbra covers a receiver, so its
+#: exponent is taken on the side of picking the reference; its pixel and
+#: light exponents follow the paper's table 2. The map methods: one
+#: rasterization of the triangles and a per-pixel filter (assumed).
 COST_MODEL = {
     "embree": (1.0, "log", 0.0),
     "embree_irr": (1.0, "log", 0.0),

@@ -225,7 +225,7 @@ class FrameBuffers:
     def _bvh(self, key, phase, mask, other, other_key, other_mask) -> raycast.TriangleScene:
         """The Embree BVH of the triangles ``mask`` selects, timed as ``key``:
         the other BVH (``other``, built as ``other_key`` from ``other_mask``)
-        when it holds the same triangles (one build per frame, issue 15)."""
+        when it holds the same triangles (one build per frame)."""
         if other is not None and np.array_equal(mask, other_mask):
             return self._timed(key, phase, lambda: other, built_from=(other_key,))
         return self._timed(key, phase, lambda: raycast.TriangleScene.from_scene(self.scene, mask))
@@ -332,12 +332,11 @@ class FrameBuffers:
 
     def _receiver_points(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(subsampled hit positions, their box's lo, hi), gathered once per
-        frame from the G-buffer (a 1080p G-buffer holds 2 M of them)."""
+        frame from the G-buffer."""
         if self._receivers is None:
             g = self.gbuffer
             # the box in one pass over the G-buffer (``kernels.hit_box``) and only the
-            # subsample gathered: the hits' gather and per-axis reductions took ~40 ms
-            # at 1080p (a fifth of the raw primary-ray time; issue 15)
+            # subsample gathered, not every hit
             idx = np.flatnonzero(g.hit)
             flat = np.ascontiguousarray(g.position.reshape(-1, 3), np.float64)
             lo, hi = None, None

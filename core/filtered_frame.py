@@ -1,4 +1,4 @@
-"""One frame filtered the way the scene renders (issue 14; ``pixel_filter``).
+"""One frame filtered the way the scene renders (``pixel_filter``).
 
 Two stages, both ``frame.render_frame`` with the methods unchanged:
 

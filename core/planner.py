@@ -134,7 +134,7 @@ _EXTENSION_NAMES = {REPEAT: "Repeat", EXTEND: "Extend", CLIP: "Clip"}
 
 
 def alpha_notes(scene: Scene) -> List[str]:
-    """The plan's words on alpha mattes (issue 18): the mattes captured
+    """The plan's words on alpha mattes: the mattes captured
     (``scene.alpha``) and the materials treated as opaque because the capture
     could not read their transparency (``scene.alpha_opaque``, filled by
     ``bridge/capture.py``). Empty for a scene without either."""
