@@ -143,13 +143,13 @@ from typing import Optional
 
 import numpy as np
 
-from ..jit import HOT, inner, kernel
-from ..kernels import borrowed, each_dealt_chunk, each_range, face_project
-from ..sampling import rand01
-from .registry import register
-from .horizon import scale_by_horizon
-from .surfaces import mesh_pieces
-from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
+from ...jit import HOT, inner, kernel
+from ...kernels import borrowed, each_dealt_chunk, each_range, face_project
+from ...sampling import rand01
+from ..registry import register
+from ..horizon import scale_by_horizon
+from ..surfaces import mesh_pieces
+from ..base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
 # packed parameter layout for the kernels
 (P_AUTO, P_MEET, P_RSCALE, P_RBIAS, P_RSHRINK, P_MAXRAD, P_JITTER, P_EDGE, P_PLANE, P_IDTEST,
