@@ -655,6 +655,9 @@ def test_the_hard_test_over_pixel_ranges_is_the_warp_of_each_pixel(make):
     pixels on any thread count) gives every pixel the face, hard result and
     id of the out-of-line ``_warp`` called on that pixel alone."""
     from penumbra.core.methods import single_sample as ss
+    from penumbra.core.methods.single_sample.packed import pack_params
+    from penumbra.core.methods.single_sample.shade import hard_all
+    from penumbra.core.methods.single_sample.warp import _warp
     scene = _leaf_scene(make)
     light = scene.lights[0]
     fb = FrameBuffers(scene, *scene.resolution)
@@ -667,12 +670,12 @@ def test_the_hard_test_over_pixel_ranges_is_the_warp_of_each_pixel(make):
     depth = np.ascontiguousarray(lv.depth, np.float32)
     ids = np.ascontiguousarray(lv.object_id, np.int32)
     pid = np.ascontiguousarray(g.object_id.reshape(-1), np.int32)
-    prm = ss.pack_params(SingleSampleSoftShadows().make_params({}), light, False, ss._coord_mag(scene, light))
+    prm = pack_params(SingleSampleSoftShadows().make_params({}), light, False, ss._coord_mag(scene, light))
     n = P.shape[0]
     got = []
     for threads in (1, 2):
         arrs = np.empty(n, np.int32), np.empty(n, np.int8), np.empty(n, np.int32)
-        ss.hard_all(P, Nrm, hit, faces, depth, ids, prm, *arrs, pid, threads=threads)
+        hard_all(P, Nrm, hit, faces, depth, ids, prm, *arrs, pid, threads=threads)
         got.append(arrs)
     for a, b in zip(*got):
         np.testing.assert_array_equal(a, b)
@@ -680,7 +683,7 @@ def test_the_hard_test_over_pixel_ranges_is_the_warp_of_each_pixel(make):
     assert (hinner[hit] == 1).any() and (hinner[hit] == 0).any()
     assert (hface[~hit] == -2).all() and (hid[~hit] == -1).all()
     for i in np.flatnonzero(hit):
-        f, u, v, zr, inner = ss._warp(P, Nrm, i, faces, depth, prm)[:5]
+        f, u, v, zr, inner = _warp(P, Nrm, i, faces, depth, prm)[:5]
         assert hface[i] == f and hinner[i] == (1 if inner else 0), i
         if f >= 0 and inner:
             assert hid[i] == ids[f, min(int(math.floor(v)), lv.depth.shape[1] - 1),
