@@ -24,6 +24,7 @@ def run_ss(scene, fb=None, light=None, **over):
     fb = fb or FrameBuffers(scene, *scene.resolution)
     p = m.make_params({})
     for k, v in over.items():
+        assert hasattr(p, k), k
         setattr(p, k, v)
     r = m.run(fb, light or scene.lights[0], p)
     return r.passes["single_sample"], r, fb
@@ -425,22 +426,6 @@ def test_raw_knobs_follow_the_paper():
     np.testing.assert_array_equal(v0, hard)
 
 
-def test_blocker_rules_and_ramps():
-    """With one occluder depth the "ratio" rule picks the nearest texel too;
-    the "extent" ramp (Parker's whole penumbra) is wider than the "slope" one
-    by the light's extent over its central chord: 4/pi for a disk."""
-    scene = half_plane_scene(area_light(size=1.0, shape="DISK", z=HL), res=64, occluder_z=2.0)
-    fb = FrameBuffers(scene, 64, 64)
-    v_near, _, _ = run_ss(scene, fb, adaptive=False, **PAPER)
-    v_ratio, _, _ = run_ss(scene, fb, adaptive=False, blocker="ratio", surfaces="object")
-    np.testing.assert_array_equal(v_near, v_ratio)
-    v_ext, _, _ = run_ss(scene, fb, adaptive=False, ramp="extent", **PAPER)
-    ratio = penumbra_width(scene, v_ext) / penumbra_width(scene, v_near)
-    assert abs(ratio - 4 / math.pi) < 0.08
-    with pytest.raises(ValueError):
-        run_ss(scene, fb, layer="bogus")
-
-
 def test_deterministic_and_parameters_in_json_form():
     scene = box_scene(area_light(1.0, z=HL))
     a, r1, fb = run_ss(scene, jitter=0.5, adaptive=True)
@@ -628,7 +613,7 @@ def test_adaptive_follows_the_blocker_rule():
 
 def test_unknown_blocker_and_surfaces_rejected():
     scene = half_plane_scene(area_light(1.0, z=HL), res=16)
-    for over in ({"blocker": "max"}, {"surfaces": "faces"}):
+    for over in ({"blocker": "max"}, {"blocker": "ratio"}, {"surfaces": "faces"}, {"layer": "bogus"}):
         with pytest.raises(ValueError):
             run_ss(scene, **over)
 
@@ -693,17 +678,27 @@ def test_the_hard_test_over_pixel_ranges_is_the_warp_of_each_pixel(make):
 
 
 @pytest.mark.parametrize("make", LEAF_LIGHTS)
-def test_passing_over_hopeless_tiles_changes_no_pixel(make):
-    """Issue 15: the ring search skips the texels of tiles whose depth range
-    and id rule out a candidate (``_tile_hopeless``); V is the same as with
-    every texel read (tile_skip off), for the nearest-blocker and ratio
-    searches, adaptive or not, and fewer texels are read."""
+def test_passing_over_hopeless_tiles_changes_no_pixel(make, monkeypatch):
+    """The search skips boxes and ring texels of tiles whose depth range and
+    id rule out a candidate (``_tile_range``, ``_tile_hopeless``); V is the
+    same as with tiles that rule out nothing (every texel read), for the
+    nearest-blocker search, adaptive or not, with jitter, with the paper's
+    radius knobs, and for the sum; fewer texels are read."""
+    import penumbra.core.methods.single_sample as ss
     scene = _leaf_scene(make)
     fb = FrameBuffers(scene, *scene.resolution)
-    for over in (dict(blocker="nearest", surfaces="object"), dict(blocker="ratio", adaptive=False),
-                 dict(blocker="nearest", jitter=0.5, adaptive=False)):
-        on, r_on, _ = run_ss(scene, fb, tile_skip=True, **over)
-        off, r_off, _ = run_ss(scene, fb, tile_skip=False, **over)
+    real = ss.tile_depth_range
+
+    def open_tiles(depth, ids):         # every tile may hold every depth and several ids
+        t = real(depth, ids)
+        t[..., 0], t[..., 1], t[..., 2] = -np.inf, np.inf, -2.0
+        return t
+    for over in (dict(blocker="nearest", surfaces="object"), dict(blocker="nearest", jitter=0.5, adaptive=False),
+                 dict(blocker="nearest", auto_radius=False, adaptive=False), dict(adaptive=False)):
+        on, r_on, _ = run_ss(scene, fb, **over)
+        with monkeypatch.context() as mp:
+            mp.setattr(ss, "tile_depth_range", open_tiles)
+            off, r_off, _ = run_ss(scene, fb, **over)
         np.testing.assert_array_equal(on, off)
         assert r_on.stats["searched"] == r_off.stats["searched"] > 0
         assert r_on.stats["texels_read"] < r_off.stats["texels_read"], over

@@ -171,11 +171,8 @@ class SingleSampleParams:
     id_test: bool = True          # section 3.2: blockers must have another object id
     bias_texels: float = 0.5      # hard-test tolerance, texels of receiver slope + texel size
     blocker: str = "sum"          # "sum" (adds up the light every blocker texel hides; needs
-                                  # auto_radius, else "nearest") | "nearest" (paper) | "ratio"
-                                  # (min r / r_max over blockers)
+                                  # auto_radius, else "nearest") | "nearest" (paper)
     surfaces: str = "mesh"        # what one id is: "mesh" (connected mesh pieces) | "object" (paper)
-    ramp: str = "slope"           # auto_radius: "slope" (true slope at the edge) | "extent" (whole penumbra)
-    tile_skip: bool = True        # skip search boxes the 8x8 tiles' depth range rules out (not in the paper)
     horizon: bool = True          # V x the share of the light above the receiver's tangent plane (issue 17;
                                   # False: the paper, an object never shadows itself softly)
     map_size: Optional[int] = None  # light map's larger side; None = views.default_map_size

@@ -10,9 +10,9 @@ import numpy as np
 
 # packed parameter layout for the kernels
 (P_AUTO, P_MEET, P_RSCALE, P_RBIAS, P_RSHRINK, P_MAXRAD, P_JITTER, P_EDGE, P_PLANE, P_IDTEST,
- P_BIAS, P_RATIO, P_SEED, P_KIND, P_RADIUS, P_SUNTAN, P_NORM, P_HARD, P_TOLREL, P_TOLABS,
- P_GSCALE, P_TILES, P_SUM) = range(23)
-N_PRM = 23
+ P_BIAS, P_SEED, P_KIND, P_RADIUS, P_SUNTAN, P_NORM, P_HARD, P_TOLREL, P_TOLABS,
+ P_GSCALE, P_SUM) = range(21)
+N_PRM = 21
 # relative float32 precision allowance of stored depths (Embree hit distances
 # are float32; a few ULPs of the depth and of the largest coordinate)
 TOL_REL = 4e-6
@@ -36,29 +36,25 @@ def pack_params(params, light, hard_only: bool, coord_mag: float) -> np.ndarray:
     prm[P_EDGE] = 1.0 if params.edge_distance else 0.0
     if params.layer not in ("plane", "constant"):
         raise ValueError(f"single_sample: layer must be 'plane' or 'constant', not {params.layer!r}")
-    if params.blocker not in ("nearest", "ratio", "sum"):
-        raise ValueError(f"single_sample: blocker must be 'nearest', 'ratio' or 'sum', not {params.blocker!r}")
+    if params.blocker not in ("nearest", "sum"):
+        raise ValueError(f"single_sample: blocker must be 'nearest' or 'sum', not {params.blocker!r}")
     prm[P_PLANE] = 1.0 if params.layer == "plane" else 0.0
     prm[P_IDTEST] = 1.0 if params.id_test else 0.0
     prm[P_BIAS] = max(float(params.bias_texels), 0.0)
-    prm[P_RATIO] = 1.0 if params.blocker == "ratio" else 0.0
     add_up = params.blocker == "sum" and params.auto_radius   # the light's real shape
     prm[P_SUM] = 1.0 if add_up else 0.0
     prm[P_SEED] = float(int(params.seed) & 0x7FFFFFFF)
     prm[P_KIND] = light.kind_code
     prm[P_RADIUS] = float(light.radius)
     prm[P_SUNTAN] = light.sun_spread
-    if params.ramp not in ("slope", "extent"):
-        raise ValueError(f"single_sample: ramp must be 'slope' or 'extent', not {params.ramp!r}")
     rect = light.kind == "area" and not light.is_round
-    if params.ramp == "extent" or add_up:   # the ramp spans the whole penumbra
+    if add_up:                           # the light's whole shape
         prm[P_NORM] = NORM_MAX if rect else NORM_EUCLID
         prm[P_GSCALE] = 1.0
     else:                                # the ramp has the true slope at V = meet
         prm[P_NORM] = NORM_L1 if rect else NORM_EUCLID
         prm[P_GSCALE] = 1.0 if rect else 4.0 / math.pi
     prm[P_HARD] = 1.0 if (hard_only or light.is_zero_size) else 0.0
-    prm[P_TILES] = 1.0 if params.tile_skip else 0.0
     prm[P_TOLREL] = TOL_REL
     prm[P_TOLABS] = TOL_ABS_PER_COORD * coord_mag
     return prm

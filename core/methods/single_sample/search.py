@@ -8,30 +8,28 @@ import numpy as np
 
 from ...jit import inner
 from ...sampling import rand01
-from .gauge import _s_of
 from .layer import _nearer
-from .packed import NORM_L1, NORM_MAX, P_AUTO, P_EDGE, P_IDTEST, P_JITTER, P_RATIO, P_RSHRINK, P_SEED, P_TILES
+from .packed import NORM_L1, P_EDGE, P_IDTEST, P_JITTER, P_SEED
 from .tiles import TILE, _tile_hopeless
 
 
-SearchPoint = namedtuple("SearchPoint", "u v zr inner pid pid_in_map")
+SearchPoint = namedtuple("SearchPoint", "u v inner pid pid_in_map")
 """The receiver in the map: texel coordinates, depth, inner (own-object lit
 texel) or outer (blocker) search, its object id and whether that id is in
 the map."""
 
 
 @inner
-def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, zscale_max):
+def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm):
     """Ring-ordered axis-aligned box scan (sections 4.2, 4.3, figure 4).
 
-    Returns (found, rho, z) of the selected texel: the nearest in the gauge
-    (``blocker="nearest"``), or for outer searches with ``blocker="ratio"``
-    the one with the least rho / r_max(z). pt: SearchPoint; layer: Layer;
-    gauge: Gauge. With ``tile_skip`` and the constant layer, texels of a
-    tile that cannot hold a candidate (``_tile_hopeless``) are passed over
-    unread: the same texels are candidates, in the same order (issue 15:
-    failed searches read most of the texels)."""
-    u, v, zr, inner, pid, pid_in_map = pt.u, pt.v, pt.zr, pt.inner, pt.pid, pt.pid_in_map
+    Returns (found, rho, z, texels read): the candidate texel nearest to P'
+    in the gauge, its rho and depth. pt: SearchPoint; layer: Layer; gauge:
+    Gauge. Under the constant layer, texels of a tile that cannot hold a
+    candidate (``tiles._tile_hopeless``) are passed over unread: the same
+    texels are candidates, in the same order, and a failed search (which
+    scans the whole box) reads far fewer texels."""
+    u, v, inner, pid, pid_in_map = pt.u, pt.v, pt.inner, pt.pid, pt.pid_in_map
     A, B, C, ortho, tol = layer.A, layer.B, layer.C, layer.ortho, layer.tol
     G00, G01, G10, G11, norm, emax = gauge.G00, gauge.G01, gauge.G10, gauge.G11, gauge.norm, gauge.emax
     h, w = depth_f.shape
@@ -41,14 +39,11 @@ def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, 
     jit = prm[P_JITTER]
     seed = int(prm[P_SEED])
     use_id = prm[P_IDTEST] == 1.0
-    auto = prm[P_AUTO] == 1.0
-    ratio = prm[P_RATIO] == 1.0 and not inner
-    tskip = prm[P_TILES] == 1.0 and A == 0.0 and B == 0.0    # the layer is C at every texel
+    tskip = A == 0.0 and B == 0.0    # the layer is C at every texel
     cb0, ca0, ch0 = -1, -1, False
     cb1, ca1, ch1 = -1, -1, False
     off = (1.0 if edge else 0.5) + 0.5 * jit
     best = np.inf
-    best_key = np.inf
     best_z = 0.0
     found = False
     nvis = 0
@@ -58,12 +53,8 @@ def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, 
             lb = 0.0
         if lb > rho_max:
             break
-        if found:
-            if ratio:
-                if lb / zscale_max > best_key:
-                    break
-            elif lb > best:
-                break
+        if found and lb > best:
+            break
         t0 = iv - c
         t1 = iv + c
         for t in range(max(t0, 0), min(t1, h - 1) + 1):
@@ -124,26 +115,13 @@ def _search(depth_f, id_f, tiles_f, fidx, pt, layer, gauge, rho_max, crad, prm, 
                     dv = math.copysign(max(abs(dv) - 0.5, 0.0), dv)
                 x = G00 * du + G01 * dv
                 y = G10 * du + G11 * dv
-                if norm == NORM_MAX:
-                    rho = max(abs(x), abs(y))
-                elif norm == NORM_L1:
+                if norm == NORM_L1:
                     rho = abs(x) + abs(y)
                 else:
                     rho = math.sqrt(x * x + y * y)
                 if rho > rho_max:
                     continue
-                if ratio:
-                    if auto:
-                        sc = _s_of(d, zr, ortho)
-                    else:
-                        sc = rho_max * prm[P_RSHRINK] * (zr - d)
-                    k = rho / sc if sc > 0.0 else np.inf
-                    if not found or k < best_key:
-                        best_key = k
-                        best = rho
-                        best_z = d
-                        found = True
-                elif rho < best:
+                if rho < best:
                     best = rho
                     best_z = d
                     found = True

@@ -9,7 +9,7 @@ from .coverage import _coverage
 from .gauge import Gauge, _s_of, _shape
 from .layer import Layer, _layer_range
 from .packed import (NORM_EUCLID, P_AUTO, P_HARD, P_IDTEST, P_JITTER, P_MAXRAD, P_MEET, P_NORM, P_PLANE, P_RBIAS,
-                     P_RSCALE, P_RSHRINK, P_SUM, P_TILES)
+                     P_RSCALE, P_RSHRINK, P_SUM)
 from .search import SearchPoint, _search
 from .tiles import _tile_range
 from .warp import _warp, _warp_inline
@@ -55,7 +55,7 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
     # tiles bounds every candidate texel in it
     iu = int(math.floor(u))
     iv = int(math.floor(v))
-    nrep = 0 if prm[P_TILES] == 0.0 else (2 if (auto and not search_inner) else 1)
+    nrep = 2 if (auto and not search_inner) else 1
     for _rep in range(nrep):
         c = int(math.ceil(min(rho_max * emax + off, maxrad)))
         zbox_lo, zbox_hi, own = _tile_range(tiles[f], iu, iv, c, pid)
@@ -77,17 +77,11 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
         cov, nvis = _coverage(depth[f], ids[f], u, v, zr, pid, Layer(A, B, C, ortho, tol),
                               G00, G01, G10, G11, norm, crad, prm[P_IDTEST] == 1.0)
         return 1.0 - cov, rho_max * emax + off, nvis
-    if inner:
-        zs_max = 1.0
-    elif auto:
-        zs_max = rho_max
-    else:
-        zs_max = rho_max * prm[P_RSHRINK] * (zr - finfo[f, 6])
     rtex = rho_max * emax
     crad = int(math.ceil(min(rtex + off, maxrad)))
-    found, rho, zb, nvis = _search(depth[f], ids[f], tiles[f], f, SearchPoint(u, v, zr, inner, pid, pid_in_map),
+    found, rho, zb, nvis = _search(depth[f], ids[f], tiles[f], f, SearchPoint(u, v, inner, pid, pid_in_map),
                                    Layer(A, B, C, ortho, tol), Gauge(G00, G01, G10, G11, norm, emax),
-                                   rho_max, crad, prm, zs_max)
+                                   rho_max, crad, prm)
     rtex += off
     if not found:
         return hard, rtex, nvis
