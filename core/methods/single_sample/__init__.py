@@ -1,138 +1,64 @@
 """Single sample soft shadows (Brabec & Seidel 2002), method id ``single_sample``.
 
-One depth map and one object-ID map from the light centre (``LIGHT_VIEW``)
-and the camera G-buffer with object ids (``GBUFFER``). Every camera pixel is
-warped into the light view at float precision (P'_x, P'_y, P'_z; P'_z is the
-depth along the face's axis), then (section 3.3):
+The pass ``single_sample`` (AVERAGE-like: plausible, not physical) from one
+depth and object-id map seen from the light's centre (``LIGHT_VIEW``: cube
+faces for point lights, orthographic for a sun) and the camera G-buffer.
 
-* hard test (section 3.2): the texel under P' is nearer than the receiver ->
-  *inner* (umbra side), else *outer* (lit side);
-* outer: search the nearest *blocker* texel (nearer than the receiver's layer
-  and a different object id); inner: the nearest *lit* texel (at or behind
-  the layer and the receiver's own id); radius r_max = r_scale |P'_z| + r_bias
-  rescaled by r_shrink and the blocker-receiver depth difference;
-* the two halves meet at ``meet`` = 0.5:
-  outer V = meet + (1 - meet) clamp(r / r_max),  inner V = meet (1 - clamp(r / r_max));
-  a failed search gives 1 (outer) or 0 (inner), as in the listing.
+Parameters (``SingleSampleParams``), name = default: meaning
+  blocker = "sum"      the light every blocker texel hides, added up | "nearest"
+  surfaces = "mesh"    one id per connected mesh piece | "object": object ids
+  horizon = True       V x the light's share above the receiver's tangent plane
+  auto_radius = True   r and r_max from the light's real shape and size
+  adaptive = None      4.3's interpolation (None: on for "nearest" only); block = 4
+  meet = 0.5           V where the inner and outer penumbrae meet (3.3)
+  r_scale, r_bias, r_shrink = 2.0, 0.0, 0.25   3.2's knobs, texels (auto_radius off)
+  max_radius = 64.0    search box half size cap, texels per 256 texels of map side
+  jitter, seed = 0.0, 0  4.3's blocker texel jitter (texels) and its hash seed
+  edge_distance = True r to the texel's square rather than to its centre
+  layer = "constant"   3.2's layer P'_z | "plane": the receiver's tangent plane,
+                       which a tilted receiver never crosses, even without ids
+  id_test = True       blockers carry another id than the receiver (3.2)
+  bias_texels = 0.5    hard-test tolerance, texels of receiver slope + texel size
+  map_size = None      the light map's larger side (``views.default_map_size``)
 
-Search as section 4.2 / 4.3 does it: an axis-aligned box scanned in square
-rings around P' (so it stops as soon as no nearer texel can exist), the
-distance measured from the float P' (figure 4), texels optionally jittered
-(``jitter``, section 4.3, for very low-resolution maps). Before scanning, the
-least / largest depth and the single object id of the 8x8 tiles under the
-box (not in the paper; ``tile_skip``) rule out boxes that cannot hold a
-candidate, and tighten the outer box to s(least depth under it).
+Algorithm. Each pixel is warped into the light view at float precision and
+hard-tested (3.2, 4.3 "subpixel accuracy"; ``warp``). A lit pixel searches
+for the nearest blocker texel (in front of the layer, another id), a
+shadowed one for the nearest lit texel of its own id (3.3): the box around
+P' in square rings until no nearer texel can exist (4.2; ``search``), 8 x 8
+depth-range tiles passing over texels that cannot qualify (``tiles``). With
+3.2's f = r / r_max: outer V = meet + (1 - meet) clamp(f), inner V = meet
+(1 - clamp(f)); a failed search gives 1 / 0 (3.3). ``adaptive`` (4.3): hard
+test and id on every pixel; groups of block + 1 pixels along every block-th
+column, then every row, searched at their ends, interpolated inside where
+hard results and ids agree, else split at the middle. A light of size zero
+gives exactly the hard test; pixels outside the light view get V = 1.
 
-Adaptive sampling (section 4.3, ``adaptive``): the hard test and its id (the
-blocker's where inner, the receiver's where lit) on every pixel; in every
-``block``-th column, groups of ``block`` + 1 pixels with both ends searched;
-where hard results and ids (and, conservatively, the light-view face) agree
-over the group the inner pixels are interpolated linearly, else the middle
-is searched and both halves are treated the same way; then every row fills
-the gaps between those columns. The subdivision depends only on the hard
-test, so it is walked twice: once to mark the pixels to search (all
-searched in one parallel pass), once to interpolate. ``stats["searched"]``
-counts the searched pixels, ``stats["texels_read"]`` the texels scanned.
-
-Departures from the printed listing (each keeps the paper's stated intent):
-
-* the listing's return values ``0.5 clamp(r/r_max)`` (inner) and
-  ``1 - 0.5 clamp(r/r_max)`` (outer) run the wrong way: they are 1 next to a
-  blocker and jump to the failure values 0 / 1 at r_max, against section
-  3.2's f = r / r_max "rises from 0 (no illumination) to 1". The formulas
-  above are section 3.2's f folded at ``meet``: continuous at r_max and at
-  the hard edge;
-* the inner rescale uses the depth of the blocker over P (the hard test's
-  texel): the listing's ``depth_light[s,t] - P'_z`` is the *lit* texel's own
-  depth, about P'_z on any receiver facing the light, which would make r_max
-  0 and every umbra 0.5; section 3.2 describes the rescale as "the distance
-  between occluder and receiver";
-* searches use the paper's constant virtual layer P'_z (``layer="constant"``,
-  default); ``layer="plane"`` tests texels against the receiver's tangent
-  plane extended over the search box instead, so on a receiver tilted to
-  the light the nearer side's own texels still count as lit in the inner
-  search. Measured on the sample scenes it changes RMSE by under 2% (slightly
-  worse), so the paper's layer stays the default;
-* the hard test compares the map with the receiver's tangent plane at the
-  texel centre, less a slope-scaled tolerance of ``bias_texels`` texels of the
-  receiver's depth slope and world texel size plus float32 precision: the
-  offset scheme is in units of the map's own sampling, not per scene;
-* with ``edge_distance`` (default) r is the distance from P' to the texel's
-  square rather than to its centre, so inner and outer both reach ``meet`` at
-  the texel boundary of the hard test (the paper's "ring" artifact, section 5,
-  is the half-texel jump the centre distance leaves there).
-
-Beyond the paper (its section 6 future work): ``auto_radius`` (default) takes
-the radius from the light's real size. A blocker at depth z_b and texel
-offset d from P' blocks part of the light iff d lies in the light's shape
-scaled by s(z_b) = 1/z_b - 1/P'_z (perspective faces; s = P'_z - z_b for a
-sun's orthographic face): similar triangles, to first order in the light's
-size, with the shape projected into the face along the ray from P. So r is
-measured in a norm of the light's own shape and r_max = s(blocker depth).
-``ramp`` picks the norm:
-
-* ``"slope"`` (default): the ramp has the true slope of V at the hard edge
-  of a straight occluder edge (full width = light area / the light's chord
-  through its centre along the edge): the 1-norm on the half axes for
-  squares and rectangles (exact for edges along an axis), the Euclidean /
-  elliptic norm scaled by 4/pi for disks, ellipses, spheres and suns;
-* ``"extent"``: the ramp spans the whole penumbra (Parker's outer hull: the
-  max-norm for rectangles, the plain Euclidean / elliptic norm otherwise).
-  Its tails are too long: measured RMSE against ``embree`` is 10-30% higher.
-
-The search box is the unit ball scaled by s(nearest depth under the box) for
-outer searches, by s(blocker over P) for inner ones, capped at
-``max_radius`` texels; a penumbra wider than the cap is narrowed to it (V
-still reaches 0 / 1 at the box edge; ``stats["clipped"]`` counts those
-pixels). In this mode r_scale, r_bias and r_shrink are unused: the paper's
-linear r_scale |P'_z| + r_bias with a constant r_shrink cannot express
-1/z_b - 1/P'_z. ``auto_radius=False`` is the paper's formula with its raw
-knobs, in texels (the same narrowing applies when r_shrink asks for a
-radius beyond the search box).
-
-Lights (the paper assumes a point light with a size knob):
-
-* area lights: the light's rectangle / ellipse (its real half sizes and axes,
-  projected into the face along the ray from P);
-* point / spot lights of radius r: the disk of radius r facing P (DESIGN.md's
-  light domain). Point lights use cube faces: P is searched in the face that
-  holds it (``kernels.pick_face``), texels beyond that face's border count as
-  neither blocker nor lit;
-* sun: the orthographic view along the sun; the cone of half-angle angle/2
-  around the sun direction has a disk cross-section of radius
-  tan(angle/2) (P'_z - z_b) at the blocker's depth.
-
-Several blockers (issue 17; section 3.4's single ramp from the nearest
-texel cannot add them up): ``blocker="sum"`` replaces the inner / outer
-searches by the light each blocker texel in the box hides, back-projected
-through the light's real shape and added up (``_coverage``; clamped to 1,
-renormalised where the box is clipped; with ``auto_radius`` off, the
-paper's knobs, the nearest blocker). Exact for disjoint planar blockers
-(two half-planes each hiding half of the light: V = 0 where the paper's
-ramp says 0.5 or more); it still sees only what the light's centre sees.
-``surfaces="mesh"`` gives every connected mesh piece its own id
-(``surfaces.mesh_pieces``; "object": object ids, the paper's grouping), so a
-shrub's leaves, one object, shadow each other. Measured on foliage (256 x
-256): RMSE 0.075 (paper) -> 0.044 (sum + mesh).
-
-The receiver's own surface (issue 17; ``horizon``, default on): the id
-test keeps a receiver from shadowing itself, so a surface turned partly
-away from the light (a leaf at a steep angle, a curved object's
-terminator) got the light below its tangent plane as lit. V is multiplied
-by the share of the light above that plane (``horizon.horizon_share``,
-closed forms; computed only where V > 0), as if the blockers hid the light
-above and below it alike. On issue 17's foliage (256 x 256, against 1024-sample
-embree) 2 % of the pixels the light reaches do not see the whole light and
-held 79 % of the squared error: RMSE over every pixel the light reaches
-0.080 -> 0.046; over the pixels that see the whole light (issue 17's
-measure) 0.037, unchanged. ``horizon=False`` is the paper's.
-
-A light of size zero gives exactly the hard test (no search, no horizon). Pixels outside
-every face of the view, behind a perspective eye, or with no G-buffer hit
-get V = 1. The pass is average-visibility-like (AVERAGE) but not physical:
-the attenuation is a linear ramp from the nearest texel, the umbra of an
-occluder is never lit through, and an object never soft-shadows itself
-(id test; its hard self-shadows stay).
+Departures from the paper
+* 3.3's listing returns 0.5 f (inner) and 1 - 0.5 f (outer): 1 next to a
+  blocker, a jump at r_max. The formulas above are 3.2's f folded at
+  ``meet``; the inner rescale uses the blocker over P, not the lit texel
+  (3.2: "the distance between occluder and receiver").
+* auto_radius (section 6's future work): a blocker texel at depth z_b hides
+  light iff its offset lies in the light's shape (area rectangle / ellipse,
+  the disk facing P, a sun's cone) scaled by s(z_b) = 1/z_b - 1/P'_z
+  (P'_z - z_b for a sun); r is measured in that shape's norm with the true
+  slope at a straight edge (1-norm on a rectangle's half axes, elliptic
+  x 4/pi), r_max = s(z_b). The paper's: auto_radius=False.
+* blocker="sum" back-projects every blocker texel of the box through the
+  light's shape (``coverage``): 3.4's one ramp cannot add up several
+  blockers. The paper's: blocker="nearest".
+* surfaces="mesh" lets the leaves of one object shadow each other. The
+  paper's: surfaces="object" (section 5 groups polygons by scene node).
+* horizon: the id test leaves a surface turned partly away from the light
+  fully lit; V x ``horizon.horizon_share``. The paper's: horizon=False.
+* edge_distance: r to the texel's square reaches ``meet`` at the hard edge;
+  figure 4's centre distance leaves section 5's "ring" there. The paper's:
+  edge_distance=False.
+* adaptive=None searches every pixel for the sum, whose V is not linear
+  between a group's ends. The paper's: adaptive=True.
+* bias_texels: a slope-scaled hard-test tolerance in the map's own texels;
+  the listing compares depths directly. The paper's: bias_texels=0.
 """
 from __future__ import annotations
 
@@ -153,37 +79,32 @@ from .tiles import tile_depth_range
 
 @dataclass
 class SingleSampleParams:
-    # raw knobs of section 3.2 (used when auto_radius is False); the paper
-    # gives no values except the 20-texel r_max of its torus scene (section 5)
-    r_scale: float = 2.0          # texels per scene unit of |P'_z|
-    r_bias: float = 0.0           # texels (footnote 2: a minimum penumbra width)
-    r_shrink: float = 0.25        # per scene unit of blocker-receiver depth
-    max_radius: float = 64.0      # search box half size cap, texels of a 256-texel map, scaled
-                                  # with the map's side (section 5 used r_max = 20 at 256x256)
-    meet: float = 0.5             # section 3.3: inner and outer penumbra meet at 0.5
-    auto_radius: bool = True      # radius from the light's real size (section 6 future work)
-    adaptive: Optional[bool] = None  # section 4.3 interpolation over 4x4 blocks; None: on for the
-                                  # ramps ("nearest", "ratio"), off for "sum" (not linear there)
-    block: int = 4                # section 4.3: groups of 5 pixels, every 4th column
-    jitter: float = 0.0           # section 4.3: blocker texel jitter (texels; 0 = off)
-    edge_distance: bool = True    # distance to the texel's square (else its centre, figure 4)
+    r_scale: float = 2.0          # section 3.2: r_max texels per scene unit of |P'_z| (auto_radius off)
+    r_bias: float = 0.0           # section 3.2: r_max's constant term, texels (its footnote 2)
+    r_shrink: float = 0.25        # section 3.2: rescale per scene unit of blocker-receiver depth
+    max_radius: float = 64.0      # search box half size cap, texels per 256 texels of the map's side
+    meet: float = 0.5             # section 3.3: V where the inner and outer penumbrae meet
+    auto_radius: bool = True      # radius from the light's real shape and size (False: the paper's knobs)
+    adaptive: Optional[bool] = None  # section 4.3's interpolation; None: on unless blocker="sum"
+    block: int = 4                # section 4.3: group step, groups of block + 1 pixels
+    jitter: float = 0.0           # section 4.3: blocker texel jitter, texels (0: off)
+    edge_distance: bool = True    # r to the texel's square (False: to its centre, figure 4)
     layer: str = "constant"       # "constant" (P'_z, section 3.2) | "plane" (receiver's tangent plane)
-    id_test: bool = True          # section 3.2: blockers must have another object id
+    id_test: bool = True          # section 3.2: blockers carry another id than the receiver
     bias_texels: float = 0.5      # hard-test tolerance, texels of receiver slope + texel size
-    blocker: str = "sum"          # "sum" (adds up the light every blocker texel hides; needs
-                                  # auto_radius, else "nearest") | "nearest" (paper)
-    surfaces: str = "mesh"        # what one id is: "mesh" (connected mesh pieces) | "object" (paper)
-    horizon: bool = True          # V x the share of the light above the receiver's tangent plane (issue 17;
-                                  # False: the paper, an object never shadows itself softly)
+    blocker: str = "sum"          # "sum" (the light every blocker texel hides; needs auto_radius,
+                                  # else "nearest") | "nearest" (the paper's)
+    surfaces: str = "mesh"        # one id per: "mesh" (connected mesh piece) | "object" (the paper's)
+    horizon: bool = True          # V x the light's share above the tangent plane (False: the paper's)
     map_size: Optional[int] = None  # light map's larger side; None = views.default_map_size
     seed: int = 0                 # jitter hash seed
 
 
 def resolved_adaptive(params: SingleSampleParams) -> bool:
-    """``adaptive``, or when None: on for the paper's ramps, off for
+    """``adaptive``, or when None: on for the paper's ramp, off for
     ``blocker="sum"`` (section 4.3's criterion, equal hard results and ids,
     is made for a ramp from the nearest texel; the summed V is not linear
-    between the group's ends: torus_plane's ground RMSE 0.015 -> 0.048)."""
+    between a group's ends, and interpolating it blurs the penumbrae)."""
     if params.adaptive is not None:
         return bool(params.adaptive)
     return not (params.blocker == "sum" and params.auto_radius)

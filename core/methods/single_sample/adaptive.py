@@ -58,7 +58,7 @@ def _walk(hface, hinner, hid, need, out, idx0, stride, marks, ends, interpolate)
                 need[idx0 + m * stride] = True
             if sp + 2 > stack.shape[0]:
                 grown = np.empty((2 * stack.shape[0], 2), np.int64)
-                for q in range(sp):    # element copy: a slice assignment's shape-error path costs 2.6 s to compile
+                for q in range(sp):    # element copy: a slice assignment pulls in a slow-compiling shape check
                     grown[q, 0] = stack[q, 0]
                     grown[q, 1] = stack[q, 1]
                 stack = grown

@@ -13,6 +13,7 @@ from .packed import NORM_MAX
 
 COVER_GRID = 8   # blocker="sum": light points per side probing the box's share of the light
 
+
 @inner
 def _overlap(c, hw):
     """Share of the interval [c - hw, c + hw] inside [-1, 1]."""
@@ -38,9 +39,9 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
     gauge) -- the light is |y| <= 1 in its shape's norm (rectangle: max-norm
     on the half axes, else the disk) -- a light area |det G| / s(z_b)^2 of
     the shape's area (4 or pi), times the share of the texel's image inside
-    the light (per axis for rectangles, radially for disks: no staircase). Texels hidden from the
-    light's centre count as nothing and overlapping back-projections twice:
-    the sum is clamped to 1. Where part of the light's back-projection (at
+    the light (per axis for rectangles, radially for disks: no staircase).
+    Texels hidden from the light's centre count as nothing and overlapping
+    back-projections twice: the sum is clamped to 1. Where part of the light's back-projection (at
     the blockers' mean s) falls outside the scanned box (the map's border,
     ``max_radius``), the sum is divided by the part inside (``COVER_GRID``^2
     light points): the unseen part is taken to be blocked like the seen one.

@@ -115,8 +115,8 @@ def shade_all(P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm
 @kernel(opt=HOT, nogil=True, error_model="numpy")
 def _shade_all(ks, P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis):
     """``shade_all`` for entries ``ks`` of ``sel``: a serial ``nogil`` kernel
-    with ``kernels.borrowed`` arguments (issue 15: a prange one's parfor
-    lowering was most of its compile time)."""
+    with ``kernels.borrowed`` arguments (a ``prange`` kernel's parfor
+    lowering would dominate its compile time)."""
     P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis = borrowed(
         (P, Nrm, pid_arr, sel, faces, finfo, depth, ids, tiles, in_map, prm, out, rad, vis))
     for k in ks:

@@ -10,6 +10,7 @@ from .layer import _nearer
 
 TILE = 8   # texels per side of the depth-range tiles that skip hopeless search boxes
 
+
 @kernel
 def tile_depth_range(depth, ids):
     """float64[F, ceil(h/TILE), ceil(w/TILE), 3]: per tile the least and the

@@ -30,8 +30,8 @@ def _warp_py(P, Nrm, i, faces, depth, prm):
     is the hard test's tolerance; face < 0 means "not in the light view".
     Compiled twice from this one source: ``_warp`` (a function of its own,
     called per searched pixel) and ``_warp_inline`` (inlined into the hard
-    test over every pixel, ``_hard_range``: a call per pixel cost a third
-    of that loop)."""
+    test over every pixel, ``shade._hard_range``, where a call per pixel
+    would weigh on a loop that does little else)."""
     px, py, pz = P[i, 0], P[i, 1], P[i, 2]
     f, u, v, zr = _face_of(faces, px, py, pz)
     if f < 0:
