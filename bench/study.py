@@ -54,9 +54,9 @@ SWEEPS: Dict[str, List] = {
             ("paper: figure-4 region, ResFactor=8", {"region": "figure4", "ResFactor": 8.0}),
             ("paper: figure-4 region, receiver_plane off", {"region": "figure4", "receiver_plane": False})],
     "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
-    # the defaults (issue 17): every blocker texel's light summed, ids = connected mesh
-    # pieces, no adaptive sampling (section 4.3's interpolation is made for a ramp), V x the
-    # light above the receiver's tangent plane (horizon)
+    # the defaults: every blocker texel's light summed, ids = connected mesh pieces, no
+    # adaptive sampling (section 4.3's interpolation is made for a ramp), V x the light above
+    # the receiver's tangent plane (horizon)
     "single_sample": [("sum of blockers, mesh pieces", {}),
                       ("sum of blockers, mesh pieces, no horizon", {"horizon": False}),
                       ("sum of blockers, mesh pieces, adaptive", {"adaptive": True}),
