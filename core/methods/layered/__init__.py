@@ -201,14 +201,14 @@ from typing import Dict, List, Optional
 import numba
 import numpy as np
 
-from .. import sampling, views
-from ..jit import HOT, inner, kernel
-from ..kernels import borrowed, each_dealt_chunk, face_project, pick_face
-from ..sampling import concentric_disk, light_sample, rand01
-from ..scene import Light, ViewFace
-from .surfaces import mesh_pieces
-from .registry import register
-from .base import AVERAGE, GBUFFER, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
+from ... import sampling, views
+from ...jit import HOT, inner, kernel
+from ...kernels import borrowed, each_dealt_chunk, face_project, pick_face
+from ...sampling import concentric_disk, light_sample, rand01
+from ...scene import Light, ViewFace
+from ..surfaces import mesh_pieces
+from ..registry import register
+from ..base import AVERAGE, GBUFFER, LIGHT_SAMPLE_VIEWS, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
 EPSILON_PER_EXTENT = 0.002   # default depth tolerance, x the scene's largest side
 MAX_SLOPE = 30.0             # |d depth / d lateral| beyond which depths stay raw (88 degrees)
