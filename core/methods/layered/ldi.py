@@ -42,6 +42,7 @@ class LDI:
         return len(self.faces), self.faces[0].height, self.faces[0].width
 
     def depth_complexity(self) -> float:
+        """Average layers over the non-empty LDI pixels (figure 10 right)."""
         return complexity(self.n_layers)
 
     def attenuation(self, layer: int = 0) -> np.ndarray:
@@ -55,6 +56,7 @@ class LDI:
 
 
 def complexity(n_layers) -> float:
+    """Average of ``n_layers`` over the pixels holding a layer (0 if none)."""
     nz = n_layers[n_layers > 0]
     return float(nz.mean()) if nz.size else 0.0
 
