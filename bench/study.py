@@ -65,14 +65,11 @@ SWEEPS: Dict[str, List] = {
                       # the paper's one blocker per pixel on object ids (adaptive, section 4.3)
                       ("paper: nearest blocker, object ids, adaptive", {"blocker": "nearest", "surfaces": "object",
                                                                          "horizon": False})],
-    # the default (issue 17): the footprint splat and the bilinear display (the paper's 4-neighbour
-    # splat and nearest pixel on surfaces steeper than steep_slope), ids = connected mesh pieces
+    # the default: the footprint splat and the bilinear display (the paper's 4-neighbour splat and
+    # nearest pixel on surfaces steeper than steep_slope), ids = connected mesh pieces
     "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
                 ("nearest LDI pixel", {"samples": 64, "bilinear": False}),
                 ("footprint splat, bilinear everywhere", {"samples": 64, "steep_slope": float("inf")}),
-                # the default from issue 18 to 17: footprint only where a caster has a matte, nearest pixel
-                ("auto splat (footprint where mattes), nearest pixel",
-                 {"samples": 64, "splat": "auto", "bilinear": False, "steep_slope": float("inf")}),
                 ("paper: 4-neighbour splat, nearest pixel, object ids",
                  {"samples": 64, "splat": "neighbours", "bilinear": False, "surfaces": "object"})],
     "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),

@@ -7,29 +7,22 @@ import pytest
 
 from penumbra.core import sampling, views
 from penumbra.core.buffers import FrameBuffers
-from penumbra.core.methods import layered as L
-from penumbra.core.methods.embree_ref import EmbreeReference
+from penumbra.core.methods.layered import EPSILON_PER_EXTENT, LayeredAttenuationMaps, resolved_diagonals, \
+    resolved_epsilon
+from penumbra.core.methods.layered.samples import centre_faces, sample_points
 from penumbra.core.metrics import errors, reach_mask
 from penumbra.core.scene import Light, ObjectInfo, Scene
+from helpers import buffers_of, embree_pass, in_range, run_method
 from synthetic import (area_light, half_plane_scene, light_matrix, lone_tilted_plane, pixel_world_y, quad,
                        sphere_light, sun_light, top_ortho_camera)
 
 HL, HO = 4.0, 2.0     # light and occluder heights of half_plane_scene
-METHOD = L.LayeredAttenuationMaps()
+METHOD = LayeredAttenuationMaps()
 
 
 def run_layered(scene, map_size=None, **over):
-    fb = FrameBuffers(scene, *scene.resolution, map_size)
-    return METHOD.run(fb, scene.lights[0], METHOD.make_params(over)), fb
-
-
-def run_embree(fb, light, samples=256):
-    m = EmbreeReference()
-    return m.run(fb, light, m.make_params({"samples": samples})).passes["embree"]
-
-
-def in_range(v):
-    return np.isfinite(v).all() and v.dtype == np.float32 and v.min() >= 0.0 and v.max() <= 1.0
+    fb = buffers_of(scene, map_size)
+    return run_method("layered", fb, scene.lights[0], **over), fb
 
 
 # --------------------------------------------------------------------------
@@ -51,8 +44,8 @@ SHAPES = {
 
 def ldi_texel(scene, map_size):
     """Width in scene units of an LDI texel on the ground (z = 0)."""
-    fb = FrameBuffers(scene, *scene.resolution, map_size)
-    face = L.centre_faces(scene.lights[0], fb.receivers(), scene.bounds(), map_size)[0]
+    fb = buffers_of(scene, map_size)
+    face = centre_faces(scene.lights[0], fb.receivers(), scene.bounds(), map_size)[0]
     l, r, _, _ = face.bounds
     return (r - l) / face.width * (HL if not face.ortho else 1.0)
 
@@ -132,7 +125,7 @@ def test_sphere_and_sun_against_embree(make, splat):
     r, fb = run_layered(scene, map_size=128, samples=256, splat=splat)
     v = r.passes["layered"]
     assert in_range(v)
-    ref = run_embree(fb, scene.lights[0])
+    ref = embree_pass(fb, scene.lights[0])
     ys = pixel_world_y(scene, np.arange(64))
     err = v.mean(axis=1) - ref.mean(axis=1)
     pen = (ref.mean(axis=1) > 0.02) & (ref.mean(axis=1) < 0.98)
@@ -157,7 +150,7 @@ def test_sphere_samples_project_to_uniform_disks():
     light = Light("P", "sphere", light_matrix((1.0, 2.0, 3.0), (0.3, -0.2, -1.0)), radius=r)
     lp = sampling.pack_light(light)
     uv = sampling.light_sample_set(lp, 4096, 5)
-    q = L.sample_points(lp, uv, 5) - light.position
+    q = sample_points(lp, uv, 5) - light.position
     assert np.linalg.norm(q, axis=1).max() <= r * (1 + 1e-12)
     rng = np.random.default_rng(0)
     dirs = np.vstack([np.eye(3), light.direction, rng.normal(size=(4, 3))])
@@ -198,7 +191,7 @@ def test_zero_size_light_is_the_hard_shadow(make, splat):
     assert r.stats["samples"] == 1 and r.stats["warp"] == "identity"
     assert set(np.unique(v)) == {0.0, 1.0}
     np.testing.assert_array_equal(v, williams(fb, scene.lights[0], r.stats["epsilon"]))
-    ref = run_embree(fb, scene.lights[0], samples=1)
+    ref = embree_pass(fb, scene.lights[0], samples=1)
     ys = pixel_world_y(scene, np.arange(48))
     rows = np.nonzero((v != ref).any(axis=1))[0]
     assert (np.abs(ys[rows]) < 0.1).all() and len(rows) <= 2
@@ -245,7 +238,7 @@ def test_footprint_splat_covers_silhouettes(tilt, make):
     assert (~g.hit).any() and in_range(v)
     assert v[g.hit].min() == 1.0
     # the bilinear display (default) reads LDI pixels past the border, held
-    # by fewer samples: at most a few % there (measured 0.985)
+    # by fewer samples: at most a few % darker there
     b, _ = run_layered(scene, samples=64, splat="footprint")
     assert b.passes["layered"][g.hit].min() > 0.95
 
@@ -260,14 +253,14 @@ def sample_runs():
         scene = load_sample(name, (128, 128))
         fb = FrameBuffers(scene, 128, 128)
         light = scene.lights[0]
-        ref = run_embree(fb, light, samples=256)
+        ref = embree_pass(fb, light, samples=256)
         mask = reach_mask(fb.gbuffer, light)
         runs = {}
         for ms in (128, 256):
-            runs[ms] = METHOD.run(FrameBuffers(scene, 128, 128, ms), light,
-                                  METHOD.make_params({"samples": 256, "splat": "neighbours"}))
-        runs["footprint"] = METHOD.run(FrameBuffers(scene, 128, 128, 128), light,
-                                       METHOD.make_params({"samples": 256, "splat": "footprint"}))
+            runs[ms] = run_method("layered", FrameBuffers(scene, 128, 128, ms), light, samples=256,
+                                  splat="neighbours")
+        runs["footprint"] = run_method("layered", FrameBuffers(scene, 128, 128, 128), light, samples=256,
+                                       splat="footprint")
         out[name] = (ref, mask, runs)
     return out
 
@@ -277,11 +270,9 @@ def test_sample_scenes_close_to_embree(sample_runs, name):
     """256 light samples vs the 256-sample reference (DESIGN: same V, average
     visibility). The method's remaining error is its splatting (each sample
     sees receivers up to one texel into its shadow: +1/2 texel over the
-    penumbra width) and a few pixels at the curved objects' terminators:
-    measured RMSE 0.045 / 0.040 (torus / sphere) at 128-texel maps, 0.022 /
-    0.022 at 256; the bounds leave ~40 % margin above those. The error falls
-    with the map's texel size, as the splatting bias does, and V is biased
-    light, never dark."""
+    penumbra width) and a few pixels at the curved objects' terminators. The
+    error falls with the map's texel size, as the splatting bias does, and V
+    is biased light, never dark."""
     ref, mask, runs = sample_runs[name]
     e128 = errors(runs[128].passes["layered"], ref, mask)
     e256 = errors(runs[256].passes["layered"], ref, mask)
@@ -290,8 +281,8 @@ def test_sample_scenes_close_to_embree(sample_runs, name):
     assert e256["rmse"] < 0.035, e256
     assert e256["rmse"] < 0.75 * e128["rmse"]
     assert -0.005 < e256["mean_signed"] < 0.02
-    # the footprint splat at 128 texels: unbiased, and as close as the
-    # paper's splat at 256 (measured 0.024 and 0.020)
+    # the footprint splat at 128 texels: unbiased, and about as close as the
+    # paper's splat at 256
     ef = errors(runs["footprint"].passes["layered"], ref, mask)
     assert ef["rmse"] < 0.035 and ef["rmse"] < 0.7 * e128["rmse"], ef
     assert abs(ef["mean_signed"]) < 0.004
@@ -330,11 +321,16 @@ def test_seeded_and_deterministic():
     assert not np.array_equal(a, c)
 
 
-def test_epsilon_scales_with_scene():
+def test_epsilon_scales_with_the_box_the_shadow_rays_stay_in():
+    """The default depth tolerance is EPSILON_PER_EXTENT of the box around the
+    visible receivers and the light (``FrameBuffers.light_extent``), so it
+    scales with the scene; a given ``epsilon`` is used as it is."""
     scene = half_plane_scene(area_light(size=1.0), res=8)
-    p = METHOD.make_params({})
-    assert L.resolved_epsilon(p, scene) == pytest.approx(L.EPSILON_PER_EXTENT * 20.0)
-    assert L.resolved_epsilon(METHOD.make_params({"epsilon": 0.5}), scene) == 0.5
+    fb = buffers_of(scene)
+    extent = fb.light_extent(scene.lights[0])
+    res = run_method("layered", fb, scene.lights[0], samples=4)
+    assert res.stats["epsilon"] == pytest.approx(EPSILON_PER_EXTENT * extent)
+    assert resolved_epsilon(METHOD.make_params({"epsilon": 0.5}), extent) == 0.5
 
 
 def test_registered_as_layered():
@@ -409,7 +405,7 @@ def test_light_inside_a_box_and_occluder_behind_the_light():
 
 
 # --------------------------------------------------------------------------
-# issue 17: many small pieces of one object (foliage)
+# many small pieces of one object (foliage)
 def test_mesh_surfaces_equal_object_ids_when_each_object_is_one_piece():
     """``surfaces="mesh"`` only splits objects into their connected pieces:
     where every object is one piece the LDI and V are bit-identical."""
@@ -441,88 +437,86 @@ def test_foliage_like_scene_against_embree():
     scene = leaf_cloud_scene(res=96)
     fb = FrameBuffers(scene, 96, 96)
     light = scene.lights[0]
-    ref = run_embree(fb, light, samples=256)
+    ref = embree_pass(fb, light, samples=256)
     mask = reach_mask(fb.gbuffer, light)
     e = {}
     for key, over in {"paper": dict(splat="neighbours", surfaces="object"),
                       "footprint": dict(splat="footprint", surfaces="object"),
                       "improved": dict(splat="footprint", surfaces="mesh")}.items():
-        r = METHOD.run(fb, light, METHOD.make_params(dict(samples=64, **over)))
+        r = run_method("layered", fb, light, samples=64, **over)
         assert in_range(r.passes["layered"])
         e[key] = errors(r.passes["layered"], ref, mask)
     assert e["paper"]["mean_signed"] > 0.01                     # too light
     assert e["improved"]["rmse"] < 0.7 * e["paper"]["rmse"], e
     assert e["improved"]["rmse"] < e["footprint"]["rmse"], e
     assert abs(e["improved"]["mean_signed"]) < 0.01, e
-    # the defaults (issue 17) are the improved version
-    d = errors(METHOD.run(fb, light, METHOD.make_params(dict(samples=64))).passes["layered"], ref, mask)
+    # the defaults are the improved version
+    d = errors(run_method("layered", fb, light, samples=64).passes["layered"], ref, mask)
     assert d["rmse"] <= e["improved"]["rmse"] + 1e-4, (d, e)
 
 
 def test_steep_surfaces_keep_the_papers_splat_and_display():
     """Ground 2 degrees below an area light (the stress suite's
     grazing_area): a texel of it spans many epsilons of depth. The footprint
-    splat everywhere with the nearest-pixel display (its first version)
-    split the ground into layers there and the display matched a thin one:
-    a band of V near 0 across ground the reference sees lit (measured RMSE
-    0.27); the bilinear display everywhere hides the band but not the error
-    (0.18). With the paper's splat and display on surfaces steeper than
-    steep_slope (the default) the band is gone, as with the paper's (0.16 /
-    0.17)."""
+    splat on every surface (``steep_slope=inf``) with the nearest-pixel
+    display splits the ground into layers there and the display matches a
+    thin one: a band of V near 0 across ground the reference sees lit; the
+    bilinear display everywhere hides the band but not the error. With the
+    paper's splat and display on surfaces steeper than ``steep_slope`` (the
+    default) the band is gone, as with the paper's ways everywhere."""
     from synthetic import stress_cases
     scene = stress_cases(48)["grazing_area"]
     fb = FrameBuffers(scene, 48, 48)
     light = scene.lights[0]
-    ref = run_embree(fb, light, samples=256)
+    ref = embree_pass(fb, light, samples=256)
     mask = reach_mask(fb.gbuffer, light)
     band = {}
     err = {}
-    for key, over in {"default": {}, "first": dict(steep_slope=math.inf, bilinear=False),
+    for key, over in {"default": {}, "nearest": dict(steep_slope=math.inf, bilinear=False),
                       "everywhere": dict(steep_slope=math.inf),
                       "paper": dict(splat="neighbours", bilinear=False)}.items():
-        v = METHOD.run(fb, light, METHOD.make_params(dict(samples=64, **over))).passes["layered"]
+        v = run_method("layered", fb, light, samples=64, **over).passes["layered"]
         assert in_range(v)
         band[key] = float(np.mean((v < 0.1) & (ref > 0.5) & mask) / np.mean(mask))
         err[key] = errors(v, ref, mask)["rmse"]
-    assert band["first"] > 0.05, band            # the failure this guards against
+    assert band["nearest"] > 0.05, band          # the failure this guards against
     assert band["default"] < 0.01 and band["paper"] < 0.01, band
-    assert err["default"] < 0.8 * err["first"] and err["default"] < err["paper"] + 0.01, err
+    assert err["default"] < 0.8 * err["nearest"] and err["default"] < err["paper"] + 0.01, err
     assert err["default"] < err["everywhere"] - 0.005, err
 
 
 # --------------------------------------------------------------------------
-# alpha mattes (issue 18): the splat "auto" picks, thin diagonal lines
-def test_auto_splat_follows_the_mattes():
-    """splat="auto" (the default before issue 17): footprint when a shadow
-    caster has a matte, else the paper's 4 neighbours; diagonals (default)
-    on / off likewise -- on a scene without mattes "auto" is exactly the
-    paper's splat."""
+# alpha mattes: thin diagonal lines
+def test_diagonals_follow_the_mattes():
+    """``diagonals=None`` (the default): on when a shadow caster has a
+    matte, else off -- on a scene without mattes exactly ``diagonals=False``;
+    an explicit value wins. An unknown splat is refused."""
     from synthetic import matte_layers_scene
     from penumbra.core.alpha import CLOSEST, REPEAT
     matte = matte_layers_scene(area_light(size=1.0, z=HL), [(HO, [[0.5]], CLOSEST, REPEAT)], res=16)
     plain = half_plane_scene(area_light(size=1.0, z=HL), res=32, occluder_z=HO)
-    auto = L.LayeredParams(splat="auto")
-    assert L.resolved_splat(auto, FrameBuffers(matte, 16, 16).shadow_scene) == "footprint"
-    assert L.resolved_splat(auto, FrameBuffers(plain, 32, 32).shadow_scene) == "neighbours"
-    assert L.resolved_splat(L.LayeredParams(), FrameBuffers(plain, 32, 32).shadow_scene) == "footprint"
-    assert L.resolved_splat(L.LayeredParams(splat="neighbours"), FrameBuffers(matte, 16, 16).shadow_scene) \
-        == "neighbours"
-    a, _ = run_layered(plain, samples=16, splat="auto")
-    b, _ = run_layered(plain, samples=16, splat="neighbours", diagonals=False)
+    default = METHOD.make_params({})
+    assert resolved_diagonals(default, buffers_of(matte).shadow_scene) is True
+    assert resolved_diagonals(default, buffers_of(plain).shadow_scene) is False
+    assert resolved_diagonals(METHOD.make_params({"diagonals": False}), buffers_of(matte).shadow_scene) is False
+    assert resolved_diagonals(METHOD.make_params({"diagonals": True}), buffers_of(plain).shadow_scene) is True
+    a, _ = run_layered(plain, samples=16)
+    b, _ = run_layered(plain, samples=16, diagonals=False)
     np.testing.assert_array_equal(a.passes["layered"], b.passes["layered"])
-    assert a.stats["splat"] == "neighbours" and a.stats["diagonals"] is False
-    with pytest.raises(ValueError, match="splat"):
-        run_layered(plain, samples=4, splat="bilinear")
+    assert a.stats["splat"] == "footprint" and a.stats["diagonals"] is False
+    for splat in ("bilinear", "auto"):
+        with pytest.raises(ValueError, match="splat"):
+            run_layered(plain, samples=4, splat=splat)
 
 
 def test_diagonal_gradient_keeps_thin_lines_on_one_layer():
     """A card of diagonal lines one map texel wide (a chain-link wire's
     shape), lit from the side at 31 degrees with nothing above it: every
     point of a line is lit (V = 1). Without a neighbour along the map's axes
-    the lines had no gradient and their raw depths split into layers, each
-    with part of the count (measured mean V 0.34); the diagonal neighbour
-    gives them one (0.75; the rest: lines narrower than a texel that some
-    samples' maps miss at a pixel centre)."""
+    (``diagonals=False``) the lines get no gradient and their raw depths
+    split into layers, each with part of the count; the diagonal neighbour
+    gives them one (short of 1 where lines narrower than a texel are missed
+    by some samples' maps at a pixel centre)."""
     from synthetic import matte_layers_scene
     from penumbra.core.alpha import CLOSEST, REPEAT
     n = 64
