@@ -78,7 +78,7 @@ def test_the_hard_test_over_pixel_ranges_is_the_warp_of_each_pixel(make):
     depth = np.ascontiguousarray(lv.depth, np.float32)
     ids = np.ascontiguousarray(lv.object_id, np.int32)
     pid = np.ascontiguousarray(g.object_id.reshape(-1), np.int32)
-    prm = pack_params(SingleSampleSoftShadows().make_params({}), light, False, ss._coord_mag(scene, light))
+    prm = pack_params(SingleSampleSoftShadows().make_params({}), light, False, ss._coord_mag(scene.bounds(), light))
     n = P.shape[0]
     got = []
     for threads in (1, 2):
