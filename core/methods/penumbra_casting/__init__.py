@@ -92,7 +92,6 @@ class PenumbraCastingParams:
     masks_on_demand: bool = True      # optimization D
     coarse_sort: bool = True          # coarse blocker sorting by area, largest first
     coplanar_blockers: bool = True    # coplanar convex triangle groups cast as one polygon
-    MaxCorners: int = 6               # corners of a merged blocker (<= MAXB; 4: quads, the earlier merge)
     interior_blockers: bool = True    # convex slices inside closed meshes, cast first
     backface_cull: bool = True        # closed meshes: drop triangles facing away from the whole light
     hidden_behind_cores: bool = True  # skip (blocker, receiver) pairs whose rays all pass an interior blocker

@@ -193,7 +193,7 @@ def cast_blockers(setup, tris: np.ndarray, params, timer, stats: Dict[str, objec
                 mesh = sub_mesh(solids.mesh, sel)   # the merge reuses the vertex ids and adjacency
     with timer("merge"):
         if params.coplanar_blockers:
-            cand, cand_nv, poly_of = coplanar_blockers(cand_tris, params.MaxCorners, mesh)
+            cand, cand_nv, poly_of = coplanar_blockers(cand_tris, mesh=mesh)
         else:
             cand, cand_nv = pad_triangles(cand_tris)
             poly_of = np.arange(len(cand_tris))

@@ -33,7 +33,7 @@ import numpy as np
 from ...jit import inner
 
 MAXP = 31          # planes kept per penumbra volume (cap first); bit masks fit int64
-MAXB = 6           # corners of a blocker polygon (a leaf's hexagon; ``MaxCorners`` picks up to this)
+MAXB = 6           # corners of a blocker polygon (a leaf's hexagon)
 ALL = np.int64(-1)  # active plane set token "ALL" (every bit set)
 
 

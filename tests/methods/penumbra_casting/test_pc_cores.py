@@ -123,8 +123,7 @@ def test_hexagons_and_interior_blockers_block_exactly_embrees_rays(light):
     # the sphere's triangles facing away from the light, and pairs hidden behind its slices
     assert stats["triangles_backface_culled"] > 0 and stats["hidden_pairs"] > 0 and stats["hidden_nodes"] > 0
     assert_exact(V, own_rays(fb, setup), setup.light.S)
-    _, _, V_paper, st_paper = run_pc(scene, MaxCorners=4, interior_blockers=False, coplanar_blockers=False,
-                                     backface_cull=False)
+    _, _, V_paper, st_paper = run_pc(scene, interior_blockers=False, coplanar_blockers=False, backface_cull=False)
     assert st_paper["interior_blockers"] == 0 and st_paper["blockers"] > stats["blockers"]
     assert st_paper["triangles_backface_culled"] == st_paper["hidden_pairs"] == 0
     assert_exact(V, V_paper, setup.light.S)
