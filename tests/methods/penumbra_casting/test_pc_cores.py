@@ -26,6 +26,9 @@ def _sphere(n=4000, centre=(0.0, 0.0, 1.0), radius=1.0):
 
 
 def test_interior_blockers_lie_inside_the_closed_sphere_and_are_convex():
+    """A closed sphere of 40000 triangles: slice polygons strictly inside it,
+    flat, perpendicular to the light's direction, their fans covering most of
+    each slice's disk and never more."""
     polys, nv = interior_blockers(_sphere(40000), **LIGHT)          # 9 slices (one per 4096 triangles)
     assert len(polys) >= 2
     d = np.linalg.norm(polys - [0.0, 0.0, 1.0], axis=2)
@@ -66,6 +69,8 @@ def test_solids_orientation_and_disks_inside_their_slices():
 
 
 def test_no_interior_blockers_for_open_meshes_or_a_light_inside():
+    """No polygon for a mesh with a hole or a solid whose box may hold the
+    light; one fan per closed sphere; the sun is always outside."""
     sph = _sphere()
     assert len(interior_blockers(sph[1:], **LIGHT)[0]) == 0            # a hole: not closed
     inside = dict(LIGHT, light_lo=np.array([-0.2, -0.2, 0.8]), light_hi=np.array([0.2, 0.2, 1.2]))

@@ -9,6 +9,9 @@ from penumbra.core.methods.penumbra_casting.hierarchy import _stable_order, buil
 
 
 def test_hierarchy_midpoint_sah_and_leaves():
+    """Every point in one leaf, every box holding its points, leaves of 1-16
+    points, and nodes of more than 1024 points split at their box's midpoint
+    along the longest axis."""
     rng = np.random.default_rng(5)
     pts = np.concatenate([rng.uniform(0, 1, (3000, 3)) * [4, 2, 0.01], rng.uniform(0, 1, (500, 3)) + [3, 0, 0]])
     perm, bb, left, right, start, count, depth = build_hierarchy(pts, np.arange(len(pts)), 16, 1024)

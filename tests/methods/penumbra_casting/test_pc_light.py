@@ -12,6 +12,8 @@ from penumbra.core.methods.penumbra_casting.light import MODE_SPHERE, group_layo
 
 
 def test_groups_of_32_on_a_jittered_grid():
+    """256 samples: a 16 x 16 grid in 8 groups of 32 (the paper's setting);
+    1024 samples: 32 groups; every stratum has one bit."""
     nx, ny, G, bit2s, g_start, blocks = group_layout(256, 32)
     assert (nx, ny, G) == (16, 16, 8)
     assert np.all(np.diff(g_start) == 32) and sorted(bit2s) == list(range(256))
