@@ -1,44 +1,28 @@
-"""Alpha-matte blockers for penumbra casting (issue 18; Laine & Aila 2005,
-section 4, "Alpha matte textures").
+"""Alpha-matte blockers of penumbra casting (Laine & Aila 2005, section 3.4,
+"Alpha matte textures"): processed after all opaque blockers, each relation
+l_i -> r_j left open gets its transmittance through the matte blockers, the
+product of (1 - alpha) of the texture at each crossing (as Cycles and
+``embree`` compute it, ``alpha_rays.transmittance``):
+V_j = (1 / S) sum of the open relations' transmittances. The umbra shortcuts
+of optimization A do not hold for a partly clear blocker, so each relation a
+matte blocker may take is tested once, after the opaque cast; relations in
+an opaque umbra never are.
 
-The paper: a texture fetch at the intersection of the l_i -> r_j ray with
-the blocker, and the alpha-textured blockers processed only after all
-opaque ones (separate buckets in the coarse sort). Here the opaque blockers
-are cast as before (``cast``), and the matte blockers come last: each
-relation (l_i, r_j) that no opaque blocker took gets its transmittance
-through the matte blockers, the product of (1 - alpha) of the texture
-fetched at each intersection of the ray with a matte blocker (as Cycles and
-``embree`` compute it, ``alpha_rays.transmittance``). The umbra shortcuts
-of the traversal (optimization A) do not hold for a partly clear blocker,
-so every relation a matte blocker may take is tested exactly once, after
-the opaque cast; relations in an opaque umbra are never tested.
-
-V_j = (1 / S) sum over the relations of r_j left open by the opaque
-blockers of their transmittance: with binary mattes the same relations as
-``embree``'s rays (``shared_samples_with_reference``) give the same V.
-
-Two ways to find the intersections (``alpha_fetch``):
+Two ways to find the crossings (``alpha_fetch``):
 
 * the paper's texture fetch (default, ``fetch_visibility``): the matte
-  blockers' penumbra volumes V_L find, through the receiver hierarchy (box
-  and point tests of figure 2, optimization B's active planes), the
-  receivers each one may shadow; every open relation of such a receiver is
-  intersected with those blockers only (r_j in the hard volume V_li of T
-  exactly when the segment r_j -> l_i crosses T: the edge functions of
-  ``geometry.receiver_edge_functions``, linear in the sample, give the
-  barycentrics as well), the alpha fetched there and (1 - alpha)
-  multiplied in. No ray is traced; receivers outside every V_L keep their
-  opaque V. Shared edges are watertight: an edge function is exactly
-  antisymmetric in its edge, and a ray exactly on an edge belongs to one
-  side by a fixed vertex order. Ours, not the paper's: the fetch runs per
-  receiver after the traversal (all samples of a receiver against its few
-  matte blockers, branch-free) rather than inside it. The rays of
-  ``embree`` start again just past each crossing (``sampling.offset_origin``);
-  the segment here does not, so a second crossing that grazes within that
-  offset can count here and not there (a few relations in a few pixels).
-* Embree (``transmitted_visibility``): every open relation of every
-  receiver is traced through a BVH of the matte blockers
-  (``alpha_rays.transmittance``), as the reference traces its rays.
+  blockers' V_L find, through the receiver hierarchy (``matte_candidates``),
+  the receivers each may shadow; every open relation of such a receiver is
+  intersected with those blockers only, by the edge functions of
+  ``geometry.receiver_edge_functions`` (linear in the sample, they give the
+  barycentrics too), and the alpha fetched there. Shared edges are
+  watertight: an edge function is exactly antisymmetric in its edge, and a
+  ray exactly on an edge belongs to one side by a fixed vertex order. Ours:
+  the fetch runs per receiver after the traversal, not inside it. Embree's
+  rays start again just past each crossing; the segment here does not, so a
+  second crossing within that offset can count here and not there.
+* Embree rays (``transmitted_visibility``): every open relation is traced
+  through a BVH of the matte blockers, as the reference traces its rays.
 """
 from __future__ import annotations
 
@@ -50,8 +34,10 @@ import numpy as np
 
 from ... import alpha_rays, raycast
 from ...alpha import alpha_at
-from ...jit import inner, kernel
-from .geometry import box_vs_volume, point_in_volume
+from ...jit import kernel
+from .blockers import pad_triangles
+from .culling import light_volumes
+from .geometry import MAXP, box_vs_volume, point_in_volume
 from .light import sample_point
 
 #: relations traced per Embree batch
@@ -169,6 +155,21 @@ def corner_order(tris: np.ndarray) -> np.ndarray:
                                                                  | ((p[:, 1] == q[:, 1]) & (p[:, 2] < q[:, 2]))))
         lex[:, e] = before
     return lex
+
+
+def matte_blockers(mattes: raycast.TriangleScene, L, eps: float, root_bb: np.ndarray, tol: float) -> MatteBlockers:
+    """The matte blockers with their V_L for light setup ``L``
+    (``light.LightSetup``), those that cannot shadow the receivers' box
+    ``root_bb`` dropped."""
+    tris, tri = matte_triangles(mattes)
+    polys, nv = pad_triangles(tris)
+    VL = np.zeros((len(tris), 4, MAXP))
+    nVL = np.zeros(len(tris), np.int64)
+    keep = np.zeros(len(tris), np.bool_)
+    light_volumes(polys, nv, L.DVL, L.nvl, L.DEL, L.nel, eps, root_bb, tol, VL, nVL, keep)
+    tris = np.ascontiguousarray(tris[keep])
+    return MatteBlockers(tris, np.ascontiguousarray(tri[keep]), corner_order(tris),
+                         np.ascontiguousarray(VL[keep]), np.ascontiguousarray(nVL[keep]))
 
 
 @kernel(nogil=True)

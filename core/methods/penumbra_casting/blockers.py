@@ -1,32 +1,26 @@
-"""Blockers of hierarchical penumbra casting as convex coplanar polygons
-(Laine & Aila 2005, section 5: "It is possible to extend the algorithm to
-process multiple blocker triangles simultaneously ... reduce the number of
-hierarchy traversals and the number of receiver points that are temporarily
-classified to be in penumbra").
+"""Blocker polygons of hierarchical penumbra casting: coplanar triangles
+merged into convex polygons (Laine & Aila 2005, section 5: "process multiple
+blocker triangles simultaneously"), and the coarse sort by area (section 3.3).
 
-The simplest case of that extension, which keeps the penumbra volumes as
-simple as the paper's: edge-adjacent triangles that lie in one plane and
-together form a convex polygon of at most ``MAXB`` vertices are cast as that
-one polygon. A Blender quad (two triangles) becomes one blocker, and so does
-a subdivided flat face (a bar of GRIDS split into 32 segments along its
-length is one rectangle). The union of the triangles *is* the polygon, so the
-set of blocked relations is the same, except for rays within rounding of the
-removed inner edges (which the triangles could also let through).
+Edge-adjacent triangles that lie in one plane and together form a convex
+polygon of at most ``MAXB`` corners are cast as that polygon: a Blender quad
+becomes one blocker, and so does a subdivided flat face. The union of the
+triangles is the polygon, so the blocked relations are the same except for
+rays within rounding of the removed inner edges.
 
-Representation: ``polys`` float64[M, MAXB, 3] with ``nverts`` int64[M];
-a triangle is stored with its last vertex repeated (its box is unchanged and
-no code reads past ``nverts``). Vertex order follows the first triangle's
-winding, so the polygon's plane (Newell's normal) is oriented like it.
+Representation: ``polys`` float64[M, MAXB, 3] with ``nverts`` int64[M]; a
+triangle is stored with its last corner repeated (its box is unchanged and
+no code reads past ``nverts``). Corners follow the first triangle's winding,
+so the polygon's plane (Newell's normal) is oriented like it.
 
-Greedy region growing (linear time in practice): each unassigned triangle
-seeds a polygon; a neighbour sharing a whole polygon edge is added when every
-corner of the grown polygon lies within ``PLANE_ULPS`` float32 ULPs (of the
-largest coordinate involved) of its own plane (captured vertices are float32;
-the receivers sit 32 ULPs off their surface, so a merged plane cannot swing
-past one), the polygon stays strictly convex, and after dropping corners that
-became collinear (within the same tolerance) it has at most MAXB corners.
-Vertices are identified by bit-equal coordinates; an edge joins two triangles
-only when exactly two share it.
+Greedy region growing: each unassigned triangle seeds a polygon; a neighbour
+sharing a whole polygon edge is added when every corner of the grown polygon
+lies within ``PLANE_ULPS`` float32 ULPs (of the largest coordinate involved)
+of its plane (the receivers sit 32 ULPs off their surface, so a merged plane
+cannot swing past one), the polygon stays strictly convex, and, corners that
+became collinear dropped, it has at most MAXB corners. Vertices are
+identified by bit-equal coordinates; an edge joins two triangles only when
+exactly two share it.
 """
 from __future__ import annotations
 
@@ -254,8 +248,8 @@ def _grow(P, ids, nbr, maxb, ulps):
 def _unique_vertices(V: np.ndarray):
     """Vertex identity: equal coordinates (a mesh's triangles share them).
     ``np.unique(V, axis=0, return_inverse=True)`` (the same lexicographic
-    order and ids) by one lexsort of the three columns: 9x faster on GRIDS'
-    75K corners, whose structured-array sort dominated the merge."""
+    order and ids) by one lexsort of the three columns, not the slow
+    structured-array sort ``np.unique`` makes."""
     order = np.lexsort((V[:, 2], V[:, 1], V[:, 0]))
     s = V[order]
     first = np.empty(len(V), np.bool_)
@@ -301,3 +295,41 @@ def coplanar_blockers(tris: np.ndarray, max_corners: int = MAXB, mesh=None):
         vid = np.concatenate([vid, np.repeat(vid[:, -1:], MAXB - max_corners, 1)], 1)
     polys = P[vid]                                   # [M, MAXB, 3]
     return np.ascontiguousarray(polys), nv, poly_of
+
+
+def bucket_sort_by_area(tris, nverts, nb):
+    """Coarse blocker sorting (section 3.3): bucket by area on a log scale
+    into ``nb`` buckets, largest first; linear time (histogram + counting
+    sort: a stable sort of small integers), stable. A polygon's area is half
+    its Newell normal (``geometry._newell``) over its ``nverts`` corners.
+    NumPy, not a kernel: nothing to compile on a cold start."""
+    n = tris.shape[0]
+    out = np.arange(n, dtype=np.int64)
+    if n == 0:
+        return out
+    t = tris.transpose(1, 2, 0)                          # [corner, axis, blocker]
+    u, v = t[1] - t[0], t[2] - t[0]
+    c = np.stack([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
+    poly = np.flatnonzero(nverts > 3)
+    if len(poly):
+        p = tris[poly]
+        nv = nverts[poly][:, None]
+        j = np.arange(p.shape[1])
+        used = j < nv                                    # corners past nverts add no term
+        q = np.take_along_axis(p, np.where(j + 1 < nv, j + 1, 0)[..., None], 1)   # the next corner
+        c[:, poly] = np.stack([((p[..., 1] - q[..., 1]) * (p[..., 2] + q[..., 2]) * used).sum(1),
+                               ((p[..., 2] - q[..., 2]) * (p[..., 0] + q[..., 0]) * used).sum(1),
+                               ((p[..., 0] - q[..., 0]) * (p[..., 1] + q[..., 1]) * used).sum(1)])
+    area = 0.5 * np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+    pos = area > 0.0
+    if not pos.any():
+        return out
+    la = np.log(area[pos])
+    lo, hi = la.min(), la.max()
+    if not (hi > lo):
+        return out
+    bucket = np.full(n, nb - 1, np.int64)
+    bucket[pos] = np.clip(((hi - la) / (hi - lo) * nb).astype(np.int64), 0, nb - 1)
+    if nb <= 1 << 15:
+        bucket = bucket.astype(np.int16)                 # NumPy's stable sort of 16-bit keys: a radix sort
+    return np.argsort(bucket, kind="stable").astype(np.int64, copy=False)

@@ -1,39 +1,32 @@
-"""The per-triangle traversal of hierarchical penumbra casting (Laine & Aila
-2005, figures 2 and 3) as one Numba kernel with an explicit stack, built once
-per way of testing line 70 (``cast_chunk_for``: sample words, the paper's
-V_li planes, the reference's own samples), so that a cold start compiles
-only the helpers of its own.
+"""The per-blocker traversal of hierarchical penumbra casting (Laine & Aila
+2005, figures 2 and 3) as one Numba kernel with an explicit stack.
 
-``cast_chunk`` processes blocker triangles ``tri_sel[t0:]`` against one
-receiver hierarchy and returns where it stopped: at the end, or where
-optimization A asks for a rebuild (line 29), which the caller performs before
-calling again. Every switch only prunes work (conservatively) or changes
-what is stored; the relation ``l_i -> r_j`` is marked blocked by one exact
-test (``in_hard_volume``), so the output does not depend on the switches.
+``cast_chunk`` casts blockers ``tri_sel[t0:]`` against one chunk's receiver
+hierarchy and returns where it stopped: at the end, or where optimization A
+asks for a rebuild (line 29), which the caller makes before calling again.
+Every switch only prunes work (conservatively) or changes what is stored; a
+relation ``l_i -> r_j`` is marked blocked by one exact test, so the output
+does not depend on the switches. There is one kernel per way of testing
+line 70 (``cast_chunk_for``: sample words, the paper's V_li planes, the
+reference's own samples): Numba prunes the other variants' branches before
+typing, so a cold start compiles only the helpers its light needs.
 
-Arguments travel in named groups (the namedtuple types below, built by the
-package's ``__init__``): the blockers, the light's sample groups and sample
-table (``light.LightSamples``), the chunk's receivers, its hierarchy, its
-umbra bits (A), its masks (D), the counters ``st`` and the switches.
+Arguments travel in named groups (the namedtuples below); the per-chunk
+counters ``st`` (int64[N_ST]) have the slots ``ST_*``.
 
-Per-chunk counters ``st`` (int64[N_ST]): the slots ``ST_*`` below.
+Speed: line 70 runs 64 samples of a mask word at a time with unsigned
+indices and shifts, which LLVM vectorizes (signed indices keep Numba's
+negative-index wraparound in the loop and block it); the plane tests read
+structure-of-arrays planes and evaluate every plane without early exit, for
+the same reason; no loop creates an array view or reassigns an array (each
+costs atomic reference counting). The helpers are inlined by LLVM
+(``forceinline``), not by Numba's IR inliner (``inline="always"``, which
+re-types a body at every call site), so each is typed and cached once.
 
-Speed (what the profile showed, not the paper): line 70 runs 64 samples of a
-mask word at a time with unsigned indices and shifts, which LLVM turns into
-SIMD code (signed indices keep Numba's negative-index wraparound in the loop
-and block it); the plane tests read structure-of-arrays planes and evaluate
-every plane without early exit, for the same reason; no loop creates an
-array view or reassigns an array (each costs atomic reference counting).
-The helpers are inlined by LLVM (``forceinline``), not by Numba's IR
-inliner (``inline="always"``, which re-types a body at every call site):
-each is typed and cached once, and the cast runs as fast (issue 15).
-
-Mask memory (D): ``pool`` has a row for every receiver of the chunk, but it
-is allocated zeroed (calloc: the operating system commits a page on first
-touch) and rows are handed out in order, released rows reused first, so the
-memory in use follows the peak of live masks. The kernel never reallocates
-an array: a reassigned array variable in a Numba loop costs atomic
-reference count updates on every iteration.
+Mask memory (D): ``pool`` has a row for every receiver of the chunk,
+allocated zeroed (the operating system commits a page on first touch); rows
+are handed out in order, released rows first, so the memory in use follows
+the peak of live masks.
 """
 from __future__ import annotations
 
@@ -304,7 +297,7 @@ def _make_cast_chunk(variant: str):
     (``materialize_hard_volumes``: the paper's V_li planes) or "shared" (the
     reference's own per-pixel samples). Each is its own kernel: Numba prunes
     the other variants' branches before typing, so a cold start compiles only
-    the helpers its light needs (issue 15)."""
+    the helpers its light needs."""
     PLANES = variant == "planes"
     SHARED = variant == "shared"
 

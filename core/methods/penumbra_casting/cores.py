@@ -1,29 +1,27 @@
 """Interior blockers of closed meshes: the most powerful occluders of a
-smooth solid, cast first (issue 17; Laine & Aila 2005, section 3.3: "it is
-favorable to find large shadow regions early in the process", and section 5:
-processing several triangles at once).
+smooth solid, cast first (Laine & Aila 2005, section 3.3: "it is favorable
+to find large shadow regions early", and section 5: several triangles at
+once).
 
-A smooth mesh of a million small triangles puts each receiver in the umbra
-behind thousands of blockers, each covering a few of its light samples, so
-optimization A (umbra bits) only stops the work after most of them. A closed
-surface (every edge shared by exactly two of its triangles) bounds a solid;
-its slice by a plane is a set of loops, and a point inside a single slice
-loop is inside the solid (a ray in the plane from it crosses the surface an
-odd number of times). A segment from a receiver to a light sample *outside*
-the solid that passes through such a point crosses the surface, so it is
-blocked by one of the mesh's own triangles. Convex polygons inside the slice
-therefore block only relations the mesh blocks anyway: cast first (coarse
-sorting puts them first: they are the largest blockers), they set the umbra
-bits of most umbra receivers at once, and every later triangle skips them.
-The output is the same set of blocked relations, up to rays within rounding
-of the surface (the polygons are shrunk by ``SHRINK`` toward their centre).
+A smooth mesh of many small triangles puts each receiver in the umbra behind
+many blockers, each covering a few of its light samples, so optimization A
+stops the work only after most of them. A closed surface (every edge shared
+by exactly two triangles) bounds a solid; a point inside a single loop of
+its slice by a plane is inside the solid, so a segment from a receiver to a
+light sample outside the solid through that point is blocked by the mesh
+itself. Convex polygons inside the slice therefore block only relations the
+mesh blocks: cast first (the coarse sort puts them first, being the largest
+blockers), they set the umbra bits of most umbra receivers at once. The
+blocked relations are the same up to rays within rounding of the surface
+(the polygons are shrunk by ``SHRINK`` toward their centre).
 
-Per closed component of at least ``MIN_TRIANGLES`` triangles whose box does
-not contain any point of the light's bounding polygon: the slice through its
-vertex centroid perpendicular to the light's direction; used when it is one
-loop: ``CORNERS`` of its points evenly along it, shrunk toward its centre,
-used when they form a strictly convex polygon that no edge of the loop enters
-(so it lies inside the slice), cut into a fan of polygons of ``MAXB`` corners.
+Per closed component of at least ``MIN_TRIANGLES`` triangles whose box holds
+no point of the light's bounding polygon: up to ``SLICES`` slices
+perpendicular to the light's direction (one per ``SLICE_TRIANGLES``); where a
+slice is one loop, ``CORNERS`` points evenly along it, shrunk toward its
+centre, make a strictly convex polygon no loop edge enters, cut into a fan of
+``MAXB``-corner polygons. Also per component: the disk inside each slice
+polygon (``hidden_behind_cores``) and the outward winding (``backface_cull``).
 """
 from __future__ import annotations
 
@@ -137,8 +135,8 @@ def _slice_loop(P, ids, nbr, tri_list, nx, ny, nz, off, out):
 
 def _prime():
     """Call the slicing kernels once on empty input: the warm-up's tiny scene
-    has no closed solid, so without this a real scene's first cast compiled
-    them inside the method's time (issue 15: 1.2 s of compile CPU)."""
+    has no closed solid, so without this a real scene's first cast would
+    compile them inside the method's time."""
     ids = np.zeros((0, 3), np.int64)
     _components(ids)
     _slice_loop(np.zeros((0, 3)), ids, ids, np.zeros(0, np.int64), 0.0, 0.0, 1.0, 0.0, np.empty((0, 3)))

@@ -3,29 +3,26 @@
 Points of a light's bounding polygon / volume are homogeneous ``(x, y, z, w)``:
 ``w = 1`` for a point, ``w = 0`` for a direction (a point at infinity, the sun).
 A plane is ``(nx, ny, nz, o)`` with value ``n . x - o w``; every volume here is
-oriented so that its *inside* (where shadow can be) is value >= 0.
-
-A blocker T is a triangle or a convex planar polygon of up to ``MAXB``
-corners (``blockers``: coplanar triangles cast together, section 5),
-given as ``poly[MAXB, 3]`` and its corner count ``nb``; for a triangle every
-formula below is the paper's.
+oriented so that its inside (where shadow can be) is value >= 0. A blocker T
+is a triangle or a convex planar polygon of up to ``MAXB`` corners
+(``blockers``), given as ``poly[MAXB, 3]`` and its corner count ``nb``.
 
 * ``penumbra_volume``: the separating planes between a convex light polygon
-  (or convex polytope, section 3.4 "Volumetric light sources") and the blocker
-  T, found by enumerating every vertex-edge pair of the two and keeping
-  the planes with all light vertices on one side and all of T on the other,
-  plus T's own plane as a cap when it does not cut the light.
-* ``hard_volume``: the hard shadow volume V_l of one light sample: ``nb``
-  planes through the sample and T's edges and T's plane (nb + 1 dot products
-  per test).
-  A receiver r is inside iff the segment from r to the sample (or the ray from r
-  along a sun direction) meets T: edges inclusive, T's plane strict, which is
-  how Embree's watertight test treats a ray through a shared edge or a ray that
-  ends on T's plane.
+  (or polytope, section 3.4 "Volumetric light sources") and T, from every
+  vertex-edge pair of the two, plus T's plane as a cap when it does not cut
+  the light.
+* ``hard_volume`` / ``in_hard_volume``: the hard shadow volume V_l of one
+  sample, ``nb`` planes through the sample and T's edges and T's plane. A
+  receiver r is inside iff the segment from r to the sample (or the ray from
+  r along a sun direction) meets T: edges inclusive, T's plane strict, as
+  Embree's watertight test treats a ray through a shared edge or ending on T.
+* ``receiver_edge_functions`` / ``blocked_by_edges``: the same test with
+  sample and receiver exchanged: per receiver, ``nb`` edge forms linear in
+  the sample's homogeneous coordinates.
 
-Culling tests (box / point vs penumbra volume) take a slack ``tol`` (scene
-units): they may only ever keep too much, never drop a blocked relation, so
-the exact per-sample test alone decides the output.
+Culling tests (``box_vs_volume``, ``point_in_volume``) take a slack ``tol``
+(scene units): they may only ever keep too much, never drop a blocked
+relation, so the exact per-sample test alone decides the output.
 """
 from __future__ import annotations
 
@@ -36,7 +33,7 @@ import numpy as np
 from ...jit import inner
 
 MAXP = 31          # planes kept per penumbra volume (cap first); bit masks fit int64
-MAXB = 6           # corners of a blocker polygon (a leaf's hexagon; ``MaxCorners`` picks up to this)
+MAXB = 6           # corners of a blocker polygon (a leaf's hexagon)
 ALL = np.int64(-1)  # active plane set token "ALL" (every bit set)
 
 

@@ -6,7 +6,8 @@ minimizing the surface area heuristic n_L A_L + n_R A_R over all three axes
 (the paper: "the split position that minimizes the total surface area of the
 resulting child nodes"; weighting by counts is the usual SAH and avoids
 peeling single points off flat point sets, where the plain area sum ties).
-Leaves hold at most ``leaf_size`` points.
+Leaves hold at most ``leaf_size`` points. The umbra bits of nodes
+(optimization A) are the AND of their points' or children's.
 
 Nodes are numbered in creation (pre-)order, so a child always has a larger
 index than its parent: a reverse sweep combines children before parents.
@@ -28,7 +29,7 @@ def _area(x0, y0, z0, x1, y1, z1):
 def _grow(a, cap):
     """``a`` (1-D) in a new array of length ``cap``. Element by element: a
     slice assignment compiles Numba's shape-mismatch error message (string
-    formatting: about 4 s of compile per array kind, issue 15)."""
+    formatting), a large part of a cold start's compile."""
     b = np.empty(cap, a.dtype)
     for i in range(a.shape[0]):
         b[i] = a[i]
@@ -54,7 +55,7 @@ def _stable_order(keys, c, order, tmp, kb, kt):
     ``np.argsort(keys[:c], kind="mergesort")`` gives: ties keep their index
     order): insertion-sorted runs of ``_RUN``, then bottom-up merges, the
     keys carried along in ``kb`` / ``kt`` (buffers of at least ``c``). Its own
-    few lines compile in a fraction of Numba's argsort (issue 15)."""
+    few lines compile in a fraction of the time of Numba's argsort."""
     for k in range(c):
         order[k] = k
         kb[k] = keys[k]
@@ -121,7 +122,7 @@ def build_hierarchy(pts, idx, leaf_size, midpoint_limit):
 def _build_nodes(pts, idx, leaf_size, midpoint_limit):
     """``build_hierarchy``'s kernel: its node arrays at their allocated length
     and the node count m, trimmed by the caller (slicing and copying here
-    cost about 0.3 s of its 1.9 s compile, issue 15)."""
+    would add to its compile time)."""
     n = idx.shape[0]
     perm = idx.copy()
     cap = max(16, 4 * (n // max(1, leaf_size)) + 16)

@@ -1,49 +1,41 @@
 """Light samples, sample groups and their bounding polygons for hierarchical
-penumbra casting (Laine & Aila 2005, sections 3.1, 3.2 and 3.4).
+penumbra casting (Laine & Aila 2005, sections 3.1, 3.2 and 3.4), and the
+light's setup for one casting (``light_setup``).
 
-Samples lie on a jittered grid of ``nx x ny`` strata in the unit square (the
-same strata and the same unit-square-to-light maps as the ``embree``
-reference, ``sampling.light_sample``). A light sample group G_k is a block of
-strata; its bounding polygon Delta_Gk bounds the image of the whole block, so
-it bounds the group's samples in *every* sample set (section 3.4: "the
-bounding polygons ... must bound the light samples of the respective group in
-all light sample sets"), including the per-pixel sets of the reference.
-
-Bit order: the bits of a receiver's mask are ordered group by group; ``bit2s``
-maps a bit to its stratum index ``s = ix + iy * nx``.
+Samples lie on a jittered grid of ``nx x ny`` strata with the ``embree``
+reference's strata and unit-square-to-light maps (``sampling.light_sample``).
+A group G_k is a block of strata; Delta_Gk bounds the image of the whole
+block, so it bounds the group's samples in every sample set (section 3.4),
+the reference's per-pixel sets included. A mask's bits are ordered group by
+group; ``bit2s`` maps a bit to its stratum ``s = ix + iy * nx``.
 
 Light kinds (DESIGN.md "Light domains"):
 
-* area light: the block's image under the square map (a rectangle) or the
-  concentric disk map (an annular sector, bounded by a convex polygon whose
-  outer side is circumscribed about the arc), scaled by the half sizes.
-  Delta_L is the rectangle, or a circumscribed octagon for disks/ellipses.
-* sun: samples are directions (homogeneous w = 0). Polygons are built in the
-  tangent plane of the sun's axis (a direction's central projection), where a
-  concentric-map annular sector stays an annular sector (the radial map
-  rho -> tan(theta(rho)) is monotone), so a convex polygon there is a convex
-  cone of directions.
-* sphere (point/spot of radius r): each receiver sees its own disk facing it.
-  We use the disk facing receiver r rotated from the disk facing the mean
-  direction w0 by the minimal rotation w0 -> w_r (same uniform distribution
-  over the same disk as the reference: only the in-disk rotation differs).
-  Every receiver's rotation is at most theta = max angle(w0, w_r), which moves
-  a disk point by at most 2 r sin(theta/2) in the disk plane and r sin(theta)
-  along w0: Delta_Gk / Delta_L are the boxes (in the w0 frame) around the
-  block's bounding rectangle grown by those amounts and clipped to the
-  sphere's cube - the "convex bounding volumes" of section 3.4.
-  With ``shared_samples_with_reference`` the reference's own per-point disk
-  frame is used (it is not continuous in w), and every group is bounded by
-  the sphere's cube.
+* area: the block's image under the square map (a rectangle) or the
+  concentric disk map (an annular sector in a convex polygon circumscribed
+  about its arc); Delta_L is the rectangle, or an octagon around the disk.
+* sun: samples are directions (w = 0); polygons are built in the tangent
+  plane of the sun's axis, where a concentric-map sector stays a sector, so
+  a convex polygon there is a convex cone of directions.
+* sphere (radius r): each receiver's disk facing it is the disk facing the
+  mean direction w0 turned by the minimal rotation w0 -> w_r (the reference's
+  distribution; only the in-disk rotation differs). A rotation of at most
+  theta moves a disk point by at most 2 r sin(theta/2) in the disk plane and
+  r sin(theta) along w0: Delta_Gk and Delta_L are boxes in the w0 frame
+  grown by those amounts (section 3.4's convex bounding volumes). With
+  ``shared_samples_with_reference`` every group is bounded by the sphere's cube.
 """
 from __future__ import annotations
 
 import math
 from collections import namedtuple
+from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
-from ...jit import inner, kernel
+from ... import sampling
+from ...jit import kernel
 from ...sampling import concentric_disk, light_sample, rand01, strata, stratum_uv
 
 MAXV = 16
@@ -357,3 +349,123 @@ def assign_sets(pix, nsets, seed):
     for i in range(pix.shape[0]):
         out[i] = min(nsets - 1, int(rand01(seed, pix[i], np.int64(0), np.int64(7)) * nsets))
     return out
+
+
+# --------------------------------------------------------------------------
+# the light's side of one casting
+@dataclass
+class LightSetup:
+    """Sample mode (MODE_*), S samples on an nx x ny grid in G groups
+    (``group_layout``), ``nsets`` sample sets; Delta_L (homogeneous vertices
+    DVL[:nvl], edges DEL[:nel]) and Delta_Gk (DVg[k, :nvg[k]], DEg[k, :neg[k]]);
+    the sample tables SP (MODE_FIXED) or Q (MODE_SPHERE, with the mean
+    direction w0 and the largest rotation theta from it); the light's centre
+    and packed parameters ``lp``."""
+
+    mode: int
+    S: int
+    nx: int
+    ny: int
+    G: int
+    nsets: int
+    bit2s: np.ndarray
+    g_start: np.ndarray
+    DVL: np.ndarray
+    nvl: int
+    DEL: np.ndarray
+    nel: int
+    DVg: np.ndarray
+    nvg: np.ndarray
+    DEg: np.ndarray
+    neg: np.ndarray
+    SP: np.ndarray
+    Q: np.ndarray
+    centre: np.ndarray
+    lp: np.ndarray
+    theta: float = 0.0
+    w0: Optional[np.ndarray] = None
+
+
+def light_setup(light, samples: int, group_size: int, sample_sets: int, shared: bool, seed: int,
+                Pg: np.ndarray, tol: float) -> LightSetup:
+    """The groups, bounding polygons / volumes and sample tables of ``light``
+    for receivers at G-buffer positions ``Pg``: ``samples`` in groups of about
+    ``group_size``, ``sample_sets`` sets (one for a zero-size light or with
+    ``shared``: the reference's own per-pixel samples)."""
+    S = 1 if light.is_zero_size else max(1, int(samples))
+    nx, ny, G, bit2s, g_start, blocks = group_layout(S, max(1, int(group_size)))
+    shared = bool(shared)
+    nsets = 1 if (light.is_zero_size or shared) else max(1, int(sample_sets))
+    lp = sampling.pack_light(light)
+    seed = int(seed)
+    centre = light.position.astype(np.float64)
+    ax, ay, az = light.axes
+    DVg = np.zeros((G, MAXV, 4))
+    DEg = np.zeros((G, MAXE, 2), np.int64)
+    nvg = np.zeros(G, np.int64)
+    neg = np.zeros(G, np.int64)
+    SP = np.zeros((1, 1, 4))
+    Q = np.zeros((1, 1, 3))
+    theta = 0.0
+    w0 = None
+    if light.kind == "area":
+        mode = MODE_SHARED if shared else MODE_FIXED
+        disk = light.is_round
+        hx, hy = light.half_size
+        ex, ey = ax * hx, ay * hy
+        full = disk_polygon(1.0) if disk else block_polygon_2d(0, 1, 0, 1, False)
+        DVL, nvl, DEL, nel = polygon_to_homog(full, centre, ex, ey, 1.0, tol)
+        for g in range(G):
+            poly = block_polygon_2d(*blocks[g], disk)
+            DVg[g], nvg[g], DEg[g], neg[g] = polygon_to_homog(poly, centre, ex, ey, 1.0, tol)
+    elif light.kind == "sun":
+        mode = MODE_SHARED if shared else MODE_FIXED
+        cosmax = lp[sampling.L_COSMAX]
+        if cosmax < 0.05:
+            # a cone this wide has no tangent-plane polygon: no culling volumes
+            DVL, nvl, DEL, nel = np.zeros((MAXV, 4)), 0, np.zeros((MAXE, 2), np.int64), 0
+        else:
+            def radial(rho):
+                c = 1.0 - rho * rho * (1.0 - cosmax)
+                return math.sqrt(max(0.0, 1.0 - c * c)) / c
+            full = disk_polygon(radial(1.0))
+            DVL, nvl, DEL, nel = polygon_to_homog(full, az, ax, ay, 0.0, 1e-15)
+            for g in range(G):
+                poly = block_polygon_2d(*blocks[g], True, radial)
+                DVg[g], nvg[g], DEg[g], neg[g] = polygon_to_homog(poly, az, ax, ay, 0.0, 1e-15)
+    else:  # sphere
+        r = float(light.radius)
+        if shared:
+            mode = MODE_SHARED
+            DVL, nvl, DEL, nel = box_to_homog([-r] * 3, [r] * 3, centre, np.eye(3), tol)
+            for g in range(G):
+                DVg[g], nvg[g], DEg[g], neg[g] = DVL, nvl, DEL, nel
+        else:
+            mode = MODE_SPHERE
+            d = centre[None, :] - Pg
+            dn = np.linalg.norm(d, axis=1)
+            ok = dn > 0
+            mean = (d[ok] / dn[ok, None]).sum(0) if ok.any() else np.zeros(3)
+            if np.linalg.norm(mean) > 1e-9 * max(1, ok.sum()):
+                w0 = mean / np.linalg.norm(mean)
+            else:
+                w0 = az.copy()
+            e1, e2 = sampling.orthonormal_basis(*w0)
+            e1, e2 = np.array(e1), np.array(e2)
+            frame = np.stack([e1, e2, w0])
+            _, ang = min_rotations(np.ascontiguousarray(Pg), centre, w0)
+            theta = float(ang.max()) if len(ang) else 0.0
+            dlt = 2.0 * r * math.sin(0.5 * min(theta, math.pi))
+            dz = r * (math.sin(theta) if theta < 0.5 * math.pi else 1.0)
+            DVL, nvl, DEL, nel = box_to_homog([-r, -r, -dz], [r, r, dz], centre, frame, tol)
+            for g in range(G):
+                poly = block_polygon_2d(*blocks[g], True) * r
+                lo = np.maximum(poly.min(0) - dlt, -r)
+                hi = np.minimum(poly.max(0) + dlt, r)
+                DVg[g], nvg[g], DEg[g], neg[g] = box_to_homog([lo[0], lo[1], -dz], [hi[0], hi[1], dz],
+                                                              centre, frame, tol)
+            Q = sphere_disk_table(nsets, nx, ny, bit2s, seed, SET_KEY, r, e1, e2)
+    if mode == MODE_FIXED:
+        SP = fixed_sample_table(lp, nsets, nx, ny, bit2s, seed, SET_KEY)
+    return LightSetup(mode, S, nx, ny, G, nsets, bit2s, g_start, DVL, int(nvl), DEL, int(nel),
+                      DVg, nvg, DEg, neg, SP, Q, centre, lp, theta, w0)

@@ -1,16 +1,15 @@
-"""Coplanar convex blocker polygons for penumbra casting (Laine & Aila 2005,
-section 5: several blocker triangles processed at once): the polygons are
-exactly the union of their triangles, and casting them changes no blocked
-relation except rays within rounding of a removed inner edge."""
+"""Blocker polygons of penumbra casting (``blockers``): coplanar convex
+triangle groups merged into one polygon (Laine & Aila 2005, section 5:
+several blocker triangles processed at once) are exactly the union of their
+triangles, and casting them changes no blocked relation except rays within
+rounding of a removed inner edge; the coarse sort by area (section 3.3)."""
 import numpy as np
 import pytest
 
-from penumbra.core.buffers import FrameBuffers
-from penumbra.core.methods.penumbra_casting.blockers import MAXB, PLANE_ULPS, _unique_vertices, coplanar_blockers, pad_triangles
-from penumbra.core.methods.penumbra_casting import PenumbraCasting, cast, prepare, scene_blockers
-from penumbra.core.methods.base import PhaseTimer
-
-PC = PenumbraCasting()
+from pc_helpers import run_pc
+from penumbra.core.methods.penumbra_casting import scene_blockers
+from penumbra.core.methods.penumbra_casting.blockers import (MAXB, PLANE_ULPS, _unique_vertices, bucket_sort_by_area,
+                                                             coplanar_blockers, pad_triangles)
 
 
 def _area(tris):
@@ -130,12 +129,7 @@ def test_polygons_block_what_their_triangles_block(name):
     only relations within rounding of a removed inner edge may differ."""
     from scenes import load_sample
     scene = load_sample(name, (64, 64))
-    fb = FrameBuffers(scene, 64, 64)
-    out = {}
-    for merged in (True, False):
-        p = PC.make_params({"samples": 64, "coplanar_blockers": merged})
-        setup = prepare(fb, scene.lights[0], p)
-        out[merged] = cast(setup, scene_blockers(scene), p, PhaseTimer())
+    out = {merged: run_pc(scene, samples=64, coplanar_blockers=merged)[2:] for merged in (True, False)}
     (Vm, sm), (Vt, st) = out[True], out[False]
     assert sm["blockers"] < st["blockers"]
     diff = np.abs(Vm - Vt) * 64
@@ -155,3 +149,49 @@ def test_unique_vertices_is_numpy_unique():
     assert np.array_equal(P, Pn) and np.array_equal(inv, invn.ravel())
     assert np.array_equal(P[inv], V)
     assert inv[11] == inv[12]
+
+
+def test_coarse_sort_is_largest_first_by_bucket():
+    """Triangles over five decades of size: the order holds each once, its
+    log-area buckets ascend from the largest, and the first bucket's areas
+    all exceed the others'."""
+    rng = np.random.default_rng(6)
+    s = 10.0 ** rng.uniform(-4, 1, 500)
+    tris = rng.normal(0, 1, (500, 3, 3)) * s[:, None, None]
+    order = bucket_sort_by_area(tris, np.full(len(tris), 3), 8)
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+    la = np.log(area[order])
+    b = np.minimum(7, ((la.max() - la) / (la.max() - la.min()) * 8).astype(int))
+    assert sorted(order) == list(range(500))
+    assert np.all(np.diff(b) >= 0)
+    assert b[0] == 0 and b[-1] == 7            # coarse: buckets in order, stable inside one
+    assert area[order[:np.sum(b == 0)]].min() > area[order[np.sum(b == 0):]].max()
+
+
+def test_coarse_sort_takes_a_polygons_area_from_all_its_corners():
+    """Blocker polygons (corners past ``nverts`` repeated, as the merge
+    stores them) are bucketed by their whole area: regular triangles,
+    squares and hexagons of circumradius r in any orientation, whose area
+    is n sin(2 pi / n) r^2 / 2 (closed form)."""
+    rng = np.random.default_rng(9)
+    polys, nv, area = [], [], []
+    for k in range(300):
+        kind = k % 3
+        n = (3, 4, 6)[kind]
+        size = 10.0 ** rng.uniform(-3, 1)
+        ang = np.arange(n) * 2 * np.pi / n
+        pts = np.stack([np.cos(ang), np.sin(ang), np.zeros(n)], 1) * size
+        R, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        pts = pts @ R.T + rng.normal(0, 5, 3)
+        p = np.repeat(pts[-1:], MAXB, 0)
+        p[:n] = pts
+        polys.append(p)
+        nv.append(n)
+        area.append(0.5 * n * np.sin(2 * np.pi / n) * size ** 2)    # regular n-gon of circumradius size
+    polys, nv, area = np.array(polys), np.array(nv, np.int64), np.array(area)
+    order = bucket_sort_by_area(polys, nv, 8)
+    la = np.log(area)
+    b = np.minimum(7, ((la.max() - la) / (la.max() - la.min()) * 8).astype(int))
+    assert sorted(order) == list(range(len(area)))
+    assert np.all(np.diff(b[order]) >= 0)
+    assert np.all(np.diff(order[b[order] == 3]) > 0)       # stable inside a bucket

@@ -1,17 +1,19 @@
-"""Issue 17's levers of penumbra_casting: interior blockers of closed meshes
-(``cores``), leaf hexagons (``MaxCorners``), and the casting with both
-against Embree's rays to the same light samples. No bpy."""
+"""Closed solids in penumbra casting (``cores``): interior blockers inside
+closed meshes, their disks, the solids' outward winding; leaf hexagons as
+one blocker; and the casting with interior blockers, back-face culls and
+hidden pairs against Embree's rays to the same light samples. No bpy."""
+import os
+
 import numpy as np
 import pytest
 
+import synthetic
+from pc_helpers import assert_exact, one_object_scene, own_rays, run_pc
 from penumbra.bench.scaling import bulge_split, uv_sphere_triangles
 from penumbra.core.methods.penumbra_casting.blockers import coplanar_blockers
 from penumbra.core.methods.penumbra_casting.cores import closed_solids, interior_blockers
-from penumbra.core.scene import Camera, ObjectInfo, Scene
-from penumbra.core.views import look_rotation
 from synthetic import area_light, quad, sun_light
 from test_compile_and_plan import _COMPILES_OUTSIDE_WARM_UP
-from test_method_penumbra_casting import assert_exact, own_rays, run_pc
 
 _REGISTER = 'event.register("numba:compile", Compiles())\n'
 
@@ -24,6 +26,9 @@ def _sphere(n=4000, centre=(0.0, 0.0, 1.0), radius=1.0):
 
 
 def test_interior_blockers_lie_inside_the_closed_sphere_and_are_convex():
+    """A closed sphere of 40000 triangles: slice polygons strictly inside it,
+    flat, perpendicular to the light's direction, their fans covering most of
+    each slice's disk and never more."""
     polys, nv = interior_blockers(_sphere(40000), **LIGHT)          # 9 slices (one per 4096 triangles)
     assert len(polys) >= 2
     d = np.linalg.norm(polys - [0.0, 0.0, 1.0], axis=2)
@@ -64,6 +69,8 @@ def test_solids_orientation_and_disks_inside_their_slices():
 
 
 def test_no_interior_blockers_for_open_meshes_or_a_light_inside():
+    """No polygon for a mesh with a hole or a solid whose box may hold the
+    light; one fan per closed sphere; the sun is always outside."""
     sph = _sphere()
     assert len(interior_blockers(sph[1:], **LIGHT)[0]) == 0            # a hole: not closed
     inside = dict(LIGHT, light_lo=np.array([-0.2, -0.2, 0.8]), light_hi=np.array([0.2, 0.2, 1.2]))
@@ -87,7 +94,10 @@ def _leaf_fans(rng, n):
     return np.concatenate(out)
 
 
-def test_a_leaf_hexagon_is_one_blocker_and_quads_are_the_earlier_merge():
+def test_a_leaf_hexagon_is_one_blocker_or_two_quads_at_four_corners():
+    """A convex hexagonal leaf (a fan of 4 triangles) merges into one
+    hexagon, or into two quads when polygons may have at most 4 corners;
+    either way padded to MAXB corners."""
     leaves = _leaf_fans(np.random.default_rng(2), 30)
     polys, nv, poly_of = coplanar_blockers(leaves)
     assert len(polys) == 30 and (nv == 6).all()
@@ -103,33 +113,30 @@ def _mixed_scene(light, res=48):
     curved = bulge_split(_leaf_fans(rng, 10) + [0.0, 0.0, 0.3], 1, 0.15)
     sph = uv_sphere_triangles(3000, 0.7, (0.8, 0.5, 1.2))
     tris = np.concatenate([np.array(quad(-6, 6, -6, 6, 0.0)), leaves, curved, sph]).astype(np.float32)
-    m = np.eye(4)
-    eye = np.array([5.0, -6.0, 6.0])
-    m[:3, :3] = look_rotation(-eye)
-    m[:3, 3] = eye
-    return Scene(tris, np.zeros(len(tris), np.int32), [ObjectInfo("all", 0)], Camera(m, lens=35.0), [light],
-                 (res, res))
+    return one_object_scene(tris, light, res)
 
 
 @pytest.mark.parametrize("light", [area_light(1.5, z=5.0), sun_light(0.1)], ids=["area", "sun"])
 def test_hexagons_and_interior_blockers_block_exactly_embrees_rays(light):
     """Every relation the casting marks is a segment Embree finds blocked,
-    with the new levers on (the defaults), and they change nothing against
-    the paper's per-triangle casting beyond rays grazing an edge."""
+    with hexagons, interior blockers and back-face culls on (the defaults),
+    and they change nothing against the paper's per-triangle casting beyond
+    rays grazing an edge."""
     scene = _mixed_scene(light)
     fb, setup, V, stats = run_pc(scene)
     assert stats["interior_blockers"] >= 2
     # the sphere's triangles facing away from the light, and pairs hidden behind its slices
     assert stats["triangles_backface_culled"] > 0 and stats["hidden_pairs"] > 0 and stats["hidden_nodes"] > 0
     assert_exact(V, own_rays(fb, setup), setup.light.S)
-    _, _, V_paper, st_paper = run_pc(scene, MaxCorners=4, interior_blockers=False, coplanar_blockers=False,
-                                     backface_cull=False)
+    _, _, V_paper, st_paper = run_pc(scene, interior_blockers=False, coplanar_blockers=False, backface_cull=False)
     assert st_paper["interior_blockers"] == 0 and st_paper["blockers"] > stats["blockers"]
     assert st_paper["triangles_backface_culled"] == st_paper["hidden_pairs"] == 0
     assert_exact(V, V_paper, setup.light.S)
 
 
 def test_a_concave_slice_gives_no_polygon():
+    """A circular slice gives a convex fan; a star's spikes or a dent in the
+    loop give none (the polygon would leave the slice)."""
     from penumbra.core.methods.penumbra_casting.cores import _convex_fan
     a = np.linspace(0, 2 * np.pi, 200, endpoint=False)
     normal = np.array([0.0, 0.0, 1.0])
@@ -145,15 +152,10 @@ def test_a_concave_slice_gives_no_polygon():
 def test_backface_cull_and_hidden_pairs_change_no_relation_on_a_smooth_sphere(light):
     """The closed sphere's back-facing triangles dropped and the (blocker,
     receiver) pairs hidden behind its slices skipped: the same relations as
-    with every triangle tested, and as Embree's rays (issue 17)."""
+    with every triangle tested, and as Embree's rays."""
     sph = uv_sphere_triangles(20000, 1.0, (0.3, 0.2, 1.0))
     tris = np.concatenate([np.array(quad(-5, 5, -5, 5, 0.0)), sph]).astype(np.float32)
-    m = np.eye(4)
-    eye = np.array([4.0, -5.0, 4.0])
-    m[:3, :3] = look_rotation(-eye)
-    m[:3, 3] = eye
-    scene = Scene(tris, np.zeros(len(tris), np.int32), [ObjectInfo("all", 0)], Camera(m, lens=35.0), [light],
-                  (64, 64))
+    scene = one_object_scene(tris, light, 64, eye=(4.0, -5.0, 4.0))
     fb, setup, V, st = run_pc(scene)
     assert st["triangles_backface_culled"] > 0.3 * len(sph) and st["group_backface_culled"] > 0
     assert st["hidden_pairs"] + st["hidden_nodes"] > 0.3 * st["receiver_blocker_pairs"]
@@ -188,16 +190,15 @@ print(json.dumps({"inside": inside, "outside": outside}))
 
 
 def test_a_closed_solid_compiles_nothing_outside_the_warm_up(tmp_path):
-    """Issue 15: the warm-up's scene (two quads) has no closed solid; on a
-    fresh Numba cache the slicing kernels (``cores``) a real scene's closed
-    mesh needs still compile inside the warm-up, not in the method's time."""
+    """The warm-up's scene (two quads) has no closed solid; on a fresh Numba
+    cache the slicing kernels (``cores``) a real scene's closed mesh needs
+    still compile inside the warm-up, not in the method's time."""
     import json
-    import os
     import subprocess
     import sys
     env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=str(tmp_path / "cache"))
     env.pop("NUMBA_CACHE_DIR", None)
-    code = _CLOSED_SOLID_COMPILES.replace("{tests!r}", repr(os.path.dirname(os.path.abspath(__file__))))
+    code = _CLOSED_SOLID_COMPILES.replace("{tests!r}", repr(os.path.dirname(os.path.abspath(synthetic.__file__))))
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     seen = json.loads(p.stdout.strip().splitlines()[-1])
