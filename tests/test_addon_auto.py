@@ -1,30 +1,20 @@
-"""``auto`` in Blender (bpy, background mode): Compute Passes, the panel and
-Set up compositor all resolve a light's ``auto`` with core/auto_choice.py
-under the scene's error budget, and the frame's JSON carries the decision."""
+"""``auto`` with bpy (background mode): Compute Passes, the panel, Set up
+compositor and the command line's ``plan`` and ``render`` all resolve a
+light's ``auto`` with core/auto_choice.py under the scene's error budget,
+and the frame's JSON carries the decision (the rules themselves:
+test_core_auto.py)."""
 import json
 
 import bpy
 import pytest
 
-import penumbra
 from penumbra.bridge import compositor
 from penumbra.core import auto_choice as ac
-from scenes import sample_path
-
-
-@pytest.fixture
-def registered():
-    penumbra.register()
-    yield
-    penumbra.unregister()
+from scenes import open_sample, sample_path
 
 
 def _sphere_plane(w=32, h=24):
-    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
-    scene = bpy.context.scene
-    scene.render.resolution_x, scene.render.resolution_y = w, h
-    scene.render.resolution_percentage = 100
-    return scene, bpy.data.objects["Key.Light"]
+    return open_sample("sphere_plane", (w, h)), bpy.data.objects["Key.Light"]
 
 
 def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
@@ -56,7 +46,7 @@ def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
 
 
 def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
-    from penumbra.bridge import jobs as bj, pipeline
+    from penumbra.bridge import jobs as bj
     from penumbra.bridge.capture import capture_scene
     scene, light = _sphere_plane(16, 12)
     light.data.size = 0.0
@@ -114,7 +104,6 @@ def _torus_shape(resolution):
     """auto's SceneShape of torus_plane's spot light as the CLI captures it
     (``resolution`` None: the scene's own)."""
     from penumbra.bridge.capture import capture_scene
-    from scenes import open_sample
     sc = capture_scene(open_sample("torus_plane"), resolution=resolution)
     return ac.scene_shape(sc, sc.lights[0])
 
@@ -146,7 +135,6 @@ def test_cli_render_auto_writes_the_picked_method_under_its_id(tmp_path):
     """``penumbra render --methods auto,embree``: the light's pass is the
     method auto picked for the budget, under that id (never ``auto``), with
     its error against the reference and the decision in the plan."""
-    import json
     import OpenEXR
     from penumbra.cli import main
     blend = sample_path("torus_plane")

@@ -2,7 +2,6 @@
 culling changes no pixel of the final pass."""
 import numpy as np
 
-from penumbra.core import raycast
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.methods import producer_of

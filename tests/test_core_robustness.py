@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from penumbra.core.frame import render_frame
-from penumbra.core.scene import Scene, finite_triangles
+from penumbra.core.scene import finite_triangles
 from synthetic import area_light, half_plane_scene, pixel_world_y, sphere_light, sun_light
 
 PASSES = ["pcf", "embree", "embree_irr"]

@@ -1,13 +1,11 @@
 """Projections and Embree buffers against analytic geometry (no bpy)."""
-import math
-
 import numpy as np
 import pytest
 
 from penumbra.core import raycast, views
 from penumbra.core.kernels import face_project, pick_face
 from penumbra.core.scene import Camera, ObjectInfo, Scene
-from synthetic import area_light, light_matrix, quad, sphere_light, sun_light
+from synthetic import area_light, quad, sphere_light, sun_light
 
 
 def persp_camera(**kw):

@@ -1,23 +1,21 @@
-"""Compilation reported apart (``compile_s``, issue 15), the compiling notice,
-the warm-up covering every kernel a run calls, and ``penumbra plan``
-making the decisions ``render`` makes."""
+"""The warm-up (``core/warmup.py``): compilation reported apart from the
+methods' times (``compile_s``) with a notice first, the warm-up compiling
+every kernel a run calls, nothing compiled outside it on a matte scene, and
+the add-on's warm-up thread."""
 import json
 import os
-import re
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from penumbra.cli import main
 from penumbra.core import methods as registry
 from penumbra.core import warmup
 from penumbra.core.buffers import FrameBuffers
+from helpers import PENUMBRA
 from scenes import sample_path
-from synthetic import area_light, half_plane_scene, light_matrix, sphere_light, sun_light
-
-PENUMBRA = os.path.join(os.path.dirname(sys.executable), "penumbra")
+from synthetic import area_light, half_plane_scene, sphere_light, sun_light
 
 
 def _render(out, cache_root):
@@ -65,85 +63,6 @@ def test_warm_up_compiles_every_kernel_the_run_calls(method):
     assert warmup.kernels_cached(method)
 
 
-def _plan_lights(text):
-    """{light: (action, [methods])} from ``penumbra plan``'s output."""
-    out, name = {}, None
-    for line in text.splitlines():
-        m = re.match(r"light '(.+)' -> layer '.+': (\w+) \(", line)
-        if m:
-            name = m.group(1)
-            out[name] = (m.group(2), [])
-        m = re.match(r"    methods: (.+); buffers:", line)
-        if m and name:
-            out[name] = (out[name][0], m.group(1).split(", "))
-    return out
-
-
-def _render_lights(rec):
-    return {lp["name"]: (lp["action"], lp["producers"]) for lp in rec["plan"]["lights"]}
-
-
-def _unreached_blend(path):
-    """A plane, a camera above it, one area light over it and a spot light
-    whose cone points away from everything the camera sees."""
-    import bpy
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.mesh.primitive_plane_add(size=4)
-    bpy.ops.mesh.primitive_cube_add(size=0.5, location=(0, 0, 1))
-    bpy.ops.object.light_add(type="AREA", location=(0, 0, 3))
-    bpy.ops.object.light_add(type="SPOT", location=(0, 0, 3), rotation=(np.pi, 0, 0))   # shines up
-    bpy.context.object.name = "Away"
-    bpy.context.object.data.spot_size = np.radians(30)
-    bpy.ops.object.camera_add(location=(0, 0, 6))
-    bpy.context.scene.camera = bpy.context.object
-    bpy.context.scene.render.resolution_x = bpy.context.scene.render.resolution_y = 32
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    return str(path)
-
-
-@pytest.mark.parametrize("scene", ["sphere_plane", "torus_plane", "grids", "unreached"])
-def test_plan_and_render_agree(tmp_path, capsys, scene):
-    blend = _unreached_blend(tmp_path / "unreached.blend") if scene == "unreached" else sample_path(scene)
-    res = "48x40"
-    capsys.readouterr()
-    assert main(["plan", blend, "--resolution", res]) == 0             # default: auto
-    said = capsys.readouterr().out
-    planned = _plan_lights(said)
-    assert main(["render", blend, "--out", str(tmp_path / "o"), "--resolution", res, "--samples", "4",
-                 "--no-previews", "--quiet"]) == 0
-    stem = os.path.splitext(os.path.basename(blend))[0]
-    frame = next(f for f in os.listdir(tmp_path / "o") if f.endswith(".json"))
-    rec = json.loads((tmp_path / "o" / frame).read_text())
-    assert rec["plan"]["passes"] == ["auto"]
-    assert planned == _render_lights(rec) and planned, stem
-    flt = rec["pixel_filter"]                                           # default: the scene's filter
-    assert f"pixel filter: {flt['type']} {flt['width_px']:g} px (" in said
-    if scene == "unreached":
-        assert planned["Away"] == ("skip", [])
-        (lp,) = [lp for lp in rec["plan"]["lights"] if lp["name"] == "Away"]
-        assert "reaches no visible receiver" in lp["reason"]
-        assert planned["Area"][0] == "compute"
-
-
-def test_progress_bar_only_on_a_terminal_and_not_quiet(monkeypatch, capsys):
-    from penumbra import cli
-    from penumbra.core.warmup import CompileNotice
-    p = cli._Progress(2)                          # under capsys stderr is not a terminal
-    assert p.bar is None
-    p.frame(0, 1)(CompileNotice("pcf"), 0.0)
-    p.frame(0, 1)("Key: pcf", 0.5)
-    assert capsys.readouterr().err == "penumbra: compiling pcf kernels (first run only)...\n"
-    cli._Progress(2, quiet=True).frame(0, 1)(CompileNotice("pcf"), 0.0)
-    assert capsys.readouterr().err == ""
-    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
-    assert cli._Progress(2, quiet=True).bar is None
-    bar = cli._Progress(2)
-    bar.frame(1, 5)("Key: pcf", 0.5)
-    assert bar.bar.n == pytest.approx(1.5)
-    bar.close()
-    assert "frame 5: Key: pcf" in capsys.readouterr().err
-
-
 _COMPILES_OUTSIDE_WARM_UP = r"""
 import json, sys
 sys.path.insert(0, {tests!r})
@@ -182,7 +101,7 @@ print(json.dumps({{"inside": inside, "outside": outside}}))
 
 @pytest.mark.parametrize("pixel_filter", ["none", "blackman-harris:1.5"])
 def test_a_matte_scene_compiles_nothing_outside_the_warm_up(tmp_path, pixel_filter):
-    """Issue 15 / 18 / 14: on a fresh Numba cache, every kernel a frame with
+    """On a fresh Numba cache, every kernel a frame with
     alpha mattes compiles (camera G-buffer pass-through, dithered light map,
     matte transmittance, the planner's reach; filtered: the refine masks,
     sub-pixel G-buffer, resolve) compiles inside the warm-up, never inside a
@@ -196,3 +115,16 @@ def test_a_matte_scene_compiles_nothing_outside_the_warm_up(tmp_path, pixel_filt
     seen = json.loads(p.stdout.strip().splitlines()[-1])
     assert any("transmittance" in n or "cross" in n or "clear" in n for n in seen["inside"]), seen["inside"]
     assert seen["outside"] == [], seen["outside"]
+
+
+def test_warm_up_thread_compiles_the_default_methods():
+    from penumbra.bridge import pipeline
+    from penumbra.core.scene import Light
+    th = pipeline.start_warm_up(["pcf"])
+    assert th.daemon                                   # never keeps Blender from exiting
+    th.join(600)
+    assert not th.is_alive()
+    m = registry.producer_of("pcf")
+    light = Light("any", "area", np.eye(4), blender_type="AREA", size=1.0)
+    assert warmup.ensure_compiled(m, light, m.make_params({"seed": 0, "samples": 64})) == 0.0
+    assert set(pipeline.default_methods()) >= {"pcf"}
