@@ -3,7 +3,7 @@ or captured as core Scenes), small scenes built for one check, and what the
 tests read back from bpy (an image's pixels, the render settings).
 
 Loading a .blend needs bpy (``bridge/capture.py`` is the one boundary);
-each capture is cached per (name, resolution) for the test session.
+each capture is cached per (name, resolution) for the whole test run.
 """
 from __future__ import annotations
 

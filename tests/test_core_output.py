@@ -143,9 +143,9 @@ def test_written_files_honour_the_umask(tmp_path, umask, mode):
 def test_an_interrupt_anywhere_leaves_no_temporary_file(tmp_path, monkeypatch, where):
     """A farm's SIGTERM becomes KeyboardInterrupt at any bytecode: raised
     inside the temporary file's creation (after the file exists), its close,
-    the write or the rename, it leaves no file but the old one (CI once found
-    an empty ``.penumbra-*.json`` left by an interrupt between the creation
-    and the clean-up)."""
+    the write or the rename, it leaves no file but the old one (not even an
+    empty ``.penumbra-*.json`` from an interrupt between the temporary
+    file's creation and its clean-up)."""
     target = tmp_path / "frame.json"
     target.write_bytes(b"old")
     real = {"create": os.open, "close": os.close, "replace": os.replace}

@@ -1,15 +1,14 @@
-"""Passes filtered like the render (issue 14, ``core/pixel_filter.py``,
+"""Passes filtered like the render (``core/pixel_filter.py``,
 ``core/filtered_frame.py``): the filters against Cycles' own definitions,
 a silhouette edge against the filter's integral, the pixel-centre pass kept
 away from edges, the resolve against its formula."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
-
-import dataclasses
 
 from penumbra.core import filtered_frame, raycast
 from penumbra.core.filtered_frame import render_filtered
@@ -17,7 +16,7 @@ from penumbra.core.frame import render_frame
 from penumbra.core.pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, PixelFilterError, footprint_samples,
                                         from_render_settings, parse, refine_mask, resolve_pass)
 from penumbra.core.scene import ObjectInfo, Scene
-
+from helpers import rmse
 from synthetic import area_light, box, make_scene, persp_camera, quad, sun_light, top_ortho_camera
 
 
@@ -211,7 +210,7 @@ def test_footprint_samples_are_the_union_of_the_refined_footprints():
         wr, wc = np.nonzero(want)
         assert np.array_equal(rows, wr) and np.array_equal(cols, wc), flt
         # pixels refined for V alone read the lattice's sub-rows and sub-columns of their own
-        # pixel (shade_footprint: of their footprint, the first version)
+        # pixel (with shade_footprint: of their whole footprint)
         full = refine & (rng.random((H, W)) > 0.5)
         for shade in (1, 2, s):
             lattice = dataclasses.replace(flt, shade_grid=shade).shade_lattice
@@ -261,7 +260,7 @@ def test_curvature_test_refines_kinks_and_jumps_not_ramps():
     x = np.arange(24, dtype=np.float64)
     ramp = np.tile(0.04 * x, (6, 1))                       # a penumbra crossing 0.04 per pixel
     assert not _refined(ramp, True).any()                  # integrated exactly by the centre sample
-    assert _refined(ramp, False).all()                     # the first version refines all of it
+    assert _refined(ramp, False).all()                     # without the curvature test: all of it
     kink = np.tile(np.clip(0.1 * (x - 12), 0.0, 1.0), (6, 1))
     assert np.array_equal(np.nonzero(_refined(kink, True)[0])[0], [12, 22])    # where the slope changes
     jump = np.tile((x >= 12).astype(float), (6, 1))
@@ -278,7 +277,7 @@ def _box_scene(res=40):
 
 def test_adaptive_pass_is_the_full_supersampled_pass():
     """The adaptive pass against 16 sub-pixel samples in every pixel (every
-    pixel refined): within issue 14's 0.005 RMSE over the covered pixels."""
+    pixel refined): within 0.005 RMSE over the covered pixels."""
     sc = _box_scene()
     flt = PixelFilter("blackman-harris", 1.5)
     passes = ["pcf", "penumbra_casting"]
@@ -290,7 +289,7 @@ def test_adaptive_pass_is_the_full_supersampled_pass():
     assert full.lights[0].record["pcf"]["pixel_filter"]["refined_pixels"] == sc.resolution[0] * sc.resolution[1]
     for pid in passes:
         a, b = adaptive.lights[0].passes[pid], full.lights[0].passes[pid]
-        assert np.sqrt(np.mean((a.astype(np.float64) - b)[cov] ** 2)) <= 0.005, pid
+        assert rmse(a, b, cov) <= 0.005, pid
         assert not np.array_equal(a, render_frame(sc, [pid]).lights[0].passes[pid]), pid   # it was filtered
     assert np.array_equal(adaptive.coverage[~cov], full.coverage[~cov])
 
@@ -325,7 +324,7 @@ def test_pcf_pixel_step_on_sub_pixel_receivers():
     threshold < 0, the filtered pass comes from them alone and is the same
     bits as with pixel_step 1: a packed list's neighbouring entry is not its
     pixel's block); the render's "interpolate" blends between sub-pixel
-    anchors on one surface, and stays within issue 14's 0.005 RMSE of the
+    anchors on one surface, and stays within 0.005 RMSE of the
     pass that filters every receiver."""
     sc = _box_scene(24)
     flt = dataclasses.replace(PixelFilter("blackman-harris", 1.5), threshold=-1.0)
@@ -337,7 +336,7 @@ def test_pcf_pixel_step_on_sub_pixel_receivers():
     np.testing.assert_array_equal(a, b)
     cov = blend.coverage > 0
     assert not np.array_equal(a, c)
-    assert np.sqrt(np.mean((a.astype(np.float64) - c)[cov] ** 2)) <= 0.005
+    assert rmse(a, c, cov) <= 0.005
 
 
 def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
@@ -359,7 +358,7 @@ def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
                     np.tile(np.array([0, 0, 1], np.float32), (H, W, 1)), values, 1, 0.1, DEPTH_JUMP,
                     NORMAL_COS, True, out, 0.3, full, geo_v)
         return np.nonzero(out[2])[0].tolist(), np.nonzero(full[2])[0].tolist()
-    # V = 0 on both sides of the object edge at 19 | 20: refined only in the first version
+    # V = 0 on both sides of the object edge at 19 | 20: refined only with geo_v off (< 0)
     assert mask(values, -1.0) == ([4, 8, 11, 12, 19, 20], [11, 12, 19, 20])
     assert mask(values, 0.02) == ([4, 8, 11, 12], [11, 12])
     lit = values.copy()
