@@ -29,7 +29,7 @@ import pytest
 
 os.environ["PENUMBRA_STRICT_INNER"] = "1"
 BPY_NAMES = re.compile(r"\b(bpy|factory_scene|sample_path|load_sample|open_sample|tiny_cycles_scene|"
-                       r"save_plane_blend|image_rgba|render_state)\b")
+                       r"save_plane_blend|image_rgba|draw_panel|render_state)\b")
 
 
 def pytest_addoption(parser):

@@ -109,3 +109,43 @@ class CancelAfter(CancelToken):
         if self.checks > self.n:
             self.cancel()
         super().check()
+
+
+#: A script for ``python -c``: compiles with a listener that sorts each
+#: Numba compilation by whether the warm-up (``core/warmup.py``) was running,
+#: then renders a matte scene; prints {"inside": [...], "outside": [...]}
+#: (kernel names). ``.format(tests=..., methods=[...], pixel_filter=...)``.
+COMPILES_OUTSIDE_WARM_UP = r"""
+import json, sys
+sys.path.insert(0, {tests!r})
+from numba.core import event
+from penumbra.core import warmup
+from penumbra.core.alpha import CLOSEST, REPEAT
+from penumbra.core.filtered_frame import render_filtered
+from penumbra.core.pixel_filter import parse
+from synthetic import area_light, matte_layers_scene
+
+inside, outside = [], []
+
+def in_warm_up():
+    # the warm-up holds warmup._lock while it runs (its worker threads see it taken)
+    owned = getattr(warmup._lock, "_is_owned", None)      # an RLock: its owner may re-acquire it
+    if owned is not None and owned():
+        return True
+    if warmup._lock.acquire(blocking=False):
+        warmup._lock.release()
+        return False
+    return True
+
+class Compiles(event.Listener):
+    def on_start(self, ev):
+        (inside if in_warm_up() else outside).append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Compiles())
+sc = matte_layers_scene(area_light(1.0), [(2.0, [[0.0, 1.0], [1.0, 0.0]], CLOSEST, REPEAT)], res=16,
+                        camera_sees=True)
+render_filtered(sc, {methods!r}, overrides={{"samples": 4}}, pixel_filter=parse({pixel_filter!r}))
+print(json.dumps({{"inside": inside, "outside": outside}}))
+"""

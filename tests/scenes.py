@@ -1,6 +1,7 @@
 """bpy scenes for the tests and the bench: the bundled sample scenes (opened,
 or captured as core Scenes), small scenes built for one check, and what the
-tests read back from bpy (an image's pixels, the render settings).
+tests read back from bpy (an image's pixels, what a panel draws, the render
+settings).
 
 Loading a .blend needs bpy (``bridge/capture.py`` is the one boundary);
 each capture is cached per (name, resolution) for the whole test run.
@@ -110,6 +111,41 @@ def image_rgba(img) -> np.ndarray:
     px = np.empty(w * h * 4, np.float32)
     img.pixels.foreach_get(px)
     return px.reshape(h, w, 4)
+
+
+class RecordingLayout:
+    """A stand-in for a panel's ``layout`` that records what the panel
+    draws: ``props`` ((data, property name)), ``operators`` (idnames) and
+    ``labels`` (texts); its rows and columns are itself."""
+
+    use_property_split = use_property_decorate = active = enabled = True
+
+    def __init__(self):
+        self.props, self.operators, self.labels = [], [], []
+
+    def prop(self, data, name, **kw):
+        self.props.append((data, name))
+
+    def operator(self, idname, **kw):
+        self.operators.append(idname)
+        return type("Props", (), {})()
+
+    def label(self, text="", **kw):
+        self.labels.append(text)
+
+    def row(self, **kw):
+        return self
+
+    column = row
+
+
+def draw_panel(panel_cls, context) -> RecordingLayout:
+    """Draw the add-on panel ``panel_cls`` for ``context`` (any object with
+    the attributes the panel reads: ``scene``, ``light``) into a
+    RecordingLayout; returns it."""
+    layout = RecordingLayout()
+    panel_cls.draw(type("Panel", (), {"layout": layout})(), context)
+    return layout
 
 
 def render_state(scene) -> dict:

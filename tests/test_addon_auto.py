@@ -4,13 +4,14 @@ light's ``auto`` with core/auto_choice.py under the scene's error budget,
 and the frame's JSON carries the decision (the rules themselves:
 test_core_auto.py)."""
 import json
+from types import SimpleNamespace
 
 import bpy
 import pytest
 
 from penumbra.bridge import compositor
 from penumbra.core import auto_choice as ac
-from scenes import open_sample, sample_path
+from scenes import draw_panel, open_sample, sample_path
 
 
 def _sphere_plane(w=32, h=24):
@@ -59,42 +60,19 @@ def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
 
 
 def test_panel_says_what_auto_picks_and_why(registered):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    labels, knobs_of = [], []
-
-    class Layout:
-        use_property_split = use_property_decorate = active = enabled = True
-
-        def prop(self, data, name, **kw):
-            if hasattr(data, "bl_rna") and data.bl_rna.identifier.startswith("PENUMBRA_PG_knobs_"):
-                knobs_of.append(data.bl_rna.identifier[len("PENUMBRA_PG_knobs_"):])
-
-        def operator(self, *a, **kw):
-            return type("Props", (), {})()
-
-        def label(self, text="", **kw):
-            labels.append(text)
-
-        def row(self, **kw):
-            return self
-
-        column = row
-
-    class Ctx:
-        pass
-
     from penumbra.addon import panels
-    ctx = Ctx()
-    ctx.scene = bpy.context.scene
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    prefix = "PENUMBRA_PG_knobs_"
+    ctx = SimpleNamespace(scene=bpy.context.scene)
     ctx.scene.penumbra.error_budget = 0.3
     for kind, size_attr in (("AREA", "size"), ("SPOT", "shadow_soft_size")):
         light = bpy.data.lights.new(kind, kind)
         setattr(light, size_attr, 0.5)
         ctx.light = light
-        labels.clear()
-        knobs_of.clear()
-        panels.PENUMBRA_PT_light.draw(type("P", (), {"layout": Layout()})(), ctx)
-        panels.PENUMBRA_PT_light_quality.draw(type("P", (), {"layout": Layout()})(), ctx)
+        drawn = [draw_panel(cls, ctx) for cls in (panels.PENUMBRA_PT_light, panels.PENUMBRA_PT_light_quality)]
+        labels = [text for layout in drawn for text in layout.labels]
+        knobs_of = [data.bl_rna.identifier[len(prefix):] for layout in drawn for data, _ in layout.props
+                    if hasattr(data, "bl_rna") and data.bl_rna.identifier.startswith(prefix)]
         want = ac.choose("area" if kind == "AREA" else "sphere", 1.0, budget=0.3)
         assert labels == [f"Auto: {want.short}"]
         assert want.method.split("_irr")[0] in knobs_of           # the picked method's knobs

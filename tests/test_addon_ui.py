@@ -1,6 +1,7 @@
 """The add-on's registration, settings, knob groups, panels and
 preferences (bpy, background mode); its operators: test_addon_operators.py."""
 import dataclasses
+from types import SimpleNamespace
 
 import bpy
 import pytest
@@ -9,6 +10,7 @@ import penumbra
 from penumbra.addon import properties as props
 from penumbra.bridge import settings
 from penumbra.core import methods as registry
+from scenes import draw_panel
 
 
 # --------------------------------------------------------------------------
@@ -132,48 +134,30 @@ def test_method_enum_numbers_are_stable(registered):
 
 def test_panels_draw_existing_properties(registered):
     """Draw the panels into a recording layout: every property they show exists."""
+    from penumbra.addon import panels
     bpy.ops.wm.read_factory_settings(use_empty=True)
     shown = []
 
-    class Layout:
-        use_property_split = use_property_decorate = active = enabled = True
-
-        def prop(self, data, name, **kw):
+    def draw(cls, ctx):
+        layout = draw_panel(cls, ctx)
+        for data, name in layout.props:
             assert name in data.bl_rna.properties, name
             shown.append(name)
-
-        def operator(self, idname, **kw):
+        for idname in layout.operators:
             mod, op = idname.split(".")
             assert hasattr(getattr(bpy.ops, mod), op), idname
             shown.append(idname)
-            return type("Props", (), {})()
 
-        def label(self, **kw):
-            pass
-
-        def row(self, **kw):
-            return self
-
-        column = row
-
-    class Ctx:
-        pass
-
-    from penumbra.addon import panels
     light = bpy.data.lights.new("L", "AREA")
-    ctx = Ctx()
-    ctx.light = light
-    ctx.scene = bpy.context.scene
+    ctx = SimpleNamespace(light=light, scene=bpy.context.scene)
     for method in ["auto", *registry.pass_ids(external=False)]:
         light.penumbra.method = method
         for cls in (panels.PENUMBRA_PT_light, panels.PENUMBRA_PT_light_quality):
             assert cls.poll(ctx)
-            self = type("P", (), {"layout": Layout()})()
-            cls.draw(self, ctx)
+            draw(cls, ctx)
     light.penumbra.method = "pcf"
     assert {"NumSamples", "Bias0", "Bias0_auto", "method", "light_samples", "map_size"} <= set(shown)
-    self = type("P", (), {"layout": Layout()})()
-    panels.PENUMBRA_PT_render.draw(self, ctx)
+    draw(panels.PENUMBRA_PT_render, ctx)
     for name in ("render_passes", "output_folder", "seed", "references", "cycles_samples", "pixel_filter",
                  "pixel_filter_width", "penumbra.preview", "penumbra.compute_passes", "penumbra.clear"):
         assert name in shown

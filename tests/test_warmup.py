@@ -13,7 +13,7 @@ import pytest
 from penumbra.core import methods as registry
 from penumbra.core import warmup
 from penumbra.core.buffers import FrameBuffers
-from helpers import PENUMBRA
+from helpers import COMPILES_OUTSIDE_WARM_UP, PENUMBRA
 from scenes import sample_path
 from synthetic import area_light, half_plane_scene, sphere_light, sun_light
 
@@ -63,42 +63,6 @@ def test_warm_up_compiles_every_kernel_the_run_calls(method):
     assert warmup.kernels_cached(method)
 
 
-_COMPILES_OUTSIDE_WARM_UP = r"""
-import json, sys
-sys.path.insert(0, {tests!r})
-from numba.core import event
-from penumbra.core import warmup
-from penumbra.core.alpha import CLOSEST, REPEAT
-from penumbra.core.filtered_frame import render_filtered
-from penumbra.core.pixel_filter import parse
-from synthetic import area_light, matte_layers_scene
-
-inside, outside = [], []
-
-def in_warm_up():
-    # the warm-up holds warmup._lock while it runs (its worker threads see it taken)
-    owned = getattr(warmup._lock, "_is_owned", None)      # an RLock: its owner may re-acquire it
-    if owned is not None and owned():
-        return True
-    if warmup._lock.acquire(blocking=False):
-        warmup._lock.release()
-        return False
-    return True
-
-class Compiles(event.Listener):
-    def on_start(self, ev):
-        (inside if in_warm_up() else outside).append(ev.data["dispatcher"].py_func.__qualname__)
-    def on_end(self, ev):
-        pass
-
-event.register("numba:compile", Compiles())
-sc = matte_layers_scene(area_light(1.0), [(2.0, [[0.0, 1.0], [1.0, 0.0]], CLOSEST, REPEAT)], res=16,
-                        camera_sees=True)
-render_filtered(sc, {methods!r}, overrides={{"samples": 4}}, pixel_filter=parse({pixel_filter!r}))
-print(json.dumps({{"inside": inside, "outside": outside}}))
-"""
-
-
 @pytest.mark.parametrize("pixel_filter", ["none", "blackman-harris:1.5"])
 def test_a_matte_scene_compiles_nothing_outside_the_warm_up(tmp_path, pixel_filter):
     """On a fresh Numba cache, every kernel a frame with
@@ -108,7 +72,7 @@ def test_a_matte_scene_compiles_nothing_outside_the_warm_up(tmp_path, pixel_filt
     buffer's or a method's time."""
     env = dict(os.environ, PENUMBRA_NUMBA_CACHE_ROOT=str(tmp_path / "cache"))
     env.pop("NUMBA_CACHE_DIR", None)
-    code = _COMPILES_OUTSIDE_WARM_UP.format(tests=os.path.dirname(os.path.abspath(__file__)),
+    code = COMPILES_OUTSIDE_WARM_UP.format(tests=os.path.dirname(os.path.abspath(__file__)),
                                             methods=["pcf", "embree"], pixel_filter=pixel_filter)
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
