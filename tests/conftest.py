@@ -1,8 +1,9 @@
 """Shared pytest fixtures, and the split of the suite into core and bpy tests.
 
 A test *touches bpy* (and gets the ``bpy`` mark) when its module's top-level
-code, its own code, or the code of a fixture it uses names ``bpy``,
-``load_sample``, ``sample_path`` or ``factory_scene`` (docstrings aside).
+code, its own code, or the code of a fixture it uses names ``bpy``, ``factory_scene``,
+``sample_path`` or a helper of tests/scenes.py that opens or builds a bpy
+scene or reads one back (docstrings aside).
 ``--part core`` runs the other tests with bpy made unimportable, so a core
 test that reaches bpy some other way fails loudly instead of being skipped;
 ``--part bpy`` runs the marked ones. ``make test`` (scripts/test_matrix.py)
@@ -27,7 +28,8 @@ import textwrap
 import pytest
 
 os.environ["PENUMBRA_STRICT_INNER"] = "1"
-BPY_NAMES = re.compile(r"\b(bpy|load_sample|sample_path|factory_scene)\b")
+BPY_NAMES = re.compile(r"\b(bpy|factory_scene|sample_path|load_sample|open_sample|tiny_cycles_scene|"
+                       r"save_plane_blend|image_rgba|draw_panel|render_state)\b")
 
 
 def pytest_addoption(parser):

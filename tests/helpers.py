@@ -1,14 +1,25 @@
 """Helpers shared by the tests that need no bpy: the brute-force reference
-on a frame's buffers, error measures, and the invariants every pass keeps."""
+on a frame's buffers, error measures and noise bounds, the invariants every
+pass keeps, and a cancel token that cancels itself."""
 from __future__ import annotations
 
+import math
+import os
+import sys
 from typing import Optional
 
 import numpy as np
 
 from penumbra.core.buffers import FrameBuffers
+from penumbra.core.cancel import CancelToken
 from penumbra.core.methods import producer_of
 from penumbra.core.metrics import errors
+from penumbra.core.scene import Light
+
+#: the repository's root (the ``penumbra`` package)
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: the installed ``penumbra`` console script, beside this Python
+PENUMBRA = os.path.join(os.path.dirname(sys.executable), "penumbra")
 
 
 def buffers_of(scene, map_size: Optional[int] = None) -> FrameBuffers:
@@ -23,6 +34,16 @@ def run_method(method_id: str, fb: FrameBuffers, light, **params):
     return m.run(fb, light, m.make_params(params))
 
 
+def run_declared(method, fb: FrameBuffers, light, **params):
+    """``run_method`` on a view of ``fb`` that holds only the buffers the
+    method declares (``needs``: touching another raises); ``method`` is an id
+    or a Method. Returns (MethodResult, the view's billed phase times)."""
+    m = producer_of(method) if isinstance(method, str) else method
+    with fb.view(m.needs, m.id) as view:
+        res = m.run(view, light, m.make_params(params))
+    return res, view.phase_times()
+
+
 def embree_pass(fb: FrameBuffers, light, samples: int = 256, seed: int = 0, pass_id: str = "embree") -> np.ndarray:
     """The brute-force reference pass (``embree``: average visibility;
     ``embree_irr``: the irradiance ratio) on buffers ``fb``."""
@@ -31,7 +52,7 @@ def embree_pass(fb: FrameBuffers, light, samples: int = 256, seed: int = 0, pass
 
 def rmse(a, b, mask=None) -> float:
     """Root-mean-square difference over ``mask`` (all pixels by default), as
-    the JSON's ``error.rmse``."""
+    the JSON's ``error.rmse``; 0 over an empty mask."""
     return errors(a, b, mask)["rmse"]
 
 
@@ -39,3 +60,92 @@ def in_range(v) -> bool:
     """A pass as every method must write it: float32, finite, in [0, 1]."""
     v = np.asarray(v)
     return v.dtype == np.float32 and bool(np.isfinite(v).all()) and float(v.min()) >= 0.0 and float(v.max()) <= 1.0
+
+
+def mc_noise_bound(v, n_a: int, n_b: int) -> float:
+    """The expected RMSE between two independent Monte Carlo estimates of
+    the same per-pixel ratio V = sum_i w_i v_i / sum_i w_i (v_i = 0 or 1), of
+    ``n_a`` and ``n_b`` light samples, over pixels whose V is ``v``:
+    sqrt(mean(V (1 - V)) (1/n_a + 1/n_b)). One estimate of N samples has a
+    standard deviation of at most about sqrt(V (1 - V) / N) (equal weights;
+    numerator and denominator sharing their samples); stratified or Sobol
+    samples only lower it."""
+    v = np.asarray(v, np.float64)
+    return math.sqrt(np.mean(v * (1 - v)) * (1.0 / n_a + 1.0 / n_b))
+
+
+def fully_facing(g, light: Light) -> np.ndarray:
+    """Pixels that see the whole light above their (geometric) tangent
+    plane, with a margin of 0.02 in cosine: where a renderer shading with the
+    smooth normal (Cycles) and one shading with the geometric normal agree."""
+    P, n = g.position, g.normal.astype(np.float64)
+    ok = g.hit.copy()
+    if light.kind == "sphere":
+        d = light.position - P
+        dist = np.linalg.norm(d, axis=-1)
+        sin_half = np.minimum(light.radius / dist, 1.0)
+        return ok & (np.einsum("...i,...i->...", n, d) / dist > sin_half + 0.02)
+    m = light.world_from_light
+    c, ax, ay = light.position, m[:3, 0], m[:3, 1]
+    hx, hy = 0.5 * light.size, 0.5 * light.size_y
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            q = c + ax * sx * hx + ay * sy * hy
+            dq = q - P
+            ok &= np.einsum("...i,...i->...", n, dq) / np.linalg.norm(dq, axis=-1) > 0.02
+    return ok
+
+
+class CancelAfter(CancelToken):
+    """Cancels itself once it has been checked ``n`` times (``checks``
+    counts them): a cancel at a known point, without timing."""
+
+    def __init__(self, n: int = 1):
+        super().__init__()
+        self.n, self.checks = n, 0
+
+    def check(self):
+        self.checks += 1
+        if self.checks > self.n:
+            self.cancel()
+        super().check()
+
+
+#: A script for ``python -c``: compiles with a listener that sorts each
+#: Numba compilation by whether the warm-up (``core/warmup.py``) was running,
+#: then renders a matte scene; prints {"inside": [...], "outside": [...]}
+#: (kernel names). ``.format(tests=..., methods=[...], pixel_filter=...)``.
+COMPILES_OUTSIDE_WARM_UP = r"""
+import json, sys
+sys.path.insert(0, {tests!r})
+from numba.core import event
+from penumbra.core import warmup
+from penumbra.core.alpha import CLOSEST, REPEAT
+from penumbra.core.filtered_frame import render_filtered
+from penumbra.core.pixel_filter import parse
+from synthetic import area_light, matte_layers_scene
+
+inside, outside = [], []
+
+def in_warm_up():
+    # the warm-up holds warmup._lock while it runs (its worker threads see it taken)
+    owned = getattr(warmup._lock, "_is_owned", None)      # an RLock: its owner may re-acquire it
+    if owned is not None and owned():
+        return True
+    if warmup._lock.acquire(blocking=False):
+        warmup._lock.release()
+        return False
+    return True
+
+class Compiles(event.Listener):
+    def on_start(self, ev):
+        (inside if in_warm_up() else outside).append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Compiles())
+sc = matte_layers_scene(area_light(1.0), [(2.0, [[0.0, 1.0], [1.0, 0.0]], CLOSEST, REPEAT)], res=16,
+                        camera_sees=True)
+render_filtered(sc, {methods!r}, overrides={{"samples": 4}}, pixel_filter=parse({pixel_filter!r}))
+print(json.dumps({{"inside": inside, "outside": outside}}))
+"""

@@ -59,7 +59,7 @@ def pixel_world_y(scene: Scene, row):
 
 
 # --------------------------------------------------------------------------
-# stress-suite builders (issue 7): DESIGN.md's "Numerical robustness" hard cases
+# stress-suite builders: DESIGN.md's "Numerical robustness" hard cases
 def box(x0, x1, y0, y1, z0, z1):
     """A closed axis-aligned box: 12 triangles."""
     t = quad(x0, x1, y0, y1, z0) + quad(x0, x1, y0, y1, z1)
@@ -105,7 +105,7 @@ def make_scene(tris, ids, lights, res=48, camera=None, names=("ground", "occlude
 
 def sun_pillars_scene(res=64, width=0.06, height=1.2, spacing=0.6, count=3, elevation_deg=20.0,
                       angle_deg=4.0, ground=20.0):
-    """Issue 17's sun case in small: ``count`` thin square pillars (``width``
+    """The sun_pillars sample scene in small: ``count`` thin square pillars (``width``
     wide, ``height`` tall, ``spacing`` apart along y at x = 0) on a wide ground,
     a sun of ``angle_deg`` from -X at ``elevation_deg`` (shadows
     height / tan(elevation) long towards +X), a perspective camera seeing the
@@ -229,7 +229,7 @@ def zero_size_cases(res=48):
 
 
 # --------------------------------------------------------------------------
-# alpha-matte occluders (issue 18)
+# alpha-matte occluders
 def planar_uv(tris, lo, hi):
     """float32[T,3,2]: UVs mapping the xy square [lo, hi]^2 onto [0, 1]^2."""
     xy = np.asarray(tris, np.float64)[..., :2]
@@ -268,7 +268,7 @@ def matte_layers_scene(light, layers, res=48, camera=None, camera_sees=False, gr
 
 
 def leaf_cloud_scene(n_leaves=150, res=48, seed=17, leaf=(0.2, 0.11), light_size=(1.5, 0.8)):
-    """Foliage-like (issue 17, ``sample_blends/foliage.blend`` in small): a
+    """Foliage-like (``sample_blends/foliage.blend`` in small): a
     ground plane and ``n_leaves`` small single-sided quads (2 triangles each),
     randomly oriented, filling a box around (0, 0, 1.2); all leaves are ONE
     object. A rectangular area light of about the cloud's size above, a

@@ -1,30 +1,21 @@
-"""``auto`` in Blender (bpy, background mode): Compute Passes, the panel and
-Set up compositor all resolve a light's ``auto`` with core/auto_choice.py
-under the scene's error budget, and the frame's JSON carries the decision."""
+"""``auto`` with bpy (background mode): Compute Passes, the panel, Set up
+compositor and the command line's ``plan`` and ``render`` all resolve a
+light's ``auto`` with core/auto_choice.py under the scene's error budget,
+and the frame's JSON carries the decision (the rules themselves:
+test_core_auto.py)."""
 import json
+from types import SimpleNamespace
 
 import bpy
 import pytest
 
-import penumbra
 from penumbra.bridge import compositor
 from penumbra.core import auto_choice as ac
-from scenes import sample_path
-
-
-@pytest.fixture
-def registered():
-    penumbra.register()
-    yield
-    penumbra.unregister()
+from scenes import draw_panel, open_sample, sample_path
 
 
 def _sphere_plane(w=32, h=24):
-    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
-    scene = bpy.context.scene
-    scene.render.resolution_x, scene.render.resolution_y = w, h
-    scene.render.resolution_percentage = 100
-    return scene, bpy.data.objects["Key.Light"]
+    return open_sample("sphere_plane", (w, h)), bpy.data.objects["Key.Light"]
 
 
 def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
@@ -56,7 +47,7 @@ def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
 
 
 def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
-    from penumbra.bridge import jobs as bj, pipeline
+    from penumbra.bridge import jobs as bj
     from penumbra.bridge.capture import capture_scene
     scene, light = _sphere_plane(16, 12)
     light.data.size = 0.0
@@ -69,42 +60,19 @@ def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
 
 
 def test_panel_says_what_auto_picks_and_why(registered):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    labels, knobs_of = [], []
-
-    class Layout:
-        use_property_split = use_property_decorate = active = enabled = True
-
-        def prop(self, data, name, **kw):
-            if hasattr(data, "bl_rna") and data.bl_rna.identifier.startswith("PENUMBRA_PG_knobs_"):
-                knobs_of.append(data.bl_rna.identifier[len("PENUMBRA_PG_knobs_"):])
-
-        def operator(self, *a, **kw):
-            return type("Props", (), {})()
-
-        def label(self, text="", **kw):
-            labels.append(text)
-
-        def row(self, **kw):
-            return self
-
-        column = row
-
-    class Ctx:
-        pass
-
     from penumbra.addon import panels
-    ctx = Ctx()
-    ctx.scene = bpy.context.scene
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    prefix = "PENUMBRA_PG_knobs_"
+    ctx = SimpleNamespace(scene=bpy.context.scene)
     ctx.scene.penumbra.error_budget = 0.3
     for kind, size_attr in (("AREA", "size"), ("SPOT", "shadow_soft_size")):
         light = bpy.data.lights.new(kind, kind)
         setattr(light, size_attr, 0.5)
         ctx.light = light
-        labels.clear()
-        knobs_of.clear()
-        panels.PENUMBRA_PT_light.draw(type("P", (), {"layout": Layout()})(), ctx)
-        panels.PENUMBRA_PT_light_quality.draw(type("P", (), {"layout": Layout()})(), ctx)
+        drawn = [draw_panel(cls, ctx) for cls in (panels.PENUMBRA_PT_light, panels.PENUMBRA_PT_light_quality)]
+        labels = [text for layout in drawn for text in layout.labels]
+        knobs_of = [data.bl_rna.identifier[len(prefix):] for layout in drawn for data, _ in layout.props
+                    if hasattr(data, "bl_rna") and data.bl_rna.identifier.startswith(prefix)]
         want = ac.choose("area" if kind == "AREA" else "sphere", 1.0, budget=0.3)
         assert labels == [f"Auto: {want.short}"]
         assert want.method.split("_irr")[0] in knobs_of           # the picked method's knobs
@@ -114,7 +82,6 @@ def _torus_shape(resolution):
     """auto's SceneShape of torus_plane's spot light as the CLI captures it
     (``resolution`` None: the scene's own)."""
     from penumbra.bridge.capture import capture_scene
-    from scenes import open_sample
     sc = capture_scene(open_sample("torus_plane"), resolution=resolution)
     return ac.scene_shape(sc, sc.lights[0])
 
@@ -146,7 +113,6 @@ def test_cli_render_auto_writes_the_picked_method_under_its_id(tmp_path):
     """``penumbra render --methods auto,embree``: the light's pass is the
     method auto picked for the budget, under that id (never ``auto``), with
     its error against the reference and the decision in the plan."""
-    import json
     import OpenEXR
     from penumbra.cli import main
     blend = sample_path("torus_plane")

@@ -1,4 +1,4 @@
-"""Alpha mattes as the capture reads them (issue 18, bridge/mattes.py):
+"""Alpha mattes as the capture reads them (bridge/mattes.py):
 every wiring, the texels and UVs per triangle, interpolation and extension,
 images shared, bad input (one-line warning, opaque, never NaN), scenes
 without mattes untouched, and the plan naming what was captured."""
@@ -15,7 +15,7 @@ from penumbra.bridge.mattes import LUMA
 from penumbra.cli import main
 from penumbra.core import alpha as A
 from penumbra.core.planner import make_plan
-from scenes import sample_path
+from scenes import image_rgba, open_sample, sample_path
 
 # a 4 x 2 matte: 8 distinct alpha values, row 0 at v = 0
 W, H = 4, 2
@@ -355,7 +355,7 @@ def test_scene_without_mattes_reads_no_material(factory_scene, monkeypatch, capl
 # --------------------------------------------------------------------------
 # the sample scene and the plan
 def test_leaf_cards_capture_every_wiring():
-    bpy.ops.wm.open_mainfile(filepath=sample_path("leaf_cards"), load_ui=False)
+    open_sample("leaf_cards")
     captured = capture_scene(resolution=(32, 32))
     m = captured.alpha
     assert m.names == ["LeafMatte / leaf_matte", "LeafSoft / leaf_soft", "ChainLink / chain_link",
@@ -366,10 +366,7 @@ def test_leaf_cards_capture_every_wiring():
     assert set(np.unique(binary)) == {0.0, 1.0}
     soft = _texels(m, 1)
     assert ((soft > 0) & (soft < 1)).mean() > 0.02
-    img = bpy.data.images["chain_link"]
-    px = np.empty(len(img.pixels), np.float32)
-    img.pixels.foreach_get(px)
-    np.testing.assert_array_equal(_texels(m, 2), px.reshape(64, 64, 4)[..., 3])
+    np.testing.assert_array_equal(_texels(m, 2), image_rgba(bpy.data.images["chain_link"])[..., 3])
     fence = _card_tris(captured, "Fence")
     assert m.tri_uv[fence].max() == pytest.approx(12.0)           # tiled 12 x 6
     assert (captured.alpha.tri_matte[_card_tris(captured, "Ground")] == -1).all()

@@ -1,14 +1,15 @@
-"""Alpha mattes against Cycles (issue 18).
+"""Alpha mattes against Cycles.
 
 1. Each wiring the capture reads, on a card that shadows the ground under a
    small light: Cycles multiplies (1 - alpha) along a shadow ray (with
    ``transparent_max_bounces`` high enough), so under the card's umbra the
    shadowed / unshadowed ratio is exactly 1 - alpha, the alpha the capture
    read; the reference render leaves the scene as it was.
-2. The accuracy the issue asks for, on ``leaf_cards``: ``embree_irr`` (and
-   ``embree``) with the mattes within Monte Carlo noise of the Cycles ratio (noise bound as in
-   tests/test_cycles_reference.py), on ground pixels the camera sees directly
-   (a camera ray through a card mixes two receivers in Cycles' ratio).
+2. The accuracy on ``leaf_cards``: ``embree_irr`` (and ``embree``) with the
+   mattes within Monte Carlo noise of the Cycles ratio
+   (``helpers.mc_noise_bound``, as in test_cycles_reference.py), on ground
+   pixels the camera sees directly (a camera ray through a card mixes two
+   receivers in Cycles' ratio).
 """
 import dataclasses
 import math
@@ -23,8 +24,8 @@ from penumbra.bridge.capture import capture_scene
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.metrics import reach_mask
-from scenes import sample_path
-from test_cycles_reference import fully_facing, rmse, snapshot
+from helpers import fully_facing, mc_noise_bound, rmse
+from scenes import open_sample, render_state
 
 RES = (16, 16)
 
@@ -138,10 +139,10 @@ def test_reference_sees_each_wiring_as_the_capture_reads_it(kind):
     m = captured.alpha
     assert m is not None and m.count == 1
     assert np.allclose(m.texels, alpha, atol=2e-3), (m.texels, alpha)
-    before = snapshot(scene)
+    before = render_state(scene)
     slots = [(ob.name, [s.material for s in ob.material_slots]) for ob in scene.objects]
     v, _ = cr.render_light_reference(scene, "Light", RES, samples=16)
-    assert snapshot(scene) == before
+    assert render_state(scene) == before
     assert [(ob.name, [s.material for s in ob.material_slots]) for ob in scene.objects] == slots
     umbra = v[4:12, 4:12]                       # ground under the card's middle (|x|, |y| < 1)
     assert np.allclose(umbra, 1.0 - float(m.texels.mean()), atol=2e-3), (kind, umbra.mean())
@@ -153,8 +154,7 @@ ACCURACY_RES = (64, 64)
 
 
 def test_embree_matches_cycles_on_leaf_cards():
-    bpy.ops.wm.open_mainfile(filepath=sample_path("leaf_cards"), load_ui=False)
-    scene = bpy.context.scene
+    scene = open_sample("leaf_cards")
     captured = capture_scene(scene, resolution=ACCURACY_RES)
     assert captured.alpha is not None
     producer = cr.make_cycles_producer(scene, ACCURACY_RES, samples=CYCLES_SAMPLES, seed=0)
@@ -170,8 +170,7 @@ def test_embree_matches_cycles_on_leaf_cards():
     core = reach_mask(opaque, light) & fully_facing(opaque, light) & (opaque.object_id == ground)
     shadowed = core & (e < 0.98)
     assert shadowed.sum() >= 100, "the leaf cards must shadow the ground"
-    V = e[core].astype(np.float64)
-    sigma_mc = math.sqrt(np.mean(V * (1 - V)) * (1.0 / CYCLES_SAMPLES + 1.0 / EMBREE_SAMPLES))
+    sigma_mc = mc_noise_bound(e[core], CYCLES_SAMPLES, EMBREE_SAMPLES)
     err = rmse(c, e, core)
     mean_signed = float(np.mean((c - e.astype(np.float64))[core]))
     print(f"\nleaf_cards: embree_irr vs Cycles RMSE {err:.4f} on {core.sum()} ground px "
@@ -182,7 +181,7 @@ def test_embree_matches_cycles_on_leaf_cards():
     # irradiance ratio only in the light-sample weights, below the noise here
     assert rmse(c, e_vis, core) <= sigma_mc
     assert abs(mean_signed) <= 4.0 * sigma_mc / math.sqrt(core.sum()) + 1e-4
-    # the mattes matter: opaque cards would be far off (issue 18: about 0.3 RMSE)
+    # the mattes matter: opaque cards are far off
     opaque_v = render_frame(dataclasses.replace(captured, alpha=None), ["embree_irr"],
                             overrides={"samples": 64, "seed": 1}).lights[0].passes["embree_irr"]
     assert rmse(c, opaque_v, shadowed) > 3.0 * sigma_mc

@@ -15,8 +15,8 @@ from hypothesis import given, settings, strategies as st
 
 from penumbra.bench import study
 from penumbra.core import auto_choice
+from helpers import ROOT
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS = os.path.join(ROOT, "bench", "results")
 
 
@@ -93,9 +93,10 @@ def test_every_study_scene_has_two_sizes_and_its_light_kinds_sweeps():
 
 
 def test_each_sweep_entry_is_a_distinct_configuration_and_the_default_is_labelled():
-    """No two entries of a method's sweep run the same parameters (a stale
-    label once measured the default twice), and the auto table's row of each
-    method is its defaults at 64 light samples."""
+    """No two entries of a method's sweep run the same parameters (a label
+    that no longer changes anything would measure the default twice), and
+    the auto table's row of each method is its defaults at 64 light
+    samples."""
     from penumbra.core import methods as registry
     producers = registry.producers()
     for mid in study.SWEEPS:

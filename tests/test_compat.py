@@ -8,15 +8,14 @@ import numpy as np
 import OpenEXR
 import pytest
 
-import penumbra
 from penumbra.bridge import compat
 from penumbra.bridge import compositor
-from scenes import sample_path, tiny_cycles_scene
+from scenes import open_sample, tiny_cycles_scene
 
 EFFECTS = bpy.app.version >= (5, 3, 0)
 
 
-def _user_tree(scale: float):
+def _user_multiply_tree(scale: float):
     """A user's compositor: Render Layers x ``scale`` -> Group Output."""
     tree = bpy.data.node_groups.new("My Compositor", "CompositorNodeTree")
     tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
@@ -52,7 +51,7 @@ def test_api_line_is_detected():
 def test_compositor_tree_leaves_the_users_compositor_and_its_result_alone(tmp_path):
     scene = _tiny_scene()
     assert compat.compositor_tree(scene, create=False) is None
-    user = _user_tree(0.5)
+    user = _user_multiply_tree(0.5)
     compat.set_compositor_tree(scene, user)
     plain = _render(scene, tmp_path / "user.exr")
     assert 0.0 < plain.max() and np.ptp(plain) < 1e-6       # the world, halved
@@ -105,20 +104,10 @@ def test_render_layers_sockets_by_name():
     assert link.is_valid
 
 
-@pytest.fixture
-def registered():
-    penumbra.register()
-    yield
-    penumbra.unregister()
-
-
 def test_no_deprecation_warning_from_penumbra(registered, tmp_path):
     """Compute Passes, Set Up Compositor, a render with passes and Clear with
     DeprecationWarning as an error (5.3 deprecates compositing_node_group)."""
-    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
-    scene = bpy.context.scene
-    scene.render.resolution_x, scene.render.resolution_y = 32, 24
-    scene.render.resolution_percentage = 100
+    scene = open_sample("sphere_plane", (32, 24))
     scene.cycles.samples = 1
     scene.cycles.use_denoising = False
     for lt in bpy.data.lights:

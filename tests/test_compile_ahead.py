@@ -1,5 +1,5 @@
-"""Cold-start compilation shared with helper processes (``core/compile_ahead.py``,
-issue 15): the recorded plan names today's kernels and matches what a cold
+"""Cold-start compilation shared with helper processes (``core/compile_ahead.py``):
+the recorded plan names the current kernels and matches what a cold
 frame compiles; helpers take kernels off the caller's hands without changing
 a pixel; the claim protocol (the caller claims what nobody has, waits for
 what a helper claimed, a helper skips every claimed kernel)."""
@@ -20,8 +20,8 @@ from numba.core.types import Type
 
 from penumbra.core import compile_ahead
 from penumbra.core import methods as registry
+from helpers import ROOT
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RECORD = os.path.join(ROOT, "scripts", "record_kernel_plan.py")
 KINDS = ("area", "sphere", "sun")
 
@@ -33,7 +33,7 @@ def _env(tmp_path, processes):
     return env
 
 
-def test_the_plan_names_todays_kernels_for_every_pass_and_kind():
+def test_the_plan_names_the_current_kernels_for_every_pass_and_kind():
     plan = compile_ahead.load_plan()
     assert plan, compile_ahead.PLAN_FILE
     for p in registry.pass_ids(external=False):

@@ -13,7 +13,6 @@ import numpy as np
 import OpenEXR
 import pytest
 
-import penumbra
 from penumbra.bridge import compat
 from penumbra.bridge import compositor as C
 from penumbra.bridge import images
@@ -23,7 +22,8 @@ from scenes import tiny_cycles_scene
 W, H = 16, 8
 
 
-def _scene():
+def _two_light_scene():
+    """``tiny_cycles_scene`` with two area lights, "Key.Light" and "Fill"."""
     scene = tiny_cycles_scene(W, H)
     for name in ("Key.Light", "Fill"):
         ob = bpy.data.objects.new(name, bpy.data.lights.new(name, "AREA"))
@@ -35,7 +35,7 @@ def _gradient():
     return np.tile(np.linspace(0.0, 1.0, W, dtype=np.float32), (H, 1))
 
 
-def _user_tree(scene):
+def _user_blur_tree(scene):
     """The user's compositor: Render Layers -> their Blur -> Group Output
     (the scene's group on 5.0 - 5.2, their own effect on 5.3)."""
     tree = bpy.data.node_groups.new("My Compositor", "CompositorNodeTree")
@@ -95,8 +95,8 @@ LIGHTS = [("Key.Light", "Key_Light", "pcf"), ("Fill", "Fill", "pcf")]
 
 # --------------------------------------------------------------------------
 def test_builds_twice_without_duplicates_and_leaves_user_nodes_alone():
-    scene = _scene()
-    tree, blur = _user_tree(scene)
+    scene = _two_light_scene()
+    tree, blur = _user_blur_tree(scene)
     before = _user_state(tree)
     g = _gradient()
     _store("Key_Light", g, g, 0.5 * g)
@@ -135,8 +135,8 @@ def test_builds_twice_without_duplicates_and_leaves_user_nodes_alone():
 
 
 def test_rebuild_keeps_links_of_a_users_group_node_and_drops_stale_lights():
-    scene = _scene()
-    tree, _blur = _user_tree(scene)
+    scene = _two_light_scene()
+    tree, _blur = _user_blur_tree(scene)
     g = _gradient()
     _store("Key_Light", g, g, g)
     _store("Fill", g, g, g)
@@ -162,8 +162,8 @@ def test_rebuild_keeps_links_of_a_users_group_node_and_drops_stale_lights():
 
 
 def test_error_of_identical_passes_is_black_and_side_by_side(tmp_path):
-    scene = _scene()
-    _user_tree(scene)
+    scene = _two_light_scene()
+    _user_blur_tree(scene)
     g = _gradient()
     _store("Key_Light", g, g, 0.5 * g)            # pcf == embree: no error
     _store("Fill", np.zeros_like(g), np.ones_like(g), g)   # pcf off by 1 everywhere
@@ -194,7 +194,7 @@ def test_error_of_identical_passes_is_black_and_side_by_side(tmp_path):
 
 
 def test_exr_source(tmp_path):
-    scene = _scene()
+    scene = _two_light_scene()
     g = _gradient()
     path = str(tmp_path / "shot.0001.exr")
     exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "embree_irr": g, "cycles": 1 - g},
@@ -216,8 +216,8 @@ def test_exr_source(tmp_path):
 
 
 def test_side_by_side_nodes_and_setup_coexist():
-    scene = _scene()
-    tree, _ = _user_tree(scene)
+    scene = _two_light_scene()
+    tree, _ = _user_blur_tree(scene)
     g = _gradient()
     _store("Key_Light", g, g, g)
     C.setup_compositor(scene, LIGHTS[:1])
@@ -234,16 +234,9 @@ def test_side_by_side_nodes_and_setup_coexist():
 
 # --------------------------------------------------------------------------
 # the operator
-@pytest.fixture
-def registered():
-    penumbra.register()
-    yield
-    penumbra.unregister()
-
-
 def test_setup_operator_from_images(registered):
-    scene = _scene()
-    tree, _ = _user_tree(scene)
+    scene = _two_light_scene()
+    tree, _ = _user_blur_tree(scene)
     before = _user_state(tree)
     g = _gradient()
     _store("Key_Light", g, g, g)
@@ -259,7 +252,7 @@ def test_setup_operator_from_images(registered):
 
 
 def test_setup_operator_from_exr_and_bad_input(registered, tmp_path):
-    scene = _scene()
+    scene = _two_light_scene()
     g = _gradient()
     path = str(tmp_path / "shot.0001.exr")
     exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "cycles": g}})

@@ -1,12 +1,21 @@
-"""Alpha-matte occluders (issue 18), core side: the texel lookup against
-hand-computed values (Cycles' Image Texture node), and every method's
-transmittance on synthetic scenes with closed forms; last, the map methods
-on the captured leaf_cards sample scene against ``embree``."""
+"""Alpha-matte occluders, core side (``core/alpha.py``, ``core/alpha_rays.py``):
+the texel lookup against hand-computed values (Cycles' Image Texture node),
+and every method's transmittance on synthetic scenes with closed forms;
+last, the map methods on the captured leaf_cards sample scene against
+``embree``. The capture's side: test_alpha_capture.py; against Cycles:
+test_alpha_cycles.py."""
 import numpy as np
 import pytest
 
+from penumbra.core import alpha_rays, raycast
 from penumbra.core.alpha import (AlphaMattes, CLIP, CLOSEST, EXTEND, LINEAR, REPEAT,
                                  alpha_at, matte_alpha)
+from penumbra.core.buffers import FrameBuffers
+from penumbra.core.methods import producer_of
+from penumbra.core.metrics import errors, reach_mask
+from helpers import buffers_of, embree_pass, run_method
+from synthetic import (area_light, half_plane_scene, leaf_cloud_scene, matte_layers_scene, pixel_world_y,
+                       sphere_light, sun_light, top_ortho_camera)
 
 # a 2 x 2 matte, rows from v = 0: row 0 = (0, 1), row 1 = (0.25, 0.75)
 TEXELS = [0.0, 1.0, 0.25, 0.75]
@@ -55,19 +64,14 @@ def test_alpha_is_opaque_for_non_finite_uvs_and_clamped():
 
 
 # -- embree / embree_irr: transmittance --------------------------------------
-from penumbra.core import alpha_rays  # noqa: E402
-from penumbra.core.buffers import FrameBuffers  # noqa: E402
-from penumbra.core.methods import producer_of  # noqa: E402
-from synthetic import area_light, half_plane_scene, matte_layers_scene, pixel_world_y, sphere_light  # noqa: E402
-
 HL, HO = 4.0, 2.0
 SOLID_BELOW_Y0 = [[1.0], [0.0]]     # 1 x 2 matte: v < 0.5 (y < 0) solid, above clear
 
 
 def run(method, scene, **params):
-    m = producer_of(method)
-    fb = FrameBuffers(scene, *scene.resolution)
-    return m.run(fb, scene.lights[0], m.make_params(params)), fb
+    """(``method``'s MethodResult on ``scene``'s first light, the buffers)."""
+    fb = buffers_of(scene)
+    return run_method(method, fb, scene.lights[0], **params), fb
 
 
 def test_embree_half_clear_quad_is_the_half_plane_closed_form():
@@ -122,7 +126,6 @@ def test_scene_without_mattes_keeps_the_opaque_path():
     """Mattes that no shadow-casting triangle uses build no alpha data, and
     V is the opaque scene's to the bit."""
     base = half_plane_scene(area_light(size=1.0, z=HL), res=32, occluder_z=HO)
-    from penumbra.core.alpha import AlphaMattes
     T = len(base.triangles)
     with_none = half_plane_scene(area_light(size=1.0, z=HL), res=32, occluder_z=HO)
     with_none.alpha = AlphaMattes(np.full(T, -1), np.zeros((T, 3, 2)), [1.0], [0], [1], [1], [CLOSEST], [REPEAT])
@@ -133,9 +136,6 @@ def test_scene_without_mattes_keeps_the_opaque_path():
 
 
 # -- camera G-buffer and light maps: pass through clear texels -----------------
-from penumbra.core import raycast  # noqa: E402
-from synthetic import top_ortho_camera  # noqa: E402
-
 CHECKER = (np.add.outer(np.arange(4), np.arange(4)) % 2).astype(np.float32)   # texel (row t, col s)
 
 
@@ -233,7 +233,6 @@ def matte_leaf_cloud(light=None, res=40):
     """``synthetic.leaf_cloud_scene`` with a matte on every leaf: a binary
     8 x 8 checkerboard (Closest) on half of them, a Linear gradient
     (fractional alpha) on the others."""
-    from synthetic import leaf_cloud_scene
     scene = leaf_cloud_scene(n_leaves=60, res=res)
     n = (len(scene.triangles) - 2) // 2
     uv = np.zeros((len(scene.triangles), 3, 2), np.float32)
@@ -259,7 +258,6 @@ def test_penumbra_casting_texture_fetch_equals_its_embree_rays(light):
     grazing second crossings that the rays' offset past each crossing steps
     over (a few relations in a few pixels), for binary and filtered mattes,
     area, sun and sphere lights."""
-    from synthetic import sun_light
     lt = {"area": None, "sun": sun_light(angle=0.15), "sphere": sphere_light(radius=0.3, z=3.0)}[light]
     scene = matte_leaf_cloud(lt)
     fetch, _ = run("penumbra_casting", scene, samples=64)
@@ -353,7 +351,6 @@ def test_light_map_dithers_fractional_alpha(alphas, ground_share):
 def test_clear_hits_equals_the_alpha_lookup():
     """clear_hits decides hits on triangles without a matte itself (no
     lookup): the same answer as alpha_at < cut for every hit, matte or not."""
-    from penumbra.core.alpha import alpha_at
     scene = checker_card_scene(area_light(size=1.0, z=HL))
     mattes = scene.alpha.packed()
     rng = np.random.default_rng(3)
@@ -398,15 +395,13 @@ def test_layered_paper_splat_reads_a_dithered_veil_as_clear():
 
 @pytest.fixture(scope="module")
 def leaf_cards_runs():
-    """leaf_cards (issue 18's sample scene) at 128 x 128: the embree
-    reference (256 samples) and its reach mask."""
+    """The leaf_cards sample scene at 128 x 128: the embree reference (256
+    samples) and its reach mask."""
     from scenes import load_sample
-    from penumbra.core.metrics import reach_mask
     scene = load_sample("leaf_cards", (128, 128))
     fb = FrameBuffers(scene, 128, 128)
     light = scene.lights[0]
-    e = producer_of("embree")
-    ref = e.run(fb, light, e.make_params({"samples": 256})).passes["embree"]
+    ref = embree_pass(fb, light, 256)
     return fb, light, ref, reach_mask(fb.gbuffer, light)
 
 
@@ -414,13 +409,10 @@ def leaf_cards_runs():
     ("pcf", {}, {"region": "figure4"}),
     ("layered", {"samples": 128}, {"samples": 128, "splat": "neighbours"})])
 def test_map_methods_on_leaf_cards(leaf_cards_runs, method, params, paper):
-    """Issue 18: the map methods within 0.06 RMSE of the reference on the
-    leaf-card scene (binary leaf mattes, a chain-link fence, linear mattes, a
-    0.5 veil; area light). Measured at 128 x 128: pcf 0.055 (its paper's
-    region 0.062; 0.046 / 0.082 at 256 x 256 against 1024 samples), layered
-    0.052 (the paper's splat 0.106). The paper's settings stay clearly worse
-    in the penumbra."""
-    from penumbra.core.metrics import errors
+    """The map methods within 0.06 RMSE of the reference on the leaf-card
+    scene (binary leaf mattes, a chain-link fence, linear mattes, a 0.5
+    veil; area light), without a bias; the paper's settings (pcf's region,
+    layered's splat) stay clearly worse in the penumbra."""
     fb, light, ref, mask = leaf_cards_runs
     m = producer_of(method)
     v = m.run(fb, light, m.make_params(params)).passes[method]

@@ -11,12 +11,13 @@ from penumbra.core import auto_choice as ac
 from penumbra.core import methods as registry
 from penumbra.core.planner import PlanError, make_plan, resolve_passes
 from penumbra.core.scene import LIGHT_KINDS
+from helpers import ROOT
 from synthetic import area_light, half_plane_scene, sphere_light
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-
-def _scene(name, kind, methods, size="64x64"):
+def _measured(name, kind, methods, size="64x64"):
+    """A table scene: ``methods`` maps each method id to its measured
+    (seconds, rmse) there, at its default setting."""
     return {"scene": name, "size": size, "light_kind": kind, "light_extent": 1.0,
             "methods": {m: {"setting": "default", "visibility": registry.visibility_of(m),
                             "seconds": t, "rmse": e} for m, (t, e) in methods.items()}}
@@ -28,13 +29,13 @@ def _table(*scenes):
 
 # seconds, rmse: single_sample cheapest and worst, penumbra_casting dearest
 # and best; embree (the reference) cheaper still, but never a candidate
-AREA_A = _scene("a", "area", {"single_sample": (0.001, 0.20), "pcf": (0.002, 0.08),
+AREA_A = _measured("a", "area", {"single_sample": (0.001, 0.20), "pcf": (0.002, 0.08),
                               "irregular": (0.005, 0.03), "penumbra_casting": (0.05, 0.005),
                               "embree": (0.004, 0.001)})
-AREA_B = _scene("b", "area", {"single_sample": (0.001, 0.05), "pcf": (0.002, 0.04),
+AREA_B = _measured("b", "area", {"single_sample": (0.001, 0.05), "pcf": (0.002, 0.04),
                               "irregular": (0.005, 0.06), "penumbra_casting": (0.05, 0.004),
                               "embree": (0.004, 0.001)})
-SPHERE = _scene("s", "sphere", {"single_sample": (0.001, 0.01), "pcf": (0.002, 0.3),
+SPHERE = _measured("s", "sphere", {"single_sample": (0.001, 0.01), "pcf": (0.002, 0.3),
                                 "penumbra_casting": (0.05, 0.004)})
 
 
@@ -103,19 +104,19 @@ def test_only_passes_of_the_needed_definition_count():
     t = _table(AREA_A)
     c = ac.choose("area", 1.0, "irradiance", budget=0.5, table=t)
     assert c.method == "embree_irr" and c.rule == "fallback" and "irradiance visibility" in c.reason
-    row = _scene("i", "area", {"depth_raytrace_irr": (0.1, 0.02), "embree_irr": (0.2, 0.01)})
+    row = _measured("i", "area", {"depth_raytrace_irr": (0.1, 0.02), "embree_irr": (0.2, 0.01)})
     c = ac.choose("area", 1.0, "irradiance", budget=0.05, table=_table(row))
     assert c.method == "depth_raytrace_irr" and c.rule == "meets budget"
 
 
 def test_unregistered_or_unmeasured_methods_are_not_candidates():
-    partial = _scene("b", "area", {"penumbra_casting": (0.05, 0.004)})   # the others failed here
+    partial = _measured("b", "area", {"penumbra_casting": (0.05, 0.004)})   # the others failed here
     c = ac.choose("area", 1.0, budget=0.5, table=_table(AREA_A, partial))
     assert c.method == "penumbra_casting"
     c = ac.choose("area", 1.0, budget=0.5, table=_table(AREA_A), known=["pcf", "penumbra_casting"])
     assert c.method == "pcf"
     # the reference is never the pick, even when it is the cheapest and best
-    only_ref = _scene("r", "area", {"embree": (0.001, 0.0)})
+    only_ref = _measured("r", "area", {"embree": (0.001, 0.0)})
     c = ac.choose("area", 1.0, budget=0.5, table=_table(only_ref))
     assert c.method == "pcf" and c.rule == "fallback"
 
@@ -146,8 +147,7 @@ def test_shipped_table_is_the_studys_measurement():
     """Every entry is the study's row (bench/results/study.csv) of that scene,
     size, method and default setting, at the scene's largest size."""
     t = ac.load_table(ac.TABLE_PATH)
-    with open(os.path.join(ROOT, "bench", "results", "study.csv"), newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = _study_rows()
     for s in t.scenes:
         sizes = {r["size"] for r in rows if r["scene"] == s.scene}
         area = lambda z: int(z.split("x")[0]) * int(z.split("x")[1])   # noqa: E731
@@ -208,13 +208,13 @@ def test_auto_is_asked_for_explicitly():
 
 
 # --------------------------------------------------------------------------
-# rule 5: the scene at hand (issue 17)
+# rule 5: the scene at hand
 def _shaped(scene, triangles, light_relative=0.2):
     return dict(scene, triangles=triangles, light_relative=light_relative)
 
 
 def test_a_method_predicted_slower_than_the_reference_on_this_scene_is_not_picked():
-    fast_pc = _scene("a", "area", {"pcf": (0.002, 0.2), "penumbra_casting": (0.003, 0.004),
+    fast_pc = _measured("a", "area", {"pcf": (0.002, 0.2), "penumbra_casting": (0.003, 0.004),
                                    "embree": (0.004, 0.001)})
     t = _table(_shaped(fast_pc, 4000))
     small = ac.SceneShape(4000, 64 * 64, 0.2)
@@ -227,7 +227,7 @@ def test_a_method_predicted_slower_than_the_reference_on_this_scene_is_not_picke
     assert c.method != "penumbra_casting"
     assert "1,000,000 triangles" in c.reason and "predicted slower than embree" in c.reason
     # nothing else meets the budget and nothing is faster: the reference itself
-    only_pc = _table(_shaped(_scene("a", "area", {"penumbra_casting": (0.003, 0.004), "embree": (0.004, 0.001)}),
+    only_pc = _table(_shaped(_measured("a", "area", {"penumbra_casting": (0.003, 0.004), "embree": (0.004, 0.001)}),
                              4000))
     c = ac.choose("area", 1.0, budget=0.05, table=only_pc, shape=big)
     assert (c.method, c.rule) == ("embree", "reference is fastest")
@@ -278,7 +278,7 @@ def test_scenes_with_alpha_mattes_are_matched_apart():
     on the measured scenes with mattes, an opaque one on the opaque ones; a
     table that does not record mattes matches every scene of the kind."""
     opaque = dict(_shaped(AREA_A, 4000), mattes=0)
-    matted = dict(_shaped(_scene("m", "area", {"pcf": (0.002, 0.02), "penumbra_casting": (0.05, 0.004),
+    matted = dict(_shaped(_measured("m", "area", {"pcf": (0.002, 0.02), "penumbra_casting": (0.05, 0.004),
                                                "embree": (1.0, 0.001)}), 4000), mattes=100)
     t = _table(opaque, matted)
     c = ac.choose("area", 1.0, budget=0.05, table=t, shape=ac.SceneShape(4000, 64 * 64, 0.2, mattes=50))
@@ -303,13 +303,14 @@ def test_scene_shape_counts_the_shadow_casting_alpha_mattes():
 
 
 def _study_rows():
+    """bench/results/study.csv's rows."""
     with open(os.path.join(ROOT, "bench", "results", "study.csv"), newline="") as f:
         return list(csv.DictReader(f))
 
 
 @pytest.mark.parametrize("budget", [0.01, 0.02, 0.05, 0.1, 0.3])
 def test_on_each_measured_scene_the_shipped_pick_is_no_slower_than_the_reference_there(budget):
-    """Issue 17: ``auto`` never picks a method slower than the reference for
+    """``auto`` never picks a method slower than the reference for
     the scene at hand. For every scene of the study, at its own shape, the
     pick's measured time there (study.csv, not the planner's prediction) is
     at most the reference's; a pick said to meet the budget meets it there."""
@@ -325,12 +326,12 @@ def test_on_each_measured_scene_the_shipped_pick_is_no_slower_than_the_reference
             assert float(here[c.method]["rmse"]) <= budget, (s.scene, budget, c.reason)
 
 
-#: issue 17's production triangle counts: the sample scenes dense_sphere and
+#: production triangle counts: the sample scenes dense_sphere and
 #: dense_foliage (``sample_blends/``; shapes as ``scene_shape`` gives them,
 #: light extent over its distance to the casters' centre) with the CPU seconds
 #: measured there (one Numba thread, 64 samples, embree / penumbra_casting /
-#: pcf in one process, load 4-9; bench/results/scaling.md; dense_foliage's
-#: 480x270 casting figure is from a run whose embree took 1.94 s).
+#: pcf in one process; bench/results/scaling.md; dense_foliage's 480x270
+#: casting time comes from another run than its embree time).
 DENSE_MEASURED = [
     ("dense_sphere 1920x1080", ac.SceneShape(1_032_194, 1920 * 1080, 0.22),
      {"embree": 14.0, "penumbra_casting": 59.3, "pcf": 2.6}),
@@ -345,7 +346,7 @@ DENSE_MEASURED = [
 @pytest.mark.parametrize("name, shape, measured", DENSE_MEASURED, ids=[d[0] for d in DENSE_MEASURED])
 def test_on_production_triangle_counts_the_shipped_pick_is_no_slower_than_the_reference(name, shape, measured,
                                                                                         budget):
-    """Issue 17: at 0.6-1M triangles penumbra casting is 4-50x slower than
+    """At 0.6-1M triangles penumbra casting is several times slower than
     Embree (every small triangle whose penumbra covers a receiver is a pair),
     and ``auto``, whose table was measured on 4K-25K triangles, must not pick
     it: its pick was measured no slower than the reference on that scene, and
@@ -365,7 +366,7 @@ def test_on_production_triangle_counts_the_shipped_pick_is_no_slower_than_the_re
 
 def test_penumbra_casting_triangle_growth_is_steeper_above_the_measured_scene():
     """COST_MODEL's (up, down) pair: T^1.2 for more triangles than measured
-    (dense_foliage: T^1.16), T^1 for fewer."""
+    (as dense_foliage's times grow), T^1 for fewer."""
     sc = ac.parse_table({"format": ac.TABLE_FORMAT, "reference": "t",
                          "scenes": [_shaped(AREA_A, 10_000, 0.2)]}).scenes[0]
     row = sc.methods["penumbra_casting"]

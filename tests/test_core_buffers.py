@@ -1,6 +1,9 @@
-"""``needs`` is a contract (issue 19): a method's ``run()`` sees only the
-buffers it declared, every need has a builder, and the buffer phases billed to
-a method do not depend on which method ran first."""
+"""A frame's buffers (``core/buffers.py``). ``needs`` is a contract: a
+method's ``run()`` sees only the buffers it declared, every need has a
+builder, and the buffer phases billed to a method do not depend on which
+method ran first. Buffers taken over from an earlier frame give the passes
+of fresh ones; the default light-map size, the frame memo and the
+receivers' subsample."""
 from __future__ import annotations
 
 import dataclasses
@@ -14,6 +17,7 @@ from penumbra.core.buffers import NEED_BUILDERS, NEED_PHASE, FrameBuffers, Undec
 from penumbra.core.frame import render_frame
 from penumbra.core.methods import base
 from penumbra.core.methods.base import GBUFFER, LIGHT_VIEW, SHADOW_GEOMETRY, SHADOW_TRIANGLES
+from helpers import run_declared
 from synthetic import area_light, half_plane_scene, sphere_light, sun_light
 
 RES = 20
@@ -24,14 +28,12 @@ LIGHTS = {"area": lambda: area_light(1.0), "spot": lambda: sphere_light(0.4, spo
 NEEDS = {v for k, v in vars(base).items() if k.isupper() and isinstance(v, str)} - {base.AVERAGE, base.IRRADIANCE}
 
 
-def _scene(light="area"):
+def _half_plane(light="area"):
     return half_plane_scene(LIGHTS[light](), res=RES)
 
 
 def _run(fb, m, light):
-    with fb.view(m.needs, m.id) as view:
-        res = m.run(view, light, m.make_params(FAST))
-    return res, view.phase_times()
+    return run_declared(m, fb, light, **FAST)
 
 
 def test_every_need_has_a_builder_and_a_phase():
@@ -49,7 +51,7 @@ def test_every_need_has_a_builder_and_a_phase():
 @pytest.mark.parametrize("method", METHODS)
 def test_every_method_runs_on_its_declared_buffers(method, kind):
     """A method touching a buffer it did not declare fails here."""
-    scene = _scene(kind)
+    scene = _half_plane(kind)
     fb = FrameBuffers(scene, RES, RES)
     m = registry.producers()[method]
     res, phases = _run(fb, m, scene.lights[0])
@@ -62,7 +64,7 @@ def test_every_method_runs_on_its_declared_buffers(method, kind):
 
 
 def test_undeclared_access_raises():
-    fb = FrameBuffers(_scene(), RES, RES)
+    fb = FrameBuffers(_half_plane(), RES, RES)
     view = fb.view({GBUFFER}, "probe")
     assert view.gbuffer.shape == (RES, RES)
     assert view.scene is fb.scene and view.scale == fb.scale
@@ -78,13 +80,13 @@ def test_undeclared_access_raises():
 def test_a_method_with_too_few_needs_fails():
     pc = registry.producers()["penumbra_casting"]
     short = type("Short", (type(pc),), {"needs": frozenset({GBUFFER})})()
-    fb = FrameBuffers(_scene(), RES, RES)
+    fb = FrameBuffers(_half_plane(), RES, RES)
     with pytest.raises(UndeclaredBufferError, match="shadow_triangles"):
         _run(fb, short, fb.scene.lights[0])
 
 
 def test_penumbra_casting_builds_no_bvh():
-    fb = FrameBuffers(_scene(), RES, RES)
+    fb = FrameBuffers(_half_plane(), RES, RES)
     _, phases = _run(fb, registry.producers()["penumbra_casting"], fb.scene.lights[0])
     assert "bvh" not in phases and "shadow_triangles" in phases
     assert "bvh_shadow" not in fb.build_times and not any(k.startswith("bvh_culled") for k in fb.build_times)
@@ -107,9 +109,9 @@ def test_buffer_phases_do_not_depend_on_the_order(method, monkeypatch):
     monkeypatch.setattr(buffers_mod, "time", _Clock())
     light_kind = "area"
     m = registry.producers()[method]
-    fb = FrameBuffers(_scene(light_kind), RES, RES)
+    fb = FrameBuffers(_half_plane(light_kind), RES, RES)
     _, first = _run(fb, m, fb.scene.lights[0])
-    fb = FrameBuffers(_scene(light_kind), RES, RES)
+    fb = FrameBuffers(_half_plane(light_kind), RES, RES)
     for other in METHODS:
         if other != method:
             _run(fb, registry.producers()[other], fb.scene.lights[0])
@@ -121,7 +123,7 @@ def test_buffer_phases_do_not_depend_on_the_order(method, monkeypatch):
 
 
 def test_render_frame_bills_phases_by_use():
-    scene = _scene()
+    scene = _half_plane()
     out = render_frame(scene, ["penumbra_casting", "pcf", "embree"], overrides=FAST).to_json()
     rec = out["lights"][0]["methods"]
     assert set(rec["penumbra_casting"]["time_s"]) >= {"gbuffer", "shadow_triangles", "total"}
@@ -143,12 +145,12 @@ def _moved(scene, dx):
 
 
 def test_reused_buffers_give_the_passes_of_fresh_ones():
-    """issue 15: a frame may take over an earlier frame's G-buffer and BVHs
+    """A frame may take over an earlier frame's G-buffer and BVHs
     (same camera and geometry) and the views of unchanged lights; a moved
     light gets a new view. Passes are those of a fresh frame; what was taken
     over is billed 0 s, an unchanged light's pass included (its method does
     not run again); another parameter runs it."""
-    scene = _scene()
+    scene = _half_plane()
     first = render_frame(scene, ["pcf"], keep_buffers=True)
     assert first.buffers is not None and render_frame(scene, ["pcf"]).buffers is None
     again = render_frame(scene, ["pcf"], reuse=first.buffers, keep_buffers=True)
@@ -172,7 +174,7 @@ def test_reused_buffers_give_the_passes_of_fresh_ones():
 
 def test_buffers_of_another_camera_or_resolution_are_refused():
     from dataclasses import replace
-    scene = _scene()
+    scene = _half_plane()
     first = render_frame(scene, ["pcf"], keep_buffers=True)
     cam = scene.camera
     m = cam.world_from_camera.copy()
@@ -190,7 +192,7 @@ def test_frame_memo_is_kept_only_when_a_filtered_frame_shares_it():
     the benchmark) each pay their precompute; after ``share_frame_memo``
     (``render_filtered``) it builds once per light and params, and the
     sub-pixel stage's buffers (``supersampled``) see the same memo."""
-    sc = _scene()
+    sc = _half_plane()
     light = sc.lights[0]
     fb = FrameBuffers(sc, *sc.resolution)
     builds = []
@@ -209,17 +211,17 @@ def test_frame_memo_is_kept_only_when_a_filtered_frame_shares_it():
 
 @pytest.mark.parametrize("light", sorted(LIGHTS))
 def test_the_default_light_map_holds_no_more_texels_than_the_output_has_pixels(light):
-    """``views.default_map_size`` (issue 15): an area or spot light's map's
-    larger side is sqrt(W x H), so a 16:9 frame's light view holds at most
-    its pixel count (the output's larger side gave 1.8x the camera's rays at
-    1080p); a sun's keeps the output's larger side (its orthographic view
+    """``views.default_map_size``: an area or spot light's map's larger side
+    is sqrt(W x H), so a 16:9 frame's light view holds at most its pixel
+    count (not more texels to render than the camera has rays); a sun's
+    keeps the output's larger side (its orthographic view
     spreads over the receivers' box); a square output keeps its side; a map
     size given wins for every light, and a sub-pixel stage keeps the
     pixel-centre view's sizes."""
     from penumbra.core.views import default_map_size
     assert default_map_size(1920, 1080) == 1440 and default_map_size(256, 256) == 256
     assert default_map_size(1920, 1080, "sun") == 1920 and default_map_size(1, 1) == 1
-    scene = half_plane_scene(LIGHTS[light](), res=RES)
+    scene = _half_plane(light)
     lt = scene.lights[0]
     W, H = 64, 36
     side = 64 if light == "sun" else 48
@@ -236,12 +238,12 @@ def test_the_default_light_map_holds_no_more_texels_than_the_output_has_pixels(l
 
 
 def test_receiver_points_are_the_hits_subsample_and_box(monkeypatch):
-    """``FrameBuffers.receivers`` / the receivers' box (issue 15: one pass of
+    """``FrameBuffers.receivers`` / the receivers' box (one pass of
     ``kernels.hit_box``, only the subsample gathered): the box is NumPy's
     min / max over every hit, the points every k-th hit (k = ceil(hits /
     _FIT_POINTS)) and the first and last."""
     monkeypatch.setattr(buffers_mod, "_FIT_POINTS", 37)
-    scene = _scene()
+    scene = _half_plane()
     fb = FrameBuffers(scene, 48, 40)
     g = fb.gbuffer
     hit = g.hit.copy()

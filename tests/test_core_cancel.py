@@ -1,4 +1,4 @@
-"""Cancelling inside a long method (issue 15: Esc within a second): the
+"""Cancelling inside a long method (Esc answered within a second): the
 job's cancel token (``core/cancel.py``) is checked between the chunks of
 ``kernels.each_in_threads`` (ray-casting bands, Embree chunks, penumbra
 casting, pcf's chunks of pixels). No timing: the token cancels
@@ -13,21 +13,8 @@ from penumbra.core.cancel import CancelToken, Cancelled
 from penumbra.core.frame import render_frame
 from penumbra.core.kernels import each_in_threads
 from penumbra.core.methods import pcf
+from helpers import CancelAfter
 from synthetic import area_light, half_plane_scene
-
-
-class CancelAfter(CancelToken):
-    """Cancels itself once it has been checked ``n`` times."""
-
-    def __init__(self, n: int = 1):
-        super().__init__()
-        self.n, self.checks = n, 0
-
-    def check(self):
-        self.checks += 1
-        if self.checks > self.n:
-            self.cancel()
-        super().check()
 
 
 @pytest.mark.parametrize("workers", [1, 2])

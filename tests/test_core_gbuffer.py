@@ -1,6 +1,7 @@
-"""The fused primary-ray kernels (core/pixel_rays.py) against the NumPy
-formulas they replaced (views.camera_rays / views.face_rays and the hit
-post-processing), bit for bit, and the G-buffer's invariants (no bpy)."""
+"""The fused primary-ray kernels (core/pixel_rays.py) against plain NumPy
+formulas of the same buffers (views.camera_rays / views.face_rays and the
+hit post-processing), bit for bit; the G-buffer's invariants; the reach and
+whole-light masks (no bpy)."""
 import numpy as np
 import pytest
 
@@ -10,7 +11,8 @@ from synthetic import area_light, box, grid_quad, make_scene, quad, sphere_light
 
 
 def numpy_gbuffer(scene, width, height, tri_scene):
-    """The G-buffer as core/raycast.py computed it before the fused kernels."""
+    """The G-buffer from views.camera_rays, one intersect call and NumPy
+    post-processing: the formula the fused kernels must match to the bit."""
     cam = scene.camera
     org, d, tfar, _ = views.camera_rays(cam, width, height)
     n = width * height
@@ -36,7 +38,8 @@ def numpy_gbuffer(scene, width, height, tri_scene):
 
 
 def numpy_face(face, tri_scene, tri_object):
-    """A light-view face's depth and ids as core/raycast.py computed them before."""
+    """A light-view face's depth and ids from views.face_rays and one
+    intersect call."""
     org, d, scale = views.face_rays(face)
     n = face.width * face.height
     tri, t, _, _ = tri_scene.intersect(org.reshape(n, 3), d.reshape(n, 3))
@@ -170,7 +173,7 @@ def test_empty_bvh_gives_an_empty_gbuffer():
 
 
 def numpy_reach_mask(g, light):
-    """``metrics.reach_mask`` as NumPy computed it before its Numba kernel."""
+    """``metrics.reach_mask`` as a NumPy formula."""
     import math
     P, n, ok, c = g.position, g.normal.astype(np.float64), g.hit.copy(), light.position
     if light.kind == "sun":
@@ -220,7 +223,7 @@ def test_reach_mask_kernel_equals_the_numpy_formula(case):
                                          (lambda: sphere_light(0.3, z=4.0), True),
                                          (lambda: sun_light(1.2), False), (lambda: sun_light(0.2), True)])
 def test_whole_light_mask_on_a_tilted_plane(make, whole):
-    """Issue 17's measure (``metrics.whole_light_mask``): on a lone plane
+    """``metrics.whole_light_mask``: on a lone plane
     tilted 60 degrees, a light whose part lies below every point's tangent
     plane (an 8-unit area light 4 above it, a 3.5 sphere, a 69-degree sun)
     leaves no pixel in the mask; a small one above keeps every pixel; the

@@ -1,4 +1,4 @@
-"""``core/jit.py`` (issue 15): a kernel compiles at its own LLVM level and
+"""``core/jit.py``: a kernel compiles at its own LLVM level and
 leaves Numba's level as it found it; an inner kernel called from Python runs
 its twin (same results), and from Penumbra's own modules raises in strict
 mode (the suite's, ``conftest.py``); kernels compiled at -O1 and -O3 give

@@ -1,5 +1,5 @@
-"""``kernels.each_dealt_chunk`` and ``kernels.each_range`` (issue 15: serial
-``nogil`` kernels on worker threads instead of parfors): the chunks hold
+"""``kernels.each_dealt_chunk`` and ``kernels.each_range`` (serial ``nogil``
+kernels on worker threads): the chunks hold
 every item exactly once, in ``block``-long runs of consecutive items (the
 ranges: contiguous, one per thread), whatever the thread count; so kernels
 writing disjoint outputs give the same result."""
@@ -54,8 +54,8 @@ def test_ranges_cover_every_item_once(n, grain, threads):
 
 
 def test_ranged_kernels_match_one_point_at_a_time():
-    """The parfors made ranged kernels (offset_points, overlap_from_counts)
-    give each point what the per-point formula gives, for 1 and 2 threads."""
+    """Ranged kernels (offset_points, overlap_from_counts) give each point
+    what the per-point formula gives, for 1 and 2 threads."""
     from penumbra.core.methods.irregular.geom import overlap_from_counts
     from penumbra.core.sampling import offset_origin, offset_points
     rng = np.random.default_rng(3)

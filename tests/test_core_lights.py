@@ -1,4 +1,4 @@
-"""Light kinds answer for themselves (issue 19): the bounds, cones and clamps
+"""Light kinds answer for themselves: the bounds, cones and clamps
 the methods need are ``Light``'s, checked against closed forms and against
 the points the samplers draw on each light."""
 from __future__ import annotations

@@ -1,4 +1,6 @@
-"""EXR/JSON contract, planner decisions and the frame pipeline (no bpy)."""
+"""The frame's output (no bpy): the EXR and JSON contract, the frame
+pipeline's records, external passes, files written whole with the umask's
+modes (the planner's rules: test_core_planner.py)."""
 import json
 import os
 
@@ -8,8 +10,8 @@ import pytest
 from penumbra.core import exr
 from penumbra.core.frame import render_frame
 from penumbra.core.output import write_frame
-from penumbra.core.planner import PlanError, layer_name, make_plan, resolve_passes
-from synthetic import area_light, half_plane_scene, sphere_light
+from penumbra.core.planner import PlanError, resolve_passes
+from synthetic import area_light, half_plane_scene
 
 
 def test_exr_round_trip(tmp_path):
@@ -34,36 +36,6 @@ def test_exr_refuses_nan_and_leaves_nothing(tmp_path):
     with pytest.raises(ValueError):
         exr.write_multilayer(str(p), {"L": {"pcf": img}})
     assert os.listdir(tmp_path) == []
-
-
-def test_layer_names_are_exr_safe():
-    assert layer_name("Key.Light.001") == "Key_Light_001"
-
-
-def test_resolve_passes():
-    assert resolve_passes("pcf,embree") == ["pcf", "embree"]
-    assert {"pcf", "embree", "embree_irr"} <= set(resolve_passes("all"))
-    with pytest.raises(PlanError, match="unknown method 'nope'"):
-        resolve_passes("pcf,nope")
-
-
-def test_plan_rules():
-    sc = half_plane_scene(area_light(1.0), res=8)
-    off = area_light(1.0, name="Off")
-    off.casts_shadow = False
-    dark = area_light(1.0, name="Dark")
-    dark.energy = 0.0
-    tiny = sphere_light(0.0, name="Tiny.Point")
-    sc.lights += [off, dark, tiny]
-    plan = make_plan(sc, ["pcf", "embree"])
-    by = {lp.name: lp for lp in plan.lights}
-    assert by["Area"].action == "compute"
-    assert by["Off"].action == "skip" and "shadow is off" in by["Off"].reason
-    assert by["Dark"].action == "skip" and "energy" in by["Dark"].reason
-    assert by["Tiny.Point"].action == "hard" and by["Tiny.Point"].layer == "Tiny_Point"
-    assert by["Area"].buffers == ["gbuffer", "light_view", "shadow_geometry"]
-    with pytest.raises(PlanError, match="unknown light"):
-        make_plan(sc, ["pcf"], ["Nope"])
 
 
 def test_frame_json_contract(tmp_path):
@@ -143,9 +115,9 @@ def test_written_files_honour_the_umask(tmp_path, umask, mode):
 def test_an_interrupt_anywhere_leaves_no_temporary_file(tmp_path, monkeypatch, where):
     """A farm's SIGTERM becomes KeyboardInterrupt at any bytecode: raised
     inside the temporary file's creation (after the file exists), its close,
-    the write or the rename, it leaves no file but the old one (CI once found
-    an empty ``.penumbra-*.json`` left by an interrupt between the creation
-    and the clean-up)."""
+    the write or the rename, it leaves no file but the old one (not even an
+    empty ``.penumbra-*.json`` from an interrupt between the temporary
+    file's creation and its clean-up)."""
     target = tmp_path / "frame.json"
     target.write_bytes(b"old")
     real = {"create": os.open, "close": os.close, "replace": os.replace}

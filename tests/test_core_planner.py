@@ -1,13 +1,15 @@
 """The planner's rules, each on a scene built for it, and that skipping or
-culling changes no pixel of the final pass."""
+culling changes no pixel of the final pass; pass ids and EXR layer names."""
 import numpy as np
+import pytest
 
-from penumbra.core import raycast
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
-from penumbra.core.methods import producer_of
 from penumbra.core.methods.embree_ref import trace_visibility
+from penumbra.core.metrics import reach_mask
+from penumbra.core.planner import PlanError, layer_name, make_plan, resolve_passes
 from penumbra.core.scene import ObjectInfo
+from helpers import embree_pass
 from synthetic import area_light, half_plane_scene, light_matrix, quad, sphere_light
 
 
@@ -21,10 +23,7 @@ def test_spot_cone_missing_every_receiver_is_skipped_and_equal():
     assert lp.action == "skip" and "reaches no visible receiver" in lp.reason
     # what computing it would have given, after the same unreached -> 1 rule
     fb = FrameBuffers(sc, 24, 24)
-    m = producer_of("embree")
-    v = m.run(fb, spot, m.make_params({"samples": 8})).passes["embree"]
-    from penumbra.core.metrics import reach_mask
-    v = np.where(reach_mask(fb.gbuffer, spot), v, 1.0)
+    v = np.where(reach_mask(fb.gbuffer, spot), embree_pass(fb, spot, 8), 1.0)
     np.testing.assert_array_equal(res.lights[0].passes["embree"], v)
 
 
@@ -75,10 +74,39 @@ def test_materials_treated_as_opaque_survive_a_scene_copy_and_reach_the_plan():
     it, and the plan names each material in one note; a scene without any has
     no such note."""
     import dataclasses
-    from penumbra.core.planner import make_plan
     sc = half_plane_scene(area_light(1.0), res=16)
     assert sc.alpha_opaque == [] and not any("opaque" in n for n in make_plan(sc, ["pcf"]).notes)
     sc.alpha_opaque = ["Bark: Math node on Alpha", "Moss: image 'moss.png' missing"]
     copy = dataclasses.replace(sc, resolution=(8, 8))
     notes = [n for n in make_plan(copy, ["pcf"]).notes if "opaque" in n]
     assert len(notes) == 1 and "Bark: Math node" in notes[0] and "moss.png" in notes[0]
+
+
+def test_layer_names_are_exr_safe():
+    assert layer_name("Key.Light.001") == "Key_Light_001"
+
+
+def test_resolve_passes():
+    assert resolve_passes("pcf,embree") == ["pcf", "embree"]
+    assert {"pcf", "embree", "embree_irr"} <= set(resolve_passes("all"))
+    with pytest.raises(PlanError, match="unknown method 'nope'"):
+        resolve_passes("pcf,nope")
+
+
+def test_plan_rules():
+    sc = half_plane_scene(area_light(1.0), res=8)
+    off = area_light(1.0, name="Off")
+    off.casts_shadow = False
+    dark = area_light(1.0, name="Dark")
+    dark.energy = 0.0
+    tiny = sphere_light(0.0, name="Tiny.Point")
+    sc.lights += [off, dark, tiny]
+    plan = make_plan(sc, ["pcf", "embree"])
+    by = {lp.name: lp for lp in plan.lights}
+    assert by["Area"].action == "compute"
+    assert by["Off"].action == "skip" and "shadow is off" in by["Off"].reason
+    assert by["Dark"].action == "skip" and "energy" in by["Dark"].reason
+    assert by["Tiny.Point"].action == "hard" and by["Tiny.Point"].layer == "Tiny_Point"
+    assert by["Area"].buffers == ["gbuffer", "light_view", "shadow_geometry"]
+    with pytest.raises(PlanError, match="unknown light"):
+        make_plan(sc, ["pcf"], ["Nope"])

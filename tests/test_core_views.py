@@ -1,16 +1,15 @@
 """Projections and Embree buffers against analytic geometry (no bpy)."""
-import math
-
 import numpy as np
 import pytest
 
 from penumbra.core import raycast, views
 from penumbra.core.kernels import face_project, pick_face
 from penumbra.core.scene import Camera, ObjectInfo, Scene
-from synthetic import area_light, light_matrix, quad, sphere_light, sun_light
+from synthetic import area_light, quad, sphere_light, sun_light
 
 
-def persp_camera(**kw):
+def oblique_camera(**kw):
+    """A camera at (1, -5, 2) looking along (0.3, 1, -0.4); ``kw`` as Camera's."""
     m = np.eye(4)
     m[:3, :3] = views.look_rotation(np.array([0.3, 1.0, -0.4]))
     m[:3, 3] = [1.0, -5.0, 2.0]
@@ -20,7 +19,7 @@ def persp_camera(**kw):
 @pytest.mark.parametrize("kw", [dict(), dict(kind="ORTHO", ortho_scale=3.0), dict(shift_x=0.2, shift_y=-0.1),
                                 dict(sensor_fit="VERTICAL", lens=35.0), dict(pixel_aspect_x=2.0)])
 def test_camera_rays_round_trip(kw):
-    cam = persp_camera(**kw)
+    cam = oblique_camera(**kw)
     W, H = 40, 30
     org, d, tfar, axis = views.camera_rays(cam, W, H)
     pts = org + d * 3.7
@@ -35,7 +34,7 @@ def test_camera_rays_round_trip(kw):
 def test_viewplane_matches_blender_formula():
     """36 mm sensor, 50 mm lens, 1920x1080, AUTO fit: horizontal half-width
     at unit distance is 18/50; shift 0.1 moves it by 0.1 * 36/50."""
-    cam = persp_camera(shift_x=0.1)
+    cam = oblique_camera(shift_x=0.1)
     xmin, xmax, ymin, ymax = views.camera_viewplane(cam, 1920, 1080)
     assert xmax - xmin == pytest.approx(36 / 50)
     assert ymax - ymin == pytest.approx(36 / 50 * 1080 / 1920)

@@ -1,23 +1,17 @@
 """The ``cycles`` reference (bridge/cycles_reference.py) against
 ``embree_irr``, and that it leaves the scene exactly as it found it.
 
-Noise bound used below. Per pixel both references estimate the same ratio
-V = sum_i w_i v_i / sum_i w_i over light samples (v_i = 0 or 1). With N
-independent samples the standard deviation of such an estimate is at most
-about sqrt(V(1-V)/N) (equal weights; Cycles uses the same seed for its two
-renders, so numerator and denominator share their samples as embree_irr's
-do). Cycles' Sobol sequence and embree_irr's jittered strata can only lower
-that. The two references are independent, so the expected RMSE between them
-over a set of pixels is at most
-
-    sigma_MC = sqrt(mean(V(1-V)) * (1/N_cycles + 1/N_embree))
-
-with V taken from embree_irr. That is the bound asserted, on pixels that see
-the whole light above their tangent plane (at the terminator Cycles shades
-with the smooth-shading normal and Penumbra with the geometric one: a
-different, legitimate answer, counted separately and allowed to be rare).
-A one-pixel misalignment would add the image gradient: several times sigma_MC
-on these scenes, which the shifted comparisons check.
+Both references estimate the same ratio V = sum_i w_i v_i / sum_i w_i per
+pixel, independently (Cycles renders shadowed and unshadowed with one seed,
+so numerator and denominator share their samples, as embree_irr's do):
+their RMSE is asserted within the Monte Carlo noise bound
+(``helpers.mc_noise_bound``, with V taken from embree_irr) on pixels that
+see the whole light above their tangent plane (``helpers.fully_facing``: at
+the terminator Cycles shades with the smooth-shading normal and Penumbra
+with the geometric one, a different, legitimate answer, counted separately
+and allowed to be rare). A one-pixel misalignment would add the image
+gradient: several times the bound on these scenes, which the shifted
+comparisons check.
 """
 import glob
 import math
@@ -28,80 +22,17 @@ import bpy
 import numpy as np
 import pytest
 
-import penumbra
-from penumbra.bridge import compat
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.metrics import reach_mask
-from penumbra.core.scene import Light
 from penumbra.bridge import cycles_reference as cr
 from penumbra.bridge.capture import capture_scene
-from scenes import sample_path
+from helpers import fully_facing, mc_noise_bound, rmse
+from scenes import image_rgba, open_sample, render_state, sample_path
 
 RES = (64, 64)
 CYCLES_SAMPLES = 128
 EMBREE_SAMPLES = 1024
-
-
-# --------------------------------------------------------------------------
-# helpers
-def snapshot(scene) -> dict:
-    """Everything the reference render touches, as plain values."""
-    r, c = scene.render, scene.cycles
-    snap = {
-        "engine": r.engine, "res": (r.resolution_x, r.resolution_y, r.resolution_percentage),
-        "filepath": r.filepath, "file_format": r.image_settings.file_format,
-        "media_type": r.image_settings.media_type, "color_depth": r.image_settings.color_depth,
-        "use_compositing": r.use_compositing, "use_sequencer": r.use_sequencer,
-        "use_border": r.use_border, "world": scene.world.name if scene.world else None,
-        "camera_dof": scene.camera.data.dof.use_dof if scene.camera else None,
-        "materials": sorted(m.name for m in bpy.data.materials),
-        "compositor trees": [t.name for t in compat.render_trees(scene)],
-        "penumbra.render_passes": getattr(getattr(scene, "penumbra", None), "render_passes", None),
-    }
-    for k in ("samples", "seed", "use_animated_seed", "use_adaptive_sampling", "use_denoising",
-              "pixel_filter_type", "filter_width", "max_bounces", "diffuse_bounces",
-              "glossy_bounces", "transmission_bounces", "transparent_max_bounces",
-              "direct_light_sampling_type", "light_sampling_threshold", "use_layer_samples"):
-        v = getattr(c, k)
-        snap[f"cycles.{k}"] = round(v, 6) if isinstance(v, float) else v
-    for vl in scene.view_layers:
-        snap[f"vl.{vl.name}"] = (getattr(vl.material_override, "name", None),
-                                 vl.use_pass_diffuse_direct, vl.samples)
-    for ob in scene.objects:
-        if ob.type == "LIGHT":
-            snap[f"light.{ob.name}"] = (ob.data.use_shadow, ob.hide_render, round(ob.data.energy, 6))
-    return snap
-
-
-def fully_facing(g, light: Light) -> np.ndarray:
-    """Pixels that see the whole light above their (geometric) tangent plane."""
-    P, n = g.position, g.normal.astype(np.float64)
-    ok = g.hit.copy()
-    if light.kind == "sphere":
-        d = light.position - P
-        dist = np.linalg.norm(d, axis=-1)
-        sin_half = np.minimum(light.radius / dist, 1.0)
-        return ok & (np.einsum("...i,...i->...", n, d) / dist > sin_half + 0.02)
-    m = light.world_from_light
-    c, ax, ay = light.position, m[:3, 0], m[:3, 1]
-    hx, hy = 0.5 * light.size, 0.5 * light.size_y
-    for sx in (-1, 1):
-        for sy in (-1, 1):
-            q = c + ax * sx * hx + ay * sy * hy
-            dq = q - P
-            ok &= np.einsum("...i,...i->...", n, dq) / np.linalg.norm(dq, axis=-1) > 0.02
-    return ok
-
-
-def rmse(a, b, m):
-    d = (np.asarray(a, np.float64) - b)[m]
-    return float(np.sqrt(np.mean(d * d)))
-
-
-def open_sample(name):
-    bpy.ops.wm.open_mainfile(filepath=sample_path(name), load_ui=False)
-    return bpy.context.scene
 
 
 # --------------------------------------------------------------------------
@@ -121,14 +52,14 @@ def test_cycles_reference_matches_embree_irr(name):
     scene = open_sample(name)
     blend_mtime = os.path.getmtime(sample_path(name))
     captured = capture_scene(scene, resolution=RES)
-    before = snapshot(scene)
+    before = render_state(scene)
     tmp_before = set(glob.glob(os.path.join(tempfile.gettempdir(), "penumbra_cycles_*")))
     producer = cr.make_cycles_producer(scene, RES, samples=CYCLES_SAMPLES, seed=0)
     result = render_frame(captured, ["embree", "embree_irr", "cycles"],
                           overrides={"samples": EMBREE_SAMPLES, "seed": 1},
                           external={"cycles": producer})
     # the scene is exactly as it was, the file untouched, no temporary files left
-    assert snapshot(scene) == before
+    assert render_state(scene) == before
     assert os.path.getmtime(sample_path(name)) == blend_mtime
     assert set(glob.glob(os.path.join(tempfile.gettempdir(), "penumbra_cycles_*"))) == tmp_before
     assert not cr.is_rendering()
@@ -154,8 +85,7 @@ def test_cycles_reference_matches_embree_irr(name):
     assert penumbra_px.sum() >= 20, "the scene must have a penumbra to compare"
     assert (e[core] < 0.5).sum() >= 20, "and a shadow"
 
-    V = e[core].astype(np.float64)
-    sigma_mc = math.sqrt(np.mean(V * (1 - V)) * (1.0 / CYCLES_SAMPLES + 1.0 / EMBREE_SAMPLES))
+    sigma_mc = mc_noise_bound(e[core], CYCLES_SAMPLES, EMBREE_SAMPLES)
     err_core = rmse(c, e, core)
     mean_signed = float(np.mean((c - e.astype(np.float64))[core]))
     big = reach & (np.abs(c - e) > 0.25)
@@ -191,9 +121,9 @@ def _mesh(scene, name, verts, faces):
 
 def _box_scene():
     """A ground, a floating square occluder (not seen by the camera), area
-    light A straight above it,
-    light B low at the side (lights A's umbra), a bright world, a hidden
-    light, a user material override and unusual render settings."""
+    light A straight above it, light B low at the side (lights A's umbra), a
+    bright world, a hidden light, a user material override and unusual
+    render settings."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "BLENDER_WORKBENCH"
@@ -229,10 +159,10 @@ def _box_scene():
 
 def test_one_light_at_a_time_without_the_world():
     scene = _box_scene()
-    before = snapshot(scene)
+    before = render_state(scene)
     res = (24, 24)
     v_a, times = cr.render_light_reference(scene, "A", res, samples=16, seed=3)
-    assert snapshot(scene) == before
+    assert render_state(scene) == before
     assert set(times) == {"render_shadowed", "render_unshadowed"}
     # the camera looks straight down: the centre is A's umbra under the
     # occluder, the corners are open ground. B and the world light the umbra
@@ -242,7 +172,7 @@ def test_one_light_at_a_time_without_the_world():
     assert v_a[:3, :3].min() > 0.99 and v_a[-3:, -3:].min() > 0.99
     # B's own shadow is off in the file: its reference renders it on, then restores it
     v_b, _ = cr.render_light_reference(scene, "B", res, samples=16, seed=3)
-    assert snapshot(scene) == before and not scene.objects["B"].data.use_shadow
+    assert render_state(scene) == before and not scene.objects["B"].data.use_shadow
     assert np.isfinite(v_b).all() and 0.0 <= v_b.min() and v_b.max() <= 1.0
     # the same seed gives the same image
     v_a2, _ = cr.render_light_reference(scene, "A", res, samples=16, seed=3)
@@ -251,7 +181,7 @@ def test_one_light_at_a_time_without_the_world():
 
 def test_scene_restored_when_the_render_fails(monkeypatch):
     scene = _box_scene()
-    before = snapshot(scene)
+    before = render_state(scene)
     calls = []
     real = cr._render_once
 
@@ -265,7 +195,7 @@ def test_scene_restored_when_the_render_fails(monkeypatch):
     with pytest.raises(RuntimeError, match="simulated"):
         cr.render_light_reference(scene, "A", (8, 8), samples=1)
     assert len(calls) == 2
-    assert snapshot(scene) == before
+    assert render_state(scene) == before
     assert cr.WHITE_MATERIAL not in bpy.data.materials
     assert not cr.is_rendering()
 
@@ -285,27 +215,18 @@ def test_bad_input_is_a_clear_error():
 
 # --------------------------------------------------------------------------
 # the operator
-@pytest.fixture
-def registered():
-    penumbra.register()
-    yield
-    penumbra.unregister()
-
-
 def test_operator_stores_reference_images(registered):
     from penumbra.bridge import compositor
     scene = open_sample("sphere_plane")
     scene.render.resolution_x, scene.render.resolution_y = 40, 30
     scene.penumbra.render_passes = True       # switched off for the reference renders, then back
-    before = snapshot(scene)
+    before = render_state(scene)
     assert before["penumbra.render_passes"] is True
     assert bpy.ops.penumbra.render_cycles_reference(samples=16, seed=2) == {"FINISHED"}
-    assert snapshot(scene) == before
+    assert render_state(scene) == before
     img = bpy.data.images[compositor.pass_image_name("Key_Light", "cycles")]
     assert tuple(img.size) == (40, 30)
-    px = np.empty(40 * 30 * 4, np.float32)
-    img.pixels.foreach_get(px)
-    v = px.reshape(30, 40, 4)[..., 0]
+    v = image_rgba(img)[..., 0]
     assert np.isfinite(v).all() and v.min() == 0.0 and v.max() > 0.99
     # a resolution scale renders smaller
     assert bpy.ops.penumbra.render_cycles_reference(samples=4, resolution_scale=0.5) == {"FINISHED"}

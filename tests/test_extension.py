@@ -29,9 +29,9 @@ import numpy as np
 import pytest
 
 from penumbra.core import exr
+from helpers import ROOT
 from scenes import sample_path
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PLATFORM = "linux-x64"
 
 

@@ -16,10 +16,10 @@ import psutil
 import pytest
 
 from penumbra.core import exr
+from helpers import PENUMBRA
 from scenes import sample_path
 
 BIN = os.path.dirname(sys.executable)
-PENUMBRA = os.path.join(BIN, "penumbra")
 DASK = os.path.join(BIN, "dask")
 SCENE = sample_path("torus_plane")
 RENDER = ["--resolution", "32x32", "--methods", "pcf", "--no-previews", "--threads", "1"]

@@ -5,17 +5,16 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 
 import pytest
 
 from penumbra.cli import build_parser
-from scenes import ROOT, sample_path
+from helpers import PENUMBRA, ROOT
+from scenes import sample_path
 
 NODE = shutil.which("node")
 JOB_TYPE = os.path.join(ROOT, "farm", "flamenco", "penumbra_render.js")
 COMPILER = os.path.join(ROOT, "tests", "flamenco_job_compiler.js")
-PENUMBRA = os.path.join(os.path.dirname(sys.executable), "penumbra")
 
 
 def compile_job(**settings):

@@ -10,12 +10,12 @@ import numpy as np
 import yaml
 
 from penumbra.core import exr
-from scenes import ROOT, sample_path
+from helpers import PENUMBRA, ROOT
+from scenes import sample_path
 
 TEMPLATE = os.path.join(ROOT, "farm", "openjd", "penumbra-render.yaml")
 BIN = os.path.dirname(sys.executable)
 OPENJD = os.path.join(BIN, "openjd")
-PENUMBRA = os.path.join(BIN, "penumbra")
 
 
 def openjd_run(template, out, frames, chunk, timeout=300, extra="--no-previews --threads 1"):

@@ -1,4 +1,4 @@
-"""Kernel interfaces stay readable (issue 19): no Numba kernel in core/ takes
+"""Kernel interfaces stay readable: no Numba kernel in core/ takes
 more than MAX_PARAMS parameters; arguments that travel together go in the
 named groups (namedtuples) of each method's kernel module. Kernels are
 ``core.jit``'s ``kernel`` and ``inner``, never ``numba.njit`` itself."""

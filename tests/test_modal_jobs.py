@@ -1,6 +1,6 @@
-"""Compute Passes and Preview off the UI thread (issue 15): the modal step
-returns at once while the worker computes, Esc leaves no trace, a finished
-run writes back what the synchronous path writes, and the warm-up thread.
+"""Compute Passes and Preview off the UI thread (``operators/modal_job.py``):
+the modal step returns at once while the worker computes, Esc leaves no
+trace, and a finished run writes back what the synchronous path writes.
 The operators' modal() is driven with fake TIMER / ESC events (bpy runs
 headless here, so there is no window to post real ones)."""
 import os
@@ -9,31 +9,19 @@ from types import SimpleNamespace
 
 import bpy
 import numpy as np
-import pytest
 
-import penumbra
 from penumbra.bridge import pipeline
 from penumbra.bridge.images import pass_image_name
 from penumbra.operators.compute import PENUMBRA_OT_compute_passes
 from penumbra.operators.modal_job import ModalFrameJob
 from penumbra.operators.preview import PENUMBRA_OT_preview
-from scenes import sample_path
+from scenes import image_rgba, open_sample
 
 TIMER, ESC = SimpleNamespace(type="TIMER"), SimpleNamespace(type="ESC")
 
 
-@pytest.fixture
-def registered():
-    penumbra.register()
-    yield
-    penumbra.unregister()
-
-
 def _open(w, h, method="embree", samples=64):
-    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
-    scene = bpy.context.scene
-    scene.render.resolution_x, scene.render.resolution_y = w, h
-    scene.render.resolution_percentage = 100
+    scene = open_sample("sphere_plane", (w, h))
     scene.penumbra.references = set()
     for lt in bpy.data.lights:
         lt.penumbra.method = method
@@ -72,12 +60,6 @@ def _drive(op, ctx):
         time.sleep(0.02)
 
 
-def _pixels(img):
-    px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
-    img.pixels.foreach_get(px)
-    return px
-
-
 def _compute_op():
     return _fake(PENUMBRA_OT_compute_passes, methods="", samples=0, resolution_scale=1.0, build_nodes=True)
 
@@ -91,10 +73,10 @@ def test_modal_compute_stays_responsive_and_writes_what_execute_writes(registere
     result, slowest, busy = _drive(op, ctx)
     assert result == {"FINISHED"}, op.reports
     assert busy >= 1 and slowest < 0.2            # the UI thread never waited on the worker
-    modal = _pixels(bpy.data.images[pass_image_name("Key_Light", "embree")])
+    modal = image_rgba(bpy.data.images[pass_image_name("Key_Light", "embree")])
     bpy.data.images.remove(bpy.data.images[pass_image_name("Key_Light", "embree")])
     assert bpy.ops.penumbra.compute_passes() == {"FINISHED"}        # headless: execute()
-    np.testing.assert_array_equal(modal, _pixels(bpy.data.images[pass_image_name("Key_Light", "embree")]))
+    np.testing.assert_array_equal(modal, image_rgba(bpy.data.images[pass_image_name("Key_Light", "embree")]))
 
 
 def test_escape_cancels_and_leaves_no_trace(registered, tmp_path):
@@ -120,10 +102,10 @@ def test_modal_preview_shows_what_execute_shows(registered):
     op._begin(ctx, op._prepare(ctx))
     result, slowest, _busy = _drive(op, ctx)
     assert result == {"FINISHED"}, op.reports
-    modal = _pixels(bpy.data.images["Penumbra Preview"]).copy()
+    modal = image_rgba(bpy.data.images["Penumbra Preview"]).copy()
     bpy.data.images.remove(bpy.data.images["Penumbra Preview"])
     assert bpy.ops.penumbra.preview() == {"FINISHED"}
-    np.testing.assert_array_equal(modal, _pixels(bpy.data.images["Penumbra Preview"]))
+    np.testing.assert_array_equal(modal, image_rgba(bpy.data.images["Penumbra Preview"]))
 
 
 def test_light_deleted_while_the_worker_runs(registered):
@@ -139,17 +121,3 @@ def test_light_deleted_while_the_worker_runs(registered):
     job = bg.collect()
     assert job.warnings == ["light 'Second' was deleted during the run: skipped"]
     assert [lr.name for r in job.results for lr in r.lights] == ["Key.Light"]
-
-
-def test_warm_up_thread_compiles_the_default_methods():
-    from penumbra.core import methods as registry
-    from penumbra.core.scene import Light
-    from penumbra.core.warmup import ensure_compiled
-    th = pipeline.start_warm_up(["pcf"])
-    assert th.daemon                                   # never keeps Blender from exiting
-    th.join(600)
-    assert not th.is_alive()
-    m = registry.producer_of("pcf")
-    light = Light("any", "area", np.eye(4), blender_type="AREA", size=1.0)
-    assert ensure_compiled(m, light, m.make_params({"seed": 0, "samples": 64})) == 0.0
-    assert set(pipeline.default_methods()) >= {"pcf"}

@@ -4,12 +4,11 @@ a silhouette edge against the filter's integral, the pixel-centre pass kept
 away from edges, the resolve against its formula."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
-
-import dataclasses
 
 from penumbra.core import filtered_frame, raycast
 from penumbra.core.filtered_frame import render_filtered
@@ -17,7 +16,7 @@ from penumbra.core.frame import render_frame
 from penumbra.core.pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, PixelFilterError, footprint_samples,
                                         from_render_settings, parse, refine_mask, resolve_pass)
 from penumbra.core.scene import ObjectInfo, Scene
-
+from helpers import rmse
 from synthetic import area_light, box, make_scene, persp_camera, quad, sun_light, top_ortho_camera
 
 
@@ -287,7 +286,7 @@ def test_adaptive_pass_is_the_full_supersampled_pass():
     assert full.lights[0].record["pcf"]["pixel_filter"]["refined_pixels"] == sc.resolution[0] * sc.resolution[1]
     for pid in passes:
         a, b = adaptive.lights[0].passes[pid], full.lights[0].passes[pid]
-        assert np.sqrt(np.mean((a.astype(np.float64) - b)[cov] ** 2)) <= 0.005, pid
+        assert rmse(a, b, cov) <= 0.005, pid
         assert not np.array_equal(a, render_frame(sc, [pid]).lights[0].passes[pid]), pid   # it was filtered
     assert np.array_equal(adaptive.coverage[~cov], full.coverage[~cov])
 
@@ -334,7 +333,7 @@ def test_pcf_pixel_step_on_sub_pixel_receivers():
     np.testing.assert_array_equal(a, b)
     cov = blend.coverage > 0
     assert not np.array_equal(a, c)
-    assert np.sqrt(np.mean((a.astype(np.float64) - c)[cov] ** 2)) <= 0.005
+    assert rmse(a, c, cov) <= 0.005
 
 
 def test_object_edges_and_hard_shadow_edges_get_the_full_grid():

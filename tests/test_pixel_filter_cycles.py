@@ -1,14 +1,14 @@
-"""Filtered passes against an anti-aliased Cycles render (issue 14): with the
+"""Filtered passes against an anti-aliased Cycles render: with the
 scene's own pixel filter (Blackman-Harris 1.5 px, Cycles' default), the
 ratio of Cycles' shadowed / unshadowed Diffuse Direct (the factor a
 compositor multiplies the unshadowed render by) equals the filtered
 ``embree_irr`` pass within the Monte Carlo noise, on the silhouette pixels
 too, where the pixel-centre pass is far off.
 
-Noise bound as in test_cycles_reference.py: sigma_MC = sqrt(mean(V(1-V)) *
-(1/N_cycles + 1/N_embree)). A filtered pixel averages many samples of
-several sub-pixel receivers, so this bound (per-sample variance) is loose
-only upward. The sub-pixel grid (8 x 8 per pixel here) resolves an edge to
+Noise bound as in test_cycles_reference.py (``helpers.mc_noise_bound``):
+sigma_MC = sqrt(mean(V(1-V)) (1/N_cycles + 1/N_embree)). A filtered pixel
+averages many samples of several sub-pixel receivers, so this bound
+(per-sample variance) is loose only upward. The sub-pixel grid (8 x 8 per pixel here) resolves an edge to
 1/8 px: on an edge pixel the quadrature adds at most the filter's mass in
 one grid column (BH 1.5: 0.11 at the centre column / 2 = 0.06, much less on
 curved silhouettes, which cut many columns): QUADRATURE allows for it on
@@ -16,7 +16,7 @@ silhouette pixels only.
 """
 import math
 
-import bpy
+import bpy  # noqa: F401  (the module needs bpy: tests/conftest.py)
 import numpy as np
 import pytest
 
@@ -27,8 +27,8 @@ from penumbra.core.buffers import FrameBuffers
 from penumbra.core.filtered_frame import render_filtered
 from penumbra.core.frame import render_frame
 from penumbra.core.metrics import reach_mask
-from scenes import sample_path
-from test_cycles_reference import rmse
+from helpers import mc_noise_bound, rmse
+from scenes import open_sample
 
 RES = (48, 48)
 CYCLES_SAMPLES = 512
@@ -47,8 +47,7 @@ def _neighbourhood_all(mask: np.ndarray, reach: int) -> np.ndarray:
 
 @pytest.mark.parametrize("name", ["torus_plane"])
 def test_unshadowed_times_filtered_pass_is_the_shadowed_render(name):
-    bpy.ops.wm.open_mainfile(filepath=sample_path(name), load_ui=False)
-    scene = bpy.context.scene
+    scene = open_sample(name)
     scene.render.engine = "CYCLES"
     scene.cycles.pixel_filter_type = "BLACKMAN_HARRIS"
     scene.cycles.filter_width = 1.5
@@ -76,8 +75,7 @@ def test_unshadowed_times_filtered_pass_is_the_shadowed_render(name):
         edge |= ids != np.roll(ids, (dy, dx), axis=(0, 1))
     silhouette = ok & edge
     assert silhouette.sum() >= 20, "the scene must have silhouette pixels to compare"
-    V = e[ok].astype(np.float64)
-    sigma = math.sqrt(np.mean(V * (1 - V)) * (1.0 / CYCLES_SAMPLES + 1.0 / EMBREE_SAMPLES))
+    sigma = mc_noise_bound(e[ok], CYCLES_SAMPLES, EMBREE_SAMPLES)
     err_all, err_sil = rmse(c, e, ok), rmse(c, e, silhouette)
     err_centre_sil = rmse(c, centre, silhouette)
     print(f"\n{name}: filtered embree_irr vs Cycles BH 1.5: RMSE {err_all:.4f} on {ok.sum()} px "

@@ -1,4 +1,4 @@
-"""issue 15: the Preview re-uses the camera G-buffer while the camera and the
+"""The Preview re-uses the camera G-buffer while the camera and the
 geometry do not change (the depsgraph says so: ``bridge/buffer_cache.py``),
 so moving a light re-computes only its light view and the filter; Esc
 cancels inside a long method and writes nothing back."""
@@ -9,8 +9,8 @@ import pytest
 import penumbra
 from penumbra.bridge import buffer_cache, pipeline
 from penumbra.bridge.pipeline import FrameRequest, prepare_frame
-from scenes import sample_path
-from test_core_cancel import CancelAfter
+from helpers import CancelAfter
+from scenes import open_sample
 
 RES = (96, 64)
 
@@ -18,8 +18,7 @@ RES = (96, 64)
 @pytest.fixture
 def scene():
     penumbra.register()                  # installs the depsgraph handler too
-    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
-    sc = bpy.context.scene
+    sc = open_sample("sphere_plane")
     for lt in bpy.data.lights:
         lt.penumbra.method = "pcf"
     buffer_cache.invalidate()
@@ -182,7 +181,7 @@ def test_the_preview_runs_the_fast_methods_at_preview_settings(scene):
 
 
 def test_the_preview_is_at_pixel_centres_and_compute_is_filtered(scene):
-    """Issue 14: the scene's Pixel Filter is "Scene" by default, so Compute
+    """The scene's Pixel Filter is "Scene" by default, so Compute
     Passes is filtered like the render (an Alpha, the JSON's filter), while
     the Preview stays preview quality: pixel centres, unless its request
     names a filter."""

@@ -5,40 +5,28 @@ import os
 import bpy
 import numpy as np
 import OpenEXR
-import pytest
 
-import penumbra
 from penumbra.bridge import compat
 from penumbra.addon import handlers
 from penumbra.bridge import compositor, pipeline, settings
 from penumbra.cli import main
 from penumbra.core import exr
-from scenes import sample_path
+from scenes import open_sample
 
 SIZE = 32
 SEED = 3
 SAMPLES = 4
 
 
-@pytest.fixture
-def registered():
-    penumbra.register()
-    yield
-    penumbra.unregister()
-
-
 def _animated_scene(tmp_path, enable=True):
     """sphere_plane at 32x32, Cycles at 1 sample, the sphere moving over
     frames 1-3, every light on pcf with the embree reference; saved as
-    tmp_path/anim.blend (the session now points at that copy)."""
-    bpy.ops.wm.open_mainfile(filepath=sample_path("sphere_plane"), load_ui=False)
-    scene = bpy.context.scene
+    tmp_path/anim.blend (bpy's current file is then that copy)."""
+    scene = open_sample("sphere_plane", (SIZE, SIZE))
     r = scene.render
     r.engine = "CYCLES"
     scene.cycles.samples = 1
     scene.cycles.use_denoising = False
-    r.resolution_x = r.resolution_y = SIZE
-    r.resolution_percentage = 100
     scene.frame_start, scene.frame_end = 1, 3
     sphere = bpy.data.objects["Sphere"]
     z0 = sphere.location.z
@@ -119,7 +107,7 @@ def test_animation_render_writes_passes_matching_cli(registered, tmp_path):
                      "--out", str(cli_out), "--no-previews"]) == 0
         cli = exr.read_multilayer(str(cli_out / f"anim.{f:04d}.exr"))
         assert set(cli) == set(ours[f]) == {layer}
-        # filtered like the render by default (issue 14): the coverage as an Alpha pass
+        # filtered like the render by default: the coverage as an Alpha pass
         assert set(cli[layer]) == set(ours[f][layer]) == {"pcf", "embree", "Alpha"}
         for pid in ("pcf", "embree", "Alpha"):
             np.testing.assert_array_equal(ours[f][layer][pid], cli[layer][pid])

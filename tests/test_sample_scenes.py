@@ -1,7 +1,9 @@
-"""The sample scenes of issues 17 and 18 (foliage, sun_pillars, leaf_cards;
-dense_sphere and dense_foliage, issue 17's production triangle counts):
-what each is built to stress, checked on the .blend as captured, and an
-embree render of each through the CLI that shows a real shadow."""
+"""The bundled sample scenes (``sample_blends/``): every scene committed
+and rebuilt bit for bit by ``make_samples.py``; the first three's contents
+and a Cycles render of each; what the stress scenes (foliage, sun_pillars,
+leaf_cards; dense_sphere and dense_foliage at production triangle counts)
+are built to stress, checked on the .blend as captured, and an embree
+render of each through the CLI that shows a real shadow."""
 import math
 import os
 
@@ -9,14 +11,18 @@ import bpy
 import numpy as np
 import pytest
 
+from penumbra.bridge.capture import capture_scene
 from penumbra.cli import main
 from penumbra.core import exr
-from scenes import SAMPLE_NAMES, SAMPLES, load_sample, open_sample, sample_path
+from scenes import SAMPLE_NAMES, SAMPLES, image_rgba, load_sample, open_sample, sample_path
 
-NEW_SCENES = ("foliage", "sun_pillars", "leaf_cards")
-#: issue 17's production triangle counts, made by modifiers (the files stay small)
+#: the first sample scenes, whose contents are checked one by one
+BASIC_SCENES = ("grids", "sphere_plane", "torus_plane")
+#: scenes built to stress the methods: many small or thin occluders, alpha mattes
+STRESS_SCENES = ("foliage", "sun_pillars", "leaf_cards")
+#: production triangle counts, made by modifiers (the files stay small)
 DENSE_SCENES = ("dense_sphere", "dense_foliage")
-#: light kind and triangle range each new scene is built for
+#: light kind and triangle range each stress scene is built for
 EXPECTED = {"foliage": ("area", 8_000, 15_000),
             "sun_pillars": ("sun", 1_000, 5_000),
             "leaf_cards": ("area", 80, 100)}
@@ -34,11 +40,88 @@ def _unit_normals(tris):
 
 def test_every_sample_scene_is_committed():
     assert sorted(SAMPLE_NAMES) == sorted(f[:-6] for f in os.listdir(SAMPLES) if f.endswith(".blend"))
-    for name in NEW_SCENES + DENSE_SCENES:
+    for name in BASIC_SCENES:
+        assert os.path.isfile(sample_path(name)), name
+    assert os.path.isfile(os.path.join(SAMPLES, "make_samples.py"))
+    for name in STRESS_SCENES + DENSE_SCENES:
         assert os.path.getsize(sample_path(name)) < 2_000_000
 
 
-@pytest.mark.parametrize("name", NEW_SCENES)
+def test_make_samples_is_deterministic(tmp_path):
+    """The generator rebuilds exactly the geometry of the committed files."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "penumbra_make_samples", os.path.join(SAMPLES, "make_samples.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    paths = mod.main(str(tmp_path))
+    assert [os.path.basename(p) for p in paths] == [n + ".blend" for n in SAMPLE_NAMES]
+    assert not any(p.endswith(".blend1") for p in os.listdir(tmp_path))
+    for name, path in zip(SAMPLE_NAMES, paths):
+        bpy.ops.wm.open_mainfile(filepath=path)
+        fresh = capture_scene()
+        bpy.ops.wm.open_mainfile(filepath=sample_path(name))
+        committed = capture_scene()
+        assert np.array_equal(fresh.triangles, committed.triangles), name
+        assert [o.name for o in fresh.objects] == [o.name for o in committed.objects]
+        assert [(lt.name, lt.size, lt.radius, lt.energy) for lt in fresh.lights] == \
+            [(lt.name, lt.size, lt.radius, lt.energy) for lt in committed.lights]
+        assert np.allclose(fresh.camera.world_from_camera, committed.camera.world_from_camera)
+
+
+@pytest.mark.parametrize("name", BASIC_SCENES)
+def test_sample_blend_contents_and_cycles_render(name, tmp_path):
+    bpy.ops.wm.open_mainfile(filepath=sample_path(name))
+    sc = bpy.context.scene
+    assert sc.render.engine == "CYCLES"
+    assert (sc.render.resolution_x, sc.render.resolution_y,
+            sc.render.resolution_percentage) == (512, 512, 100)
+    captured = capture_scene()
+    assert captured.name == name and captured.camera is not None
+    assert captured.resolution == (512, 512)
+    assert len(captured.lights) == 1
+    light = captured.lights[0]
+    assert light.casts_shadow and light.extent > 0
+    n = len(captured.triangles)
+    if name == "grids":
+        assert 20_000 <= n <= 30_000
+        assert light.kind == "area" and light.shape == "SQUARE"
+        lattice = [o for o in captured.objects if o.name.startswith("Grid")]
+        assert len(lattice) == 3
+        unrotated = _object_triangles(captured, "Grid1").reshape(-1, 3)
+        span = unrotated[:, 0].max() - unrotated[:, 0].min()
+        assert light.size == pytest.approx(span / 4, rel=0.05)
+        heights = sorted(float(_object_triangles(captured, o.name)[..., 2].mean()) for o in lattice)
+        assert heights[0] > 0.5 and heights[1] - heights[0] > 0.5 and heights[2] - heights[1] > 0.5
+    elif name == "sphere_plane":
+        assert "." in light.name and light.kind == "area"
+        assert {o.name for o in captured.objects} == {"Sphere", "Plane"}
+    else:
+        assert light.blender_type == "SPOT" and light.radius > 0 and light.is_spot
+        assert {o.name for o in captured.objects} == {"Torus", "Ground"}
+
+    # renders with Cycles: 32x32, 4 samples
+    sc.render.resolution_x = sc.render.resolution_y = 32
+    sc.cycles.samples = 4
+    sc.cycles.use_denoising = False
+    out = str(tmp_path / f"{name}.png")
+    sc.render.filepath = out
+    sc.render.image_settings.file_format = "PNG"
+    bpy.ops.render.render(write_still=True)
+    assert os.path.isfile(out)
+    img = bpy.data.images.load(out)
+    assert tuple(img.size) == (32, 32)
+    rgb = image_rgba(img)[..., :3]
+    assert rgb.max() > 0.2                     # something is lit
+    assert (rgb.max(-1) < 0.05).any()          # and something is dark (shadow / background)
+
+
+# --------------------------------------------------------------------------
+# the stress scenes
+
+
+@pytest.mark.parametrize("name", STRESS_SCENES)
 def test_light_kind_and_triangle_count(name):
     kind, lo, hi = EXPECTED[name]
     scene = load_sample(name)
@@ -127,10 +210,7 @@ def _matte_links(mat):
 
 
 def _alpha(image):
-    w, h = image.size
-    px = np.empty(w * h * 4, np.float32)
-    image.pixels.foreach_get(px)
-    return px.reshape(h, w, 4)[..., 3]
+    return image_rgba(image)[..., 3]
 
 
 @pytest.mark.parametrize("material, interpolation, binary, cards", [
@@ -155,7 +235,7 @@ def test_leaf_cards_materials_wire_a_packed_matte(material, interpolation, binar
         assert len(ob.data.polygons) == 1 and ob.data.uv_layers.active is not None
 
 
-@pytest.mark.parametrize("name", NEW_SCENES)
+@pytest.mark.parametrize("name", STRESS_SCENES)
 def test_embree_shows_a_real_shadow_through_the_cli(name, tmp_path):
     rc = main(["render", sample_path(name), "--out", str(tmp_path), "--methods", "embree",
                "--resolution", "64x64", "--samples", "64", "--quiet", "--no-previews"])

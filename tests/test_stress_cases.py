@@ -1,4 +1,4 @@
-"""Issue 7's stress suite: DESIGN.md's hard cases ("Numerical robustness")
+"""The stress suite: DESIGN.md's hard cases ("Numerical robustness")
 through every registered method.
 
 Each case is a scene built in code (``synthetic.stress_cases``), run once per
@@ -32,12 +32,13 @@ import pytest
 from penumbra.core import methods as registry
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.metrics import reach_mask
+from helpers import embree_pass, in_range, rmse, run_declared
 from synthetic import leaf_cloud_scene, stress_cases, sun_pillars_scene, zero_size_cases
 
 RES = 48
 SAMPLES = 64          # every method's light samples
 REF_SAMPLES = 256     # the reference's
-# issue 17's sample scenes in small (tests/synthetic.py): foliage (150 small
+# two sample scenes in small (tests/synthetic.py): foliage (150 small
 # randomly oriented single-sided leaves of one object under an area light of
 # the cloud's size) and sun_pillars (thin pillars under a 4-degree sun)
 CASES = dict(stress_cases(RES), foliage=leaf_cloud_scene(res=RES), sun_pillars=sun_pillars_scene(RES))
@@ -62,21 +63,20 @@ EXTRA = {
     # a 2-degree light sees the ground edge-on: every depth image from the
     # light has a handful of texels across the whole receiver (Agrawala et
     # al. 6.1, "Sampling"); the paper gives no bound, the methods' own tests
-    # measured 0.1 for depth_raytrace; irregular's light-space grid degenerates
+    # set from the methods' own tests; irregular's light-space grid degenerates
     ("grazing_area", "depth_raytrace"): 0.10,
     # irregular: silhouettes from the light's centre (Johnson et al. 2.1):
     # seen from 10 units at 2 degrees, the box's silhouette from the centre
-    # and from the light's ends differ by whole faces (measured 0.17)
+    # and from the light's ends differ by whole faces
     ("grazing_area", "irregular"): 0.18,
     # a light 50x its height above the occluder: its corners see the
-    # occluder's edge at grazing angles, depth images leak there (the
-    # method's own test measured +0.19)
+    # occluder's edge at grazing angles, depth images leak there
     ("huge_area_light", "depth_raytrace"): 0.22,
     ("huge_sphere_light", "depth_raytrace"): 0.05,
     # layered's sphere-light samples fill the ball whose projection along
     # every direction is the facing disk, exact up to the perspective of a
     # point at distance d: O((r / d)^2) (layered.py's docstring); here
-    # r / d = 3.5 / 4, so no small bound follows: measured 0.10, kept with margin
+    # r / d = 3.5 / 4, so no small bound follows: measured, kept with margin
     ("huge_sphere_light", "layered"): 0.08,
     # a sun of 143 degrees: the cone's rim directions are grazing
     ("huge_sun", "depth_raytrace"): 0.16,
@@ -86,29 +86,26 @@ EXTRA = {
     # spans 1 / tan(angle) = 29 to 100 texel widths in depth. Its plane-depth
     # comparison holds up to MAX_SLOPE = 30 (88 degrees); past that it falls
     # back to the paper's raw epsilon test and the ground shadows itself (too
-    # dark). Not derived: measured 0.17 (area) and 0.35 (sun) with
-    # MAX_SLOPE = 30 (0.38 / 0.51 with the earlier 10), kept with margin;
-    # 0.164 / 0.347 with the footprint splat and bilinear display (steep
-    # ground: the paper's 4 neighbours and nearest pixel).
+    # dark). Not derived: measured, kept with margin (steep ground keeps the
+    # paper's 4-neighbour splat and nearest-pixel display).
     ("grazing_area", "layered"): 0.13,
     ("grazing_sun", "layered"): 0.32,
-    # issue 17 at 48 px: a leaf is about two texels of the light's maps and
-    # the gaps between leaves one or less. layered's footprint splat (the
-    # default since issue 17) no longer fills thin gaps as the paper's
-    # 4-neighbour splat does (Agrawala et al. 4: measured 0.146 here), but
-    # leaves of two texels still lose or gain a texel: measured 0.103;
-    # depth_raytrace's depth images miss sub-texel leaves and gaps: 0.069
+    # at 48 px a leaf is about two texels of the light's maps and the gaps
+    # between leaves one or less. layered's footprint splat does not fill
+    # thin gaps as the paper's 4-neighbour splat does (Agrawala et al. 4),
+    # but leaves of two texels still lose or gain a texel; depth_raytrace's
+    # depth images miss sub-texel leaves and gaps
     ("foliage", "layered"): 0.07,
     ("foliage", "depth_raytrace"): 0.03,
     # thin pillars (about one map texel wide) under a low sun: a pillar's
-    # shadow gains or loses a texel (measured 0.084; 0.090 with the paper's splat)
+    # shadow gains or loses a texel
     ("sun_pillars", "layered"): 0.04,
 }
 # the irradiance pass of depth_raytrace where its average pass already needs
 # an EXTRA: on huge_area_light the leaks sit under the light's centre, where
 # the irradiance weight (cosines over squared distance) is largest, so the
-# irradiance pass is off by about twice the average pass (measured 0.40-0.42
-# against 0.20; notes in the closing report, not derived)
+# irradiance pass is off by about twice the average pass (measured, not
+# derived)
 IRR_EXTRA = {"huge_area_light": 0.15}
 # cases where the reference is exact, not estimated: V = 1 (nothing between
 # light and receiver) or V = 0 (a closed box between them)
@@ -119,11 +116,6 @@ def bound(case: str, method: str) -> float:
     return NOISE + BASE[method] + EXTRA.get((case, method), 0.0)
 
 
-def _reference(fb, light, samples):
-    m = registry.producers()["embree"]
-    return m.run(fb, light, m.make_params({"samples": samples, "seed": 99})).passes["embree"]
-
-
 @functools.lru_cache(maxsize=None)
 def prepared(group: str, case: str):
     """(scene, buffers, reach mask, embree reference) for one case, shared by every method."""
@@ -132,26 +124,18 @@ def prepared(group: str, case: str):
     fb = FrameBuffers(scene, W, H)
     light = scene.lights[0]
     mask = reach_mask(fb.gbuffer, light)
-    ref = _reference(fb, light, 1 if group == "zero" else REF_SAMPLES)
+    ref = embree_pass(fb, light, 1 if group == "zero" else REF_SAMPLES, seed=99)
     return scene, fb, mask, ref
 
 
 def run_method(fb, light, method):
     """The method on the buffers its needs declare (any other raises)."""
-    m = registry.producers()[method]
-    with fb.view(m.needs, m.id) as view:
-        return m.run(view, light, m.make_params({"samples": SAMPLES, "seed": 5}))
+    return run_declared(method, fb, light, samples=SAMPLES, seed=5)[0]
 
 
 def check_pass(v, shape):
-    assert v.dtype == np.float32 and v.shape == shape
-    assert np.isfinite(v).all(), "NaN or inf in the pass"
-    assert v.min() >= 0.0 and v.max() <= 1.0, (float(v.min()), float(v.max()))
-
-
-def rmse(v, ref, mask):
-    d = (v.astype(np.float64) - ref)[mask]
-    return float(np.sqrt(np.mean(d * d))) if d.size else 0.0
+    assert v.shape == shape
+    assert in_range(v), (v.dtype, float(np.nanmin(v)), float(np.nanmax(v)))
 
 
 def test_the_cases_exercise_what_they_name():
@@ -204,8 +188,7 @@ def test_hard_case(case, method):
 @functools.lru_cache(maxsize=None)
 def _irr_reference(case):
     scene, fb, _, _ = prepared("stress", case)
-    m = registry.producers()["embree"]
-    return m.run(fb, scene.lights[0], m.make_params({"samples": REF_SAMPLES, "seed": 99})).passes["embree_irr"]
+    return embree_pass(fb, scene.lights[0], REF_SAMPLES, seed=99, pass_id="embree_irr")
 
 
 def hard_edge_band(ref, hit, width=2):
