@@ -175,7 +175,7 @@ class PenumbraCasting(Method):
         H, W = g.shape
         with timer("setup"):
             setup = prepare(buffers, light, params)
-            tris, mattes = split_blockers(buffers.scene, buffers.shadow_triangles[0])
+            tris, mattes = split_blockers(buffers.matte_casters, buffers.shadow_triangles[0])
             tris = finite_blockers(tris)
         V, stats = cast(setup, tris, params, timer, mattes=mattes)
         out = np.ones(H * W, np.float32)

@@ -45,10 +45,11 @@ RELATIONS_PER_BATCH = 1 << 18
 SUN_TFAR = np.float32(1e30)
 
 
-def split_blockers(scene, casting: np.ndarray) -> Tuple[np.ndarray, Optional[raycast.TriangleScene]]:
+def split_blockers(matte_casters, casting: np.ndarray) -> Tuple[np.ndarray, Optional[raycast.TriangleScene]]:
     """(the shadow-casting triangles ``casting`` without a matte, a BVH of
-    those with one, or None when there are none: then ``casting`` itself)."""
-    has, mattes = raycast.TriangleScene.matte_casters(scene)
+    those with one, or None when there are none: then ``casting`` itself);
+    ``matte_casters``: ``FrameBuffers.matte_casters`` of the frame."""
+    has, mattes = matte_casters
     return (casting, None) if has is None else (casting[~has], mattes)
 
 

@@ -13,7 +13,7 @@ from penumbra.bench.scaling import bulge_split, uv_sphere_triangles
 from penumbra.core.methods.penumbra_casting.blockers import coplanar_blockers
 from penumbra.core.methods.penumbra_casting.cores import closed_solids, interior_blockers
 from synthetic import area_light, quad, sun_light
-from test_compile_and_plan import _COMPILES_OUTSIDE_WARM_UP
+from helpers import COMPILES_OUTSIDE_WARM_UP
 
 _REGISTER = 'event.register("numba:compile", Compiles())\n'
 
@@ -179,9 +179,9 @@ def test_merge_on_the_solids_mesh_equals_the_merge_from_scratch():
         np.testing.assert_array_equal(x, y)
 
 
-#: test_compile_and_plan's listener (compile events inside / outside the
+#: helpers' compile listener (compile events inside / outside the
 #: warm-up), then a frame of a closed sphere
-_CLOSED_SOLID_COMPILES = _COMPILES_OUTSIDE_WARM_UP.split(_REGISTER)[0] + _REGISTER + r"""
+_CLOSED_SOLID_COMPILES = COMPILES_OUTSIDE_WARM_UP.split(_REGISTER)[0] + _REGISTER + r"""
 from penumbra.bench.scaling import smooth_sphere_scene
 from penumbra.core.frame import render_frame
 render_frame(smooth_sphere_scene(2000, (16, 16)), ["penumbra_casting"], overrides={"samples": 4})
