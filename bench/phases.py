@@ -184,7 +184,7 @@ PREVIEW_TARGET_S = 0.25
 
 def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
     """The Preview's figure: Preview (``prepare_frame`` with
-    ``fast=True`` -> run -> the "Penumbra Preview" image, capture included)
+    ``preview=True`` -> run -> the "Penumbra Preview" image, capture included)
     of ``name`` at 1920x1080 on an unchanged camera, warm (kernels compiled,
     the camera G-buffer kept from the Preview before), for pcf and
     single_sample, with nothing changed and with the light moved before each
@@ -212,8 +212,10 @@ def bench_preview(repeats: int, quick: bool, name: str = "sphere_plane"):
                     light.location.x += 0.05 * sign[0]
                     sign[0] = -sign[0]
                 c0, t0 = _cpu(), time.perf_counter()
-                job = prepare_frame(scene, FrameRequest(resolution=res, fast=True, methods=[method], references=(),
-                                                        threads=threads))
+                request = FrameRequest.from_scene_settings(resolution=res, preview=True, methods=[method],
+                                                           references=())
+                request.threads = threads
+                job = prepare_frame(scene, request)
                 t1 = time.perf_counter()
                 job.run()
                 result = job.result()

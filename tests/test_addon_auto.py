@@ -18,6 +18,14 @@ def _sphere_plane(w=32, h=24):
     return open_sample("sphere_plane", (w, h)), bpy.data.objects["Key.Light"]
 
 
+def _scene_aware_pick(scene, budget):
+    """auto's decision for the sphere_plane light as the add-on captures it."""
+    from penumbra.bridge.capture import capture_scene
+    from penumbra.core.planner import auto_choice_for
+    sc = capture_scene(scene, resolution=(scene.render.resolution_x, scene.render.resolution_y))
+    return auto_choice_for(sc, sc.lights[0], budget)
+
+
 def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
     scene, light = _sphere_plane()
     assert light.data.penumbra.method == "auto"
@@ -25,10 +33,9 @@ def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
     scene.penumbra.references = set()
     scene.penumbra.output_folder = str(tmp_path)
     picked = []
-    for budget in (0.04, 0.3):
+    for budget in (0.02, 0.3):
         scene.penumbra.error_budget = budget
-        want = ac.choose("area", light.data.size, budget=scene.penumbra.error_budget)
-        assert want.rule == "meets budget"
+        want = _scene_aware_pick(scene, scene.penumbra.error_budget)
         assert bpy.ops.penumbra.compute_passes(samples=4) == {"FINISHED"}
         rec = json.loads((tmp_path / "sphere_plane.0001.json").read_text())
         (lp,) = rec["plan"]["lights"]
@@ -38,12 +45,12 @@ def test_compute_writes_autos_pick_and_reason(registered, tmp_path):
         assert list(rec["lights"][0]["methods"]) == [want.method]
         assert bpy.data.images.get(compositor.pass_image_name("Key_Light", want.method)) is not None
         picked.append(want)
+        # Set up compositor shows the same pick as the light's method
+        from penumbra.operators.compositor_ops import light_method
+        assert light_method("Key.Light", scene=scene) == want.method
     # a looser budget picks a cheaper, less accurate method
     assert picked[0].method != picked[1].method
     assert picked[1].seconds < picked[0].seconds and picked[1].rmse > picked[0].rmse
-    # Set up compositor shows the same pick as the light's method
-    from penumbra.operators.compositor_ops import light_method
-    assert light_method("Key.Light", scene=scene) == picked[1].method
 
 
 def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
@@ -54,28 +61,36 @@ def test_zero_size_light_resolves_to_the_hard_shadow_method(registered):
     jobs, _ = bj.light_jobs(scene, capture_scene(scene, resolution=(16, 12)), references=())
     (job,) = jobs
     assert job.passes == ["pcf"] and job.auto.rule == "hard"
-    assert bj.resolve_method(light.data.penumbra, light.data, scene) == "pcf"
-    # no light to go by (a cycles-only run): the documented fallback
-    assert bj.resolve_method(None) == ac.FALLBACK["average"]
+    assert bj.asks_for_auto(light.data.penumbra)
+    assert bj.last_auto(scene.name, "Key.Light").method == "pcf"
 
 
-def test_panel_says_what_auto_picks_and_why(registered):
+def test_panel_says_what_auto_picked_for_the_scene(registered):
+    """Before a frame was computed the light's panel says the pick is made
+    per scene; afterwards it shows the pick (its short reason) and the
+    picked method's knobs."""
     from penumbra.addon import panels
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    from penumbra.bridge import jobs as bj
+    scene, light = _sphere_plane()
+    scene.penumbra.references = set()
+    scene.penumbra.error_budget = 0.3
     prefix = "PENUMBRA_PG_knobs_"
-    ctx = SimpleNamespace(scene=bpy.context.scene)
-    ctx.scene.penumbra.error_budget = 0.3
-    for kind, size_attr in (("AREA", "size"), ("SPOT", "shadow_soft_size")):
-        light = bpy.data.lights.new(kind, kind)
-        setattr(light, size_attr, 0.5)
-        ctx.light = light
+    ctx = SimpleNamespace(scene=scene, light=light.data, object=light)
+
+    def draw():
         drawn = [draw_panel(cls, ctx) for cls in (panels.PENUMBRA_PT_light, panels.PENUMBRA_PT_light_quality)]
         labels = [text for layout in drawn for text in layout.labels]
-        knobs_of = [data.bl_rna.identifier[len(prefix):] for layout in drawn for data, _ in layout.props
-                    if hasattr(data, "bl_rna") and data.bl_rna.identifier.startswith(prefix)]
-        want = ac.choose("area" if kind == "AREA" else "sphere", 1.0, budget=0.3)
-        assert labels == [f"Auto: {want.short}"]
-        assert want.method.split("_irr")[0] in knobs_of           # the picked method's knobs
+        knobs = [data.bl_rna.identifier[len(prefix):] for layout in drawn for data, _ in layout.props
+                 if hasattr(data, "bl_rna") and data.bl_rna.identifier.startswith(prefix)]
+        return labels, knobs
+    bj._last_auto.clear()
+    labels, knobs = draw()
+    assert labels[0] == "Auto: picked for the scene when computed" and not knobs
+    assert bpy.ops.penumbra.compute_passes(samples=4) == {"FINISHED"}
+    want = _scene_aware_pick(scene, 0.3)
+    labels, knobs = draw()
+    assert labels == [f"Auto: {want.short}"]
+    assert want.method.split("_irr")[0] in knobs           # the picked method's knobs
 
 
 def _torus_shape(resolution):

@@ -139,12 +139,13 @@ def test_preview_updates_one_image_in_place(registered):
     # the preview is the pcf pass at that size, its light view and samples at preview quality
     from penumbra.core.frame import render_frame
     from penumbra.bridge.capture import capture_scene
-    from penumbra.bridge.jobs import PREVIEW_MAP_SCALE, PREVIEW_PARAMS
+    from penumbra.bridge.jobs import PREVIEW_MAP_SCALE
+    from penumbra.core.methods import producer_of
     from penumbra.core.views import default_map_size
     assert light.data.type == "AREA"
     side = round(default_map_size(24, 16, "area") * PREVIEW_MAP_SCALE)
     ref = render_frame(capture_scene(scene, resolution=(24, 16)), ["pcf"], overrides={"seed": 0, "samples": 64},
-                       method_overrides={"pcf": PREVIEW_PARAMS["pcf"]}, map_size=side)
+                       method_overrides={"pcf": producer_of("pcf").preview_params}, map_size=side)
     np.testing.assert_allclose(_pixels(img), ref.lights[0].passes["pcf"], atol=1e-6)
     # no image nodes, no pass images: a preview changes nothing else
     assert not any(i.name.startswith("Penumbra ") and i.name != "Penumbra Preview" for i in bpy.data.images)
@@ -289,8 +290,7 @@ def test_light_deleted_mid_way(registered):
     bpy.data.objects.remove(spot)
     while not job.done:
         job.step()
-    from penumbra.operators.compute import finish
-    result, _written = finish(job, scene, None, build_nodes=True)
+    result, _written = pipeline.finish_frame(scene, job, None, build_nodes=True)
     assert job.error is None
     assert job.warnings == ["light 'Second' was deleted during the run: skipped"]
     assert [lr.name for lr in result.lights] == ["Key.Light"]

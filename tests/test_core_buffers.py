@@ -144,27 +144,28 @@ def _moved(scene, dx):
     return replace(scene, lights=[replace(lt, world_from_light=m)])
 
 
-def test_reused_buffers_give_the_passes_of_fresh_ones():
-    """A frame may take over an earlier frame's G-buffer and BVHs
-    (same camera and geometry) and the views of unchanged lights; a moved
-    light gets a new view. Passes are those of a fresh frame; what was taken
-    over is billed 0 s, an unchanged light's pass included (its method does
-    not run again); another parameter runs it."""
+def test_a_frame_cache_gives_the_passes_of_fresh_buffers():
+    """A frame may start from an earlier frame's cache (``FrameCache``: same
+    camera and geometry): its G-buffer and BVHs, the views of unchanged
+    lights and their methods' results; a moved light gets a new view. Passes
+    are those of a fresh frame; what was taken over is billed 0 s, an
+    unchanged light's pass included (its method does not run again);
+    another parameter runs it."""
     scene = _half_plane()
-    first = render_frame(scene, ["pcf"], keep_buffers=True)
-    assert first.buffers is not None and render_frame(scene, ["pcf"]).buffers is None
-    again = render_frame(scene, ["pcf"], reuse=first.buffers, keep_buffers=True)
+    first = render_frame(scene, ["pcf"], keep=True)
+    assert first.cache is not None and render_frame(scene, ["pcf"]).cache is None
+    again = render_frame(scene, ["pcf"], previous=first.cache, keep=True)
     np.testing.assert_array_equal(again.lights[0].passes["pcf"], first.lights[0].passes["pcf"])
     rec = again.lights[0].record["pcf"]
     assert rec["reused"] and all(v == 0.0 for v in rec["time_s"].values()) and "filter" in rec["time_s"]
-    other = render_frame(scene, ["pcf"], reuse=first.buffers, method_overrides={"pcf": {"PenumbraSamples": 32}},
-                         keep_buffers=True)
+    other = render_frame(scene, ["pcf"], previous=first.cache, method_overrides={"pcf": {"PenumbraSamples": 32}},
+                         keep=True)
     t = other.lights[0].record["pcf"]["time_s"]
     assert "reused" not in other.lights[0].record["pcf"]
     assert t["gbuffer"] == t["light_view"] == t["bvh"] == 0.0 and t["filter"] > 0.0
-    assert again.buffers._views and again.buffers._gbuffer is first.buffers._gbuffer
+    assert again.cache.buffers._views and again.cache.buffers._gbuffer is first.cache.buffers._gbuffer
     moved = _moved(scene, 0.3)
-    reused = render_frame(moved, ["pcf"], reuse=again.buffers)
+    reused = render_frame(moved, ["pcf"], previous=again.cache)
     fresh = render_frame(moved, ["pcf"])
     np.testing.assert_array_equal(reused.lights[0].passes["pcf"], fresh.lights[0].passes["pcf"])
     assert not np.array_equal(fresh.lights[0].passes["pcf"], first.lights[0].passes["pcf"])
@@ -175,38 +176,38 @@ def test_reused_buffers_give_the_passes_of_fresh_ones():
 def test_buffers_of_another_camera_or_resolution_are_refused():
     from dataclasses import replace
     scene = _half_plane()
-    first = render_frame(scene, ["pcf"], keep_buffers=True)
+    first = render_frame(scene, ["pcf"], keep=True)
     cam = scene.camera
     m = cam.world_from_camera.copy()
     m[0, 3] += 0.1
     other = replace(scene, camera=replace(cam, world_from_camera=m))
     with pytest.raises(ValueError, match="camera"):
-        render_frame(other, ["pcf"], reuse=first.buffers)
+        render_frame(other, ["pcf"], previous=first.cache)
     with pytest.raises(ValueError, match="resolution"):
-        FrameBuffers(scene, RES + 1, RES).adopt(first.buffers)
+        FrameBuffers(scene, RES + 1, RES).adopt(first.cache.buffers)
 
 
-def test_frame_memo_is_kept_only_when_a_filtered_frame_shares_it():
-    """``frame_memo`` (layered's LDI, depth_raytrace's maps) builds every
+def test_a_precompute_is_kept_only_when_a_filtered_frame_shares_it():
+    """``precomputed`` (layered's LDI, depth_raytrace's maps) builds every
     call on plain buffers, so runs timed on one set of buffers (the study,
-    the benchmark) each pay their precompute; after ``share_frame_memo``
+    the benchmark) each pay their precompute; after ``share_precomputed``
     (``render_filtered``) it builds once per light and params, and the
-    sub-pixel stage's buffers (``supersampled``) see the same memo."""
+    sub-pixel stage's buffers (``supersampled``) see the same one."""
     sc = _half_plane()
     light = sc.lights[0]
     fb = FrameBuffers(sc, *sc.resolution)
     builds = []
     build = lambda: builds.append(1) or len(builds)
     params = registry.producers()["layered"].make_params({})
-    assert fb.frame_memo("layered.ldi", light, params, build) == 1
-    assert fb.frame_memo("layered.ldi", light, params, build) == 2
-    fb.share_frame_memo()
-    assert fb.frame_memo("layered.ldi", light, params, build) == 3
-    assert fb.frame_memo("layered.ldi", light, params, build) == 3
+    assert fb.precomputed("layered.ldi", light, params, build) == 1
+    assert fb.precomputed("layered.ldi", light, params, build) == 2
+    fb.share_precomputed()
+    assert fb.precomputed("layered.ldi", light, params, build) == 3
+    assert fb.precomputed("layered.ldi", light, params, build) == 3
     sub = fb.supersampled(sc, 2 * sc.resolution[0], 2 * sc.resolution[1], fb.gbuffer, 0.0)
-    assert sub.frame_memo("layered.ldi", light, params, build) == 3
+    assert sub.precomputed("layered.ldi", light, params, build) == 3
     other = registry.producers()["layered"].make_params({"samples": 16})
-    assert fb.frame_memo("layered.ldi", light, other, build) == 4
+    assert fb.precomputed("layered.ldi", light, other, build) == 4
 
 
 @pytest.mark.parametrize("light", sorted(LIGHTS))

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from penumbra.core import filtered_frame, raycast
+from penumbra.core import methods as registry
 from penumbra.core.filtered_frame import render_filtered
 from penumbra.core.frame import render_frame
 from penumbra.core.pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, PixelFilterError, footprint_samples,
@@ -304,10 +305,12 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
     in the image)."""
     sc = _box_scene(24)
     flt = PixelFilter("blackman-harris", 1.5)
-    assert set(PACKED) == set(filtered_frame.PACKED_PRODUCERS)
+    producers = registry.producers()
+    assert {mid for mid, m in producers.items() if m.packed} == set(PACKED)
     opts = dict(overrides={"samples": 16}, method_overrides={"single_sample": {"adaptive": False}})
     packed = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
-    monkeypatch.setattr(filtered_frame, "PACKED_PRODUCERS", frozenset())
+    for m in producers.values():
+        monkeypatch.setattr(m, "packed", False)
     dense = render_filtered(sc, PACKED, pixel_filter=flt, **opts)
     for pid in PACKED:
         assert np.array_equal(packed.lights[0].passes[pid], dense.lights[0].passes[pid]), pid

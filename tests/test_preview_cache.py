@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import penumbra
-from penumbra.bridge import buffer_cache, pipeline
+from penumbra.bridge import buffer_cache, jobs, pipeline
 from penumbra.bridge.pipeline import FrameRequest, prepare_frame
 from helpers import CancelAfter
 from scenes import open_sample
@@ -28,7 +28,7 @@ def scene():
 
 
 def _preview(scene, **kw):
-    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=(), **kw))
+    job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, preview=True, references=(), **kw))
     job.run()
     res = job.result()
     lr = res.lights[0]
@@ -76,9 +76,9 @@ def test_the_preview_map_is_half_the_default_map(scene):
     job, _, _ = _preview(scene)
     lr = job.result().lights[0]
     side = round((RES[0] * RES[1]) ** 0.5)          # views.default_map_size: texels ~ the output's pixels
-    assert max(lr.record["pcf"]["stats"]["map"][1:]) == round(side * pipeline.PREVIEW_MAP_SCALE)
-    job, _, _ = _preview(scene, map_scale=1.0)
-    assert max(job.result().lights[0].record["pcf"]["stats"]["map"][1:]) == side
+    assert max(lr.record["pcf"]["stats"]["map"][1:]) == round(side * jobs.PREVIEW_MAP_SCALE)
+    job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, references=(), pixel_filter="none"))
+    assert max(job.run().result().lights[0].record["pcf"]["stats"]["map"][1:]) == side   # Compute: the whole
 
 
 def test_cancel_inside_a_method_writes_nothing_back(scene, monkeypatch):
@@ -97,7 +97,7 @@ def test_cancel_inside_a_method_writes_nothing_back(scene, monkeypatch):
     monkeypatch.setattr(pixel_rays, "make_rays", counting)
 
     def run(token):
-        job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=(), per_light=True))
+        job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, preview=True, references=(), per_light=True))
         bg = pipeline.BackgroundFrameJob(job, token).start()
         assert bg.wait(300)
         return bg
@@ -111,7 +111,7 @@ def test_cancel_inside_a_method_writes_nothing_back(scene, monkeypatch):
     bg = run(CancelAfter(1))                      # cancelled at its second check
     assert bg.cancelled and bg.job.error is None
     assert 1 <= len(bands) <= 2 < RES[1]          # a band on each of the two threads at most
-    assert not bg.job.results and bg.job.buffers is None
+    assert not bg.job.results and bg.job.cache is None
     assert buffer_cache.lookup(buffer_cache.ticket(scene, bg.job.captured)) is None
     assert not [i.name for i in bpy.data.images if i.name.startswith("Penumbra ")]
 
@@ -129,7 +129,7 @@ def test_an_unchanged_light_keeps_its_pass_a_moved_one_does_not(scene):
     buffer_cache.invalidate()
 
     def run():
-        job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=()))
+        job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, preview=True, references=()))
         job.run()
         return job, {lr.name: lr for lr in job.result().lights}
     run()
@@ -157,24 +157,25 @@ def test_an_unchanged_light_keeps_its_pass_a_moved_one_does_not(scene):
         np.testing.assert_array_equal(lr.passes["pcf"], fresh[name].passes["pcf"])
 
 
-def test_the_preview_runs_the_fast_methods_at_preview_settings(scene):
+def test_the_preview_runs_methods_at_their_preview_settings(scene):
     """single_sample previews with the paper's nearest blocker and object
-    ids, pcf with fewer samples (``jobs.PREVIEW_PARAMS``); a light's own
+    ids, pcf with fewer samples (``Method.preview_params``); a light's own
     knob wins; the Compute keeps the accurate defaults."""
-    from penumbra.bridge.jobs import PREVIEW_PARAMS
+    from penumbra.core.methods import producer_of
+    PREVIEW_PARAMS = {m: producer_of(m).preview_params for m in ("pcf", "single_sample")}
     lt = _light()
     lt.data.penumbra.method = "single_sample"
-    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=()))
+    job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, preview=True, references=()))
     job.run()
     params = job.result().lights[0].record["single_sample"]["params"]
     assert {k: params[k] for k in PREVIEW_PARAMS["single_sample"]} == PREVIEW_PARAMS["single_sample"]
-    job = prepare_frame(scene, FrameRequest(resolution=RES, references=()))
+    job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, references=()))
     job.run()
     params = job.result().lights[0].record["single_sample"]["params"]
     assert (params["blocker"], params["surfaces"]) == ("sum", "mesh")
     lt.data.penumbra.method = "pcf"
     lt.data.penumbra.knobs.pcf.PenumbraSamples = 48
-    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=()))
+    job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, preview=True, references=()))
     job.run()
     params = job.result().lights[0].record["pcf"]["params"]
     assert (params["PenumbraSamples"], params["BlockerSamples"]) == (48, PREVIEW_PARAMS["pcf"]["BlockerSamples"])
@@ -188,9 +189,9 @@ def test_the_preview_is_at_pixel_centres_and_compute_is_filtered(scene):
     assert scene.penumbra.pixel_filter == "SCENE"
     job, _, t = _preview(scene)
     assert job.result().pixel_filter is None and job.result().coverage is None and "subpixel" not in t
-    job = prepare_frame(scene, FrameRequest(resolution=RES, references=()))
+    job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, references=()))
     res = job.run().result()
     assert res.pixel_filter["type"] == "blackman-harris" and res.coverage is not None
     assert "subpixel" in res.lights[0].record["pcf"]["time_s"]
-    job = prepare_frame(scene, FrameRequest(resolution=RES, fast=True, references=(), pixel_filter="box:1"))
+    job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, preview=True, references=(), pixel_filter="box:1"))
     assert job.run().result().pixel_filter["type"] == "box"
