@@ -85,12 +85,12 @@ from typing import Optional
 import numpy as np
 from numba import prange
 
-from .. import views
-from ..jit import inner, kernel
-from ..kernels import borrowed, each_dealt_chunk, face_project, finite_bbox, pick_face
-from ..sampling import stream_next, stream_start, stream_word
-from .registry import register
-from .base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
+from ... import views
+from ...jit import inner, kernel
+from ...kernels import borrowed, each_dealt_chunk, face_project, finite_bbox, pick_face
+from ...sampling import stream_next, stream_start, stream_word
+from ..registry import register
+from ..base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
 # Reeves et al.: "In worlds measuring 100 by 100 by 100 units, typical bias
 # values we use are (0.3, 0.4)" -> 0.003 and 0.004 of the scene's size.
