@@ -91,8 +91,7 @@ def test_bias_scales_with_scene_size():
     assert b0 == pytest.approx(0.003 * 20) and b1 == pytest.approx(0.004 * 20)
 
 
-@pytest.mark.parametrize("sampler", ["fast", "figure4"])
-def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane(sampler):
+def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane():
     """A lone plane tilted 60 degrees to a light above: with the paper's
     constant z and zero bias the large regions shadow the plane itself
     (section 4.2's Moire); comparing with the tangent-plane depth per texel
@@ -105,21 +104,21 @@ def test_receiver_plane_removes_self_shadowing_on_a_tilted_plane(sampler):
                      [[-5 * c, -5, -5 * s], [5 * c, 5, 5 * s], [-5 * c, 5, -5 * s]]], np.float32)
     cam = top_ortho_camera(1.5, height=8.0)
     sc = Scene(tris, np.zeros(2, np.int32), [ObjectInfo("p", 0)], cam, [area_light(1.0, z=10.0)], (48, 48))
-    on, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, sampler=sampler)
-    off, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, receiver_plane=False, sampler=sampler)
+    on, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0)
+    off, _ = run_pcf(sc, Bias0=0.0, Bias1=0.0, ResFactor=4.0, receiver_plane=False)
     assert on.passes["pcf"].min() == 1.0
     assert off.passes["pcf"].mean() < 0.95
 
 
-@pytest.mark.parametrize("region,sampler", [("light", "fast"), ("figure4", "fast"), ("light", "figure4")])
-def test_tile_early_out_changes_nothing(region, sampler):
+@pytest.mark.parametrize("region", ["light", "figure4"])
+def test_tile_early_out_changes_nothing(region):
     """Reeves et al. 3.3's tiles only skip regions whose result they decide:
     the pass is bit-identical with them off (region="light": the tiles test
     the blocker search's region, which holds the filter's)."""
     for make in (lambda: area_light(1.0), lambda: sphere_light(0.3), lambda: sun_light(0.1)):
         scene = half_plane_scene(make(), res=48)
-        a, _ = run_pcf(scene, tiles=True, region=region, sampler=sampler)
-        b, _ = run_pcf(scene, tiles=False, region=region, sampler=sampler)
+        a, _ = run_pcf(scene, tiles=True, region=region)
+        b, _ = run_pcf(scene, tiles=False, region=region)
         np.testing.assert_array_equal(a.passes["pcf"], b.passes["pcf"])
 
 
@@ -127,8 +126,7 @@ def _rmse(a, b):
     return float(np.sqrt(np.mean((np.asarray(a, np.float64) - b) ** 2)))
 
 
-@pytest.mark.parametrize("sampler", ["fast", "figure4"])
-def test_light_region_is_the_square_light_closed_form(sampler):
+def test_light_region_is_the_square_light_closed_form():
     """region="light" on the half-plane scene (a square light of side 1 at
     height 4, the occluder's edge at height 2): the blocker search finds the
     occluder's depth, the filter region is the light's extent there, and a
@@ -137,7 +135,7 @@ def test_light_region_is_the_square_light_closed_form(sampler):
     region follows the pixel footprint (a few texels): nearly a hard edge."""
     scene = half_plane_scene(area_light(1.0), res=64)
     exact = np.clip(0.5 + pixel_world_y(scene, np.arange(64)), 0.0, 1.0)[:, None] * np.ones(64)
-    v = run_pcf(scene, PenumbraSamples=256, sampler=sampler)[0].passes["pcf"]
+    v = run_pcf(scene, PenumbraSamples=256)[0].passes["pcf"]
     paper = run_pcf(scene, region="figure4")[0].passes["pcf"]
     assert _rmse(v, exact) < 0.03, _rmse(v, exact)
     assert _rmse(paper, exact) > 0.1
@@ -175,8 +173,6 @@ def test_light_reach_closed_forms():
 def test_unknown_region_is_an_error():
     with pytest.raises(ValueError, match="region"):
         run_pcf(half_plane_scene(area_light(1.0), res=8), region="pcss")
-    with pytest.raises(ValueError, match="sampler"):
-        run_pcf(half_plane_scene(area_light(1.0), res=8), sampler="sobol")
 
 
 @pytest.mark.parametrize("ortho", [False, True])
@@ -365,13 +361,11 @@ def test_region_decided_lit_holds_for_every_texel():
     assert decided_by_planes > 50
 
 
-def test_tiles_search_region_holds_every_blocker_and_is_exact_with_the_face_one():
-    """search="tiles": the blocker search region narrowed by the tiles'
-    nearest depths is inside the face's one and still holds every texel
-    that can block a ray from the receiver to the light (depth d nearer than
-    the receiver, within the light's reach at d); on the half-plane scene
-    both searches give the same pass where the region's only blocker is the
-    occluder (a straight edge)."""
+def test_tiles_search_region_holds_every_blocker():
+    """The blocker search region narrowed by the tiles' nearest depths is
+    inside the one at the face's nearest depth (no narrowing step) and still
+    holds every texel that can block a ray from the receiver to the light
+    (depth d nearer than the receiver, within the light's reach at d)."""
     from penumbra.core.methods.pcf import light_halfwidth, search_region, tile_minmax, tile_tables
     rng = np.random.default_rng(9)
     depth, _ = _slanted_map(rng, boxes=6)
@@ -398,12 +392,6 @@ def test_tiles_search_region_holds_every_blocker_and_is_exact_with_the_face_one(
         blockers = np.flatnonzero(inside)
         assert np.all(np.abs(uu[near][blockers] - s) <= ws)
         assert np.all(np.abs(vv[near][blockers] - t) <= wt)
-    scene = half_plane_scene(area_light(1.0), res=48)
-    a, _ = run_pcf(scene)
-    b, _ = run_pcf(scene, search="face")
-    assert _rmse(a.passes["pcf"], b.passes["pcf"]) < 0.02
-    with pytest.raises(ValueError, match="search"):
-        run_pcf(scene, search="all")
 
 
 def test_pixel_step_copy_shares_a_blocks_first_pixel_on_one_surface_only():

@@ -88,7 +88,7 @@ from numba import prange
 from ... import views
 from ...jit import inner, kernel
 from ...kernels import borrowed, each_dealt_chunk, face_project, finite_bbox, pick_face
-from ...sampling import stream_next, stream_start, stream_word
+from ...sampling import stream_start, stream_word
 from ..registry import register
 from ..base import AVERAGE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 
@@ -120,8 +120,6 @@ class PCFParams:
                                   # depths (PCSS, Fernando 2005; module doc) | "figure4": the paper's
     BlockerSamples: int = 16      # region="light": samples of the blocker search
     PenumbraSamples: int = 64     # region="light": samples of the filter region (NumSamples' role)
-    search: str = "tiles"         # region="light": the blocker search region is the light's reach at the
-                                  # nearest depth the tiles hold in it ("tiles") | at the face's ("face")
     pixel_step: int = 0           # beyond the paper (issue 15): V filtered at the anchor pixels, whose row and
                                   # column are multiples of it; the others take it from them (``step_fill``)
                                   # where they lie on the anchors' surface; 1 = every pixel filtered (the
@@ -132,8 +130,6 @@ class PCFParams:
                                   # they lie on its surface and their V spans at most ``step_tolerance``, else
                                   # is filtered itself | "copy" (the Preview's): the V of its block's first pixel
     step_tolerance: float = 0.2   # "interpolate": the largest span of the anchors' V that is interpolated
-    sampler: str = "fast"         # "fast": one random word per sample, the receiver plane compared by a
-                                  # multiplication (issue 15) | "figure4": three random numbers and a division
     seed: int = 0
 
 
@@ -153,45 +149,6 @@ def _grid(sres, tres, NumSamples, MinSamples):
         ns = int(NumSamples / nt + 0.5)
         ns = min(max(ns, MinSamples), NumSamples)
     return ns, nt
-
-
-@inner(error_model="numpy")
-def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
-    """The region's ns x nt grid, each cell sampled once with jitter over the
-    whole cell (section 2's method (c)) from pixel ``pixel``'s stream: (the
-    samples the receiver is behind by more than a bias drawn in [Bias0,
-    Bias1], the sum of their map depths). Samples past the map's border
-    read the border texel; outside the map's box of finite depths nothing is
-    behind (3.3). One loop for ``sample_shadow`` and ``blocker_depth``."""
-    ds = 2.0 * sres / ns
-    dt = 2.0 * tres / nt
-    smin = s - sres + 0.5 * ds
-    tmin = t - tres + 0.5 * dt
-    h, w = depth_f.shape
-    st = stream_start(seed, pixel)
-    n = 0
-    acc = 0.0
-    for i in range(ns):
-        for j in range(nt):
-            st, r0 = stream_next(st)
-            st, r1 = stream_next(st)
-            st, r2 = stream_next(st)
-            iu = int(math.floor(smin + i * ds + (r0 - 0.5) * ds))
-            iv = int(math.floor(tmin + j * dt + (r1 - 0.5) * dt))
-            bias = r2 * (Bias1 - Bias0) + Bias0
-            # the map's window is fitted to the receivers, not the light's field
-            # of view: samples past its border read the border texel
-            iu = min(max(iu, 0), w - 1)
-            iv = min(max(iv, 0), h - 1)
-            if iu >= bbox_f[0] and iu <= bbox_f[1] and iv >= bbox_f[2] and iv <= bbox_f[3]:
-                d = depth_f[iv, iu]
-                zs = z
-                if plane[0] != 0.0:
-                    zs = plane_depth(plane, iu + 0.5, iv + 0.5, z)
-                if zs > d * DEPTH_REL_EPS + bias:
-                    n += 1
-                    acc += d
-    return n, acc
 
 
 @inner(forceinline=True)
@@ -225,7 +182,7 @@ def _receiver_form(plane, z, u0, u1, v0, v1):
 
 
 @inner(error_model="numpy")
-def _region_samples_fast(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
+def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
     """``_region_samples``' grid and test at a lower cost per sample (issue
     15): one 32-bit random word per sample split into the two jitters (11
     bits each: 1/2048 of a cell) and the bias (10 bits), and the
@@ -275,7 +232,7 @@ def _region_samples_fast(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pix
 
 @inner
 def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
-                  Bias0, Bias1, seed, pixel, plane, fast=False):
+                  Bias0, Bias1, seed, pixel, plane):
     """Reeves et al. figure 4 ``SampleShadow``: fraction of the region in
     shadow. ``s, t`` and ``sres, tres`` are already in texels (scaled).
     ``plane`` (from ``receiver_plane``) gives the receiver's depth at each
@@ -289,11 +246,7 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     if lu > bbox_f[1] or hu < bbox_f[0] or lv > bbox_f[3] or hv < bbox_f[2]:
         return 0.0
     ns, nt = _grid(sres, tres, NumSamples, MinSamples)
-    if fast:
-        inshadow, _ = _region_samples_fast(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel,
-                                           Bias0, Bias1, plane)
-    else:
-        inshadow, _ = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
+    inshadow, _ = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
     return inshadow / (ns * nt)
 
 
@@ -311,16 +264,13 @@ def light_halfwidth(lsize, z, zb):
 
 
 @inner
-def blocker_depth(depth_f, bbox_f, s, t, z, sres, tres, BlockerSamples, Bias0, Bias1, seed, pixel, plane, fast=False):
+def blocker_depth(depth_f, bbox_f, s, t, z, sres, tres, BlockerSamples, Bias0, Bias1, seed, pixel, plane):
     """region="light"'s blocker search (Fernando 2005): the mean map depth of
     the samples (figure 4's grid of about ``BlockerSamples`` jittered cells
     on the region) that the receiver is behind (``sample_shadow``'s test);
     0.0 when there is none."""
     ns, nt = _grid(sres, tres, BlockerSamples, np.int64(1))
-    if fast:
-        n, acc = _region_samples_fast(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
-    else:
-        n, acc = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
+    n, acc = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
     return acc / n if n else 0.0
 
 
@@ -487,8 +437,7 @@ per-tile depth min / max as sparse tables (``tile_tables``) and planes
 (``tile_planes``), per face the light's reach
 (``light_reach``: float64[F, 3]) and nearest depth (float64[F])."""
 Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles "
-                              "light_region BlockerSamples PenumbraSamples search_steps pixel_step fast "
-                              "interpolate step_tolerance")
+                              "light_region BlockerSamples PenumbraSamples pixel_step interpolate step_tolerance")
 """The filter's parameters (the paper's names), ``receiver_plane``, ``tiles``
 and ``region="light"``'s switch, sample counts and search-region steps
 (``search``: SEARCH_STEPS, or 0 for "face"), ``pixel_step``, whether its
@@ -976,7 +925,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
     if light:
         # the blocker search region (PCSS): the light's reach at the nearest depth it can hold
         ws, wt = search_region(tiles[f], depth.shape[2], depth.shape[1], s, t, z, lsize, smap.zmin[f],
-                               sres, tres, MaxSize, flt.search_steps)
+                               sres, tres, MaxSize, SEARCH_STEPS)
     else:
         ws, wt = sres, tres
     if use_tiles and z >= 0.0:
@@ -987,7 +936,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
             return
     if light:
         zb = blocker_depth(depth[f], bbox[f], s, t, z, ws, wt, flt.BlockerSamples, Bias0, Bias1,
-                           seed + 1, j, plane, flt.fast)
+                           seed + 1, j, plane)
         if not (zb > 0.0):
             out[i] = 1.0
             return
@@ -1002,7 +951,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
                 out[i] = 1.0 - known
                 return
     out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
-                                 MinSamples, Bias0, Bias1, seed, j, plane, flt.fast)
+                                 MinSamples, Bias0, Bias1, seed, j, plane)
 
 
 @kernel(parallel=True)
@@ -1060,10 +1009,6 @@ class PercentageCloserFiltering(Method):
                 tt = tile_tables(tlo, thi, int(2.0 * params.MaxSize + 2.0) // TILE + 2)
                 if params.region not in ("light", "figure4"):
                     raise ValueError(f"pcf: unknown region {params.region!r} (light | figure4)")
-                if params.sampler not in ("fast", "figure4"):
-                    raise ValueError(f"pcf: unknown sampler {params.sampler!r} (fast | figure4)")
-                if params.search not in ("tiles", "face"):
-                    raise ValueError(f"pcf: unknown search {params.search!r} (tiles | face)")
                 step = int(params.pixel_step) or auto_pixel_step(W, H)
                 if step < 1 or PIXEL_TILE % step:
                     raise ValueError(f"pcf: pixel_step {params.pixel_step!r} must be a power of 2 dividing "
@@ -1084,9 +1029,7 @@ class PercentageCloserFiltering(Method):
                 flt = Filter(res, minsize, float(params.MaxSize), int(params.NumSamples), minsamp,
                              b0, b1, int(params.seed), bool(params.receiver_plane), bool(params.tiles),
                              params.region == "light", max(1, int(params.BlockerSamples)),
-                             max(1, int(params.PenumbraSamples)), SEARCH_STEPS if params.search == "tiles" else 0,
-                             step,
-                             params.sampler == "fast", params.step_fill == "interpolate",
+                             max(1, int(params.PenumbraSamples)), step, params.step_fill == "interpolate",
                              float(params.step_tolerance))
                 filter_pixels(cam, smap, flt, out, H)
         return MethodResult(passes={"pcf": out.reshape(g.shape)}, time_s=timer.result(),
