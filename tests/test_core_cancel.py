@@ -12,7 +12,7 @@ from penumbra.core import cancel, raycast
 from penumbra.core.cancel import CancelToken, Cancelled
 from penumbra.core.frame import render_frame
 from penumbra.core.kernels import each_in_threads
-from penumbra.core.methods import pcf
+from penumbra.core.methods.pcf import anchors, pixels
 from synthetic import area_light, half_plane_scene
 
 
@@ -60,7 +60,7 @@ def test_a_token_is_per_thread_and_restored():
 
 def test_pcf_filter_stops_between_chunks(monkeypatch):
     calls = []
-    kernel = pcf.pcf_kernel
+    kernel = pixels.pcf_kernel
     token = CancelToken()
 
     def counting(*args):
@@ -69,8 +69,8 @@ def test_pcf_filter_stops_between_chunks(monkeypatch):
         if armed:
             token.cancel()                            # cancel after the first chunk
 
-    monkeypatch.setattr(pcf, "pcf_kernel", counting)
-    monkeypatch.setattr(pcf, "PIXEL_TILE", 4)         # 36 tiles of 4 x 4 pixels
+    monkeypatch.setattr(pixels, "pcf_kernel", counting)
+    monkeypatch.setattr(pixels, "PIXEL_TILE", 4)         # 36 tiles of 4 x 4 pixels
     scene = half_plane_scene(area_light(1.0), res=24)
     armed = False
     render_frame(scene, ["pcf"])                      # compiles (the warm-up runs pcf too)
@@ -79,7 +79,7 @@ def test_pcf_filter_stops_between_chunks(monkeypatch):
     chunks = len(calls)
     threads = numba.get_num_threads()
     # kernels.each_dealt_chunk: 8 per thread, once per level of pixel_step (its anchors, then each finer lattice)
-    levels = len(pcf.step_levels(pcf.auto_pixel_step(24, 24), True))
+    levels = len(anchors.step_levels(anchors.auto_pixel_step(24, 24), True))
     assert levels == 2 and chunks == levels * min(36, 8 * threads) and sum(calls) == levels * 36
     calls.clear()
     armed = True

@@ -6,8 +6,9 @@ from penumbra.core import views
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.kernels import finite_bbox
 from penumbra.core.methods import producer_of
-from penumbra.core.methods.pcf import (PCFParams, hard_shadow_kernel, pixel_footprint, pixel_ray_terms, resolved_bias,
-                                      sample_shadow, scene_extent)
+from penumbra.core.methods.pcf import PCFParams, resolved_bias, scene_extent
+from penumbra.core.methods.pcf.footprint import pixel_footprint, pixel_ray_terms
+from penumbra.core.methods.pcf.samples import hard_shadow_kernel, sample_shadow
 
 from synthetic import (area_light, half_plane_scene, make_scene, persp_camera, pixel_world_y, quad, sphere_light,
                        sun_light)
@@ -158,7 +159,7 @@ def test_light_reach_closed_forms():
     """light_reach: an area light along the view's axes gives its half
     sides over the texel size; a sphere light its radius; a sun tan(half
     angle) on an orthographic face; zero size: zero."""
-    from penumbra.core.methods.pcf import light_reach
+    from penumbra.core.methods.pcf.light_region import light_reach
     for light, half in ((area_light(1.0, size_y=0.5, shape="RECTANGLE"), (0.5, 0.25)),
                         (sphere_light(0.3), (0.3, 0.3)), (sun_light(0.1), (np.tan(0.05),) * 2)):
         fb = FrameBuffers(half_plane_scene(light, res=16), 16, 16)
@@ -182,7 +183,7 @@ def test_receiver_form_compares_as_plane_depth(ortho):
     tangent planes of random slopes (perspective and orthographic faces),
     over boxes where the form holds (mode 1 / 2), and falls back (mode 3)
     where ``plane_depth``'s own fallback is reached."""
-    from penumbra.core.methods.pcf import _receiver_form, plane_depth
+    from penumbra.core.methods.pcf.receiver import _receiver_form, plane_depth
     rng = np.random.default_rng(3)
     checked = fallback = 0
     for _ in range(300):
@@ -262,7 +263,7 @@ def test_tile_tables_give_the_min_and_max_of_any_block_of_tiles():
     in four lookups equal a loop over the tiles, on maps of odd sizes with
     empty (+inf) texels, one and several faces; with ``span``, over any
     block of at most that many tiles a side."""
-    from penumbra.core.methods.pcf import tile_minmax, tile_range, tile_tables
+    from penumbra.core.methods.pcf.tiles import tile_minmax, tile_range, tile_tables
     rng = np.random.default_rng(3)
     for shape in ((1, 8, 8), (1, 37, 101), (3, 64, 17)):
         depth = rng.uniform(1.0, 5.0, shape).astype(np.float32)
@@ -306,7 +307,7 @@ def test_tile_planes_fit_a_plane_exactly():
     plane is 1 / depth (a u + b v + c at the block's centre) within float32
     rounding; blocks with an empty texel or past the map get r = inf; on an
     orthographic face the depth itself is fitted."""
-    from penumbra.core.methods.pcf import TILE, tile_planes
+    from penumbra.core.methods.pcf.tiles import TILE, tile_planes
     depth, (a, b, c) = _slanted_map(np.random.default_rng(0), boxes=0)
     pl = tile_planes(depth, np.array([False]))[0]
     th, tw = pl.shape[:2]
@@ -330,8 +331,9 @@ def test_region_decided_lit_holds_for_every_texel():
     it says shadow, every one is behind by more than Bias1. And the planes
     decide regions the min / max cannot (a receiver on the slanted plane
     with no box nearby)."""
-    from penumbra.core.methods.pcf import (DEPTH_REL_EPS, _texel_box, plane_depth, region_decided, tile_minmax,
-                                          tile_planes, tile_range, tile_tables)
+    from penumbra.core.methods.pcf.receiver import DEPTH_REL_EPS, plane_depth
+    from penumbra.core.methods.pcf.tiles import (_texel_box, region_decided, tile_minmax, tile_planes, tile_range,
+                                                tile_tables)
     rng = np.random.default_rng(5)
     decided_by_planes = 0
     for trial in range(6):
@@ -366,7 +368,8 @@ def test_tiles_search_region_holds_every_blocker():
     inside the one at the face's nearest depth (no narrowing step) and still
     holds every texel that can block a ray from the receiver to the light
     (depth d nearer than the receiver, within the light's reach at d)."""
-    from penumbra.core.methods.pcf import light_halfwidth, search_region, tile_minmax, tile_tables
+    from penumbra.core.methods.pcf.light_region import light_halfwidth, search_region
+    from penumbra.core.methods.pcf.tiles import tile_minmax, tile_tables
     rng = np.random.default_rng(9)
     depth, _ = _slanted_map(rng, boxes=6)
     lo, hi = tile_minmax(depth)
@@ -493,7 +496,7 @@ def test_pixel_step_interpolates_between_anchors_on_their_surface_only():
     The interpolated pass is no further from embree's than the every-pixel
     one."""
     from synthetic import box
-    from penumbra.core.methods.pcf import PIXEL_STEP_SLOPE, auto_pixel_step, step_levels
+    from penumbra.core.methods.pcf.anchors import PIXEL_STEP_SLOPE, auto_pixel_step, step_levels
     tris = quad(-10, 10, -10, 10, 0.0) + box(-0.7, 0.45, -0.3, 0.8, 0.0, 1.2)
     scene = make_scene(tris, [0, 0] + [1] * 12, [area_light(1.5, z=4.0)], res=62,
                        camera=persp_camera((0.5, -4.0, 3.5), (0.0, 0.0, 0.3)), names=("ground", "box"))
