@@ -43,8 +43,8 @@ QUICK_SIZES = ((48, 48), (64, 64))
 # for). The knobs each paper names; "paper:" rows are the paper's version
 # where a default departs from it (issue 17: the study shows both).
 SWEEPS: Dict[str, List] = {
-    # the default (issue 18): the filter region from the light's size at the mean blocker depth
-    # (PCSS-like); the paper's figure-4 region behind region="figure4"
+    # the default: the filter region from the light's size at the mean blocker depth (PCSS-like);
+    # the paper's figure-4 region behind region="figure4"
     "pcf": [("light region, PenumbraSamples=64", {}),
             ("light region, PenumbraSamples=16", {"PenumbraSamples": 16}),
             ("light region, map 2x", {"map_scale": 2.0}),
