@@ -1,7 +1,6 @@
 """Percentage-closer filtering (Reeves, Salesin, Cook 1987), method id ``pcf``:
-average visibility from one depth map rendered from the light's centre
-(``LIGHT_VIEW``; cube faces for a point light). Sizes are in map texels,
-depths are -z in the light's view.
+average visibility from one depth map seen from the light's centre (``LIGHT_VIEW``;
+cube faces for a point light). Sizes in map texels, depths -z in the light's view.
 
 Parameters (``PCFParams``):
   NumSamples       16       samples per region (figure 4; 4.2: "normally 16")
@@ -9,8 +8,7 @@ Parameters (``PCFParams``):
   MinSamples       2        fewest samples per axis of a region (4.2: 2 or 3)
   MinSize          2.0      smallest half size of a region (4.2)
   MaxSize          64.0     largest half size of a region (grazing views)
-  Bias0, Bias1     None     bias range (scene units); None: 0.003 and 0.004 of the
-                            light's extent (4.2: (0.3, 0.4) in a world of 100)
+  Bias0, Bias1     None     bias range, scene units (None: 0.003, 0.004 x the light's extent)
   map_size         None     the map's larger side; None: views.default_map_size
   region           "light"  the region's size: the light's ("light") | "figure4"
   BlockerSamples   16       region="light": samples of the blocker search
@@ -18,7 +16,7 @@ Parameters (``PCFParams``):
   receiver_plane   True     compare with the receiver's tangent plane per texel
   tiles            True     the tile test decides regions without samples
   pixel_step       0        anchors' spacing (1: every pixel; 0: 2, or 4 from 1280 px)
-  step_fill  "interpolate"  the pixels between anchors: "interpolate" | "copy"
+  step_fill  "interpolate"  pixels between anchors: "interpolate" | "copy" (Preview)
   step_tolerance   0.2      largest span of the anchors' V that is blended
   seed             0        the random streams' seed
 
@@ -29,8 +27,8 @@ cells (about NumSamples, at least MinSamples per axis), each sampled once with
 jitter (section 2's method (c), figure 3c). A sample is in shadow when the
 receiver is deeper than the map plus a bias drawn in [Bias0, Bias1]: V = 1 -
 (samples in shadow) / (ns nt) (``samples``). Regions outside the map's box of
-finite depths are lit (3.3). A light of size zero shrinks the region to one
-texel: Williams' hard test.
+finite depths are lit (3.2, 3.3). A light of size zero shrinks the region to
+one texel: Williams' hard test.
 
 Departures from the paper:
   * region="light" (percentage-closer soft shadows, Fernando 2005): the paper's
@@ -55,10 +53,11 @@ Departures from the paper:
     so V is smooth between anchors. The paper's region per pixel: pixel_step=1.
   * Figure 4's listing, fixed without a switch: ns is computed before it is
     clamped; each sample is jittered over its whole cell (the listing's
-    ``Rand() * js`` spans half a cell on one side); one 32-bit random word per
-    sample gives both jitters and the bias. The map's window is fitted to the
-    visible receivers: samples past its border read the border texel; a region
-    crossing a cube face's edge samples only the face holding the pixel.
+    ``Rand() * js`` spans half a cell on one side). One 32-bit random word per
+    sample gives both jitters and the bias (11, 11 and 10 bits).
+  * The map's window is fitted to the visible receivers: samples past its
+    border read the border texel. A region crossing a cube face's edge samples
+    only the face holding the pixel.
 """
 from __future__ import annotations
 
