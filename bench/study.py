@@ -44,8 +44,8 @@ QUICK_SIZES = ((48, 48), (64, 64))
 # where a default departs from it, so the study shows both. The entry whose
 # params are {} or {"samples": 64} is the method's default (``default_setting``).
 SWEEPS: Dict[str, List] = {
-    # the default (issue 18): the filter region from the light's size at the mean blocker depth
-    # (PCSS-like); the paper's figure-4 region behind region="figure4"
+    # the default: the filter region from the light's size at the mean blocker depth (PCSS-like);
+    # the paper's figure-4 region behind region="figure4"
     "pcf": [("light region, PenumbraSamples=64", {}),
             ("light region, PenumbraSamples=16", {"PenumbraSamples": 16}),
             ("light region, map 2x", {"map_scale": 2.0}),

@@ -59,7 +59,7 @@ NEED_PHASE: Dict[str, str] = {
     MESH_PIECES: "mesh_pieces",
 }
 #: the frame's inputs (not buffers): every method sees them
-FRAME_INPUTS = ("width", "height", "map_size_for", "scale", "bounds", "scene", "frame_memo")
+FRAME_INPUTS = ("width", "height", "map_size_for", "scale", "bounds")
 
 
 class UndeclaredBufferError(RuntimeError):
@@ -166,8 +166,6 @@ class FrameBuffers:
         if key not in self._precomputed:
             self._precomputed[key] = build()
         return self._precomputed[key]
-
-    frame_memo = precomputed
 
     def adopt(self, prev: "FrameBuffers") -> None:
         """Take over what ``prev`` built for the same camera and geometry:
@@ -318,9 +316,7 @@ class FrameBuffers:
         Depth tolerances scaled by it (``pcf``'s bias, ``layered``'s epsilon)
         do not grow with far geometry the light's view never holds (a 1e3
         ground under a 0.5-unit gap: near/far 1e6)."""
-        lo, hi = self.scene.bounds()
-        e = float(np.max(hi - lo))
-        e = e if e > 0 and np.isfinite(e) else 1.0
+        e = self.scene.extent()
         pts = self.receivers()
         if len(pts):
             if light.kind != "sun":

@@ -266,6 +266,12 @@ class Scene:
         v = self.triangles.reshape(-1, 3).astype(np.float64)
         return v.min(axis=0), v.max(axis=0)
 
+    def extent(self) -> float:
+        """The largest side of ``bounds`` (1 when empty or not finite)."""
+        lo, hi = self.bounds()
+        e = float(np.max(hi - lo))
+        return e if e > 0 and np.isfinite(e) else 1.0
+
     def light(self, name: str) -> Light:
         for lt in self.lights:
             if lt.name == name:

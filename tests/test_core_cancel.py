@@ -5,14 +5,11 @@ casting, pcf's chunks of pixels). No timing: the token cancels
 itself after its first check, and fewer chunks run than exist."""
 from __future__ import annotations
 
-import numba
 import pytest
 
 from penumbra.core import cancel, raycast
 from penumbra.core.cancel import CancelToken, Cancelled
-from penumbra.core.frame import render_frame
 from penumbra.core.kernels import each_in_threads
-from penumbra.core.methods import pcf
 from helpers import CancelAfter
 from synthetic import area_light, half_plane_scene
 
@@ -43,36 +40,6 @@ def test_a_token_is_per_thread_and_restored():
             cancel.check()
     assert cancel.current() is None
     cancel.check()                         # nothing to cancel outside the block
-
-
-def test_pcf_filter_stops_between_chunks(monkeypatch):
-    calls = []
-    kernel = pcf.pcf_kernel
-    token = CancelToken()
-
-    def counting(*args):
-        calls.append(len(args[0]))
-        kernel(*args)
-        if armed:
-            token.cancel()                            # cancel after the first chunk
-
-    monkeypatch.setattr(pcf, "pcf_kernel", counting)
-    monkeypatch.setattr(pcf, "PIXEL_TILE", 4)         # 36 tiles of 4 x 4 pixels
-    scene = half_plane_scene(area_light(1.0), res=24)
-    armed = False
-    render_frame(scene, ["pcf"])                      # compiles (the warm-up runs pcf too)
-    calls.clear()
-    render_frame(scene, ["pcf"])                      # every chunk runs
-    chunks = len(calls)
-    threads = numba.get_num_threads()
-    # kernels.each_dealt_chunk: 8 per thread, once per level of pixel_step (its anchors, then each finer lattice)
-    levels = len(pcf.step_levels(pcf.auto_pixel_step(24, 24), True))
-    assert levels == 2 and chunks == levels * min(36, 8 * threads) and sum(calls) == levels * 36
-    calls.clear()
-    armed = True
-    with cancel.watching(token), pytest.raises(Cancelled):
-        render_frame(half_plane_scene(area_light(1.0), res=24), ["pcf"])
-    assert 1 <= len(calls) <= threads < chunks        # those already running when it cancelled
 
 
 def test_gbuffer_bands_stop_after_the_first(monkeypatch):

@@ -318,27 +318,6 @@ def test_packed_receivers_give_the_supersampled_image_pass(monkeypatch):
     assert np.array_equal(packed.coverage, dense.coverage)
 
 
-def test_pcf_pixel_step_on_sub_pixel_receivers():
-    """pcf's ``pixel_step`` on the packed sub-pixel receivers: the Preview's
-    ``step_fill="copy"`` does not touch them (with every pixel refined,
-    threshold < 0, the filtered pass comes from them alone and is the same
-    bits as with pixel_step 1: a packed list's neighbouring entry is not its
-    pixel's block); the render's "interpolate" blends between sub-pixel
-    anchors on one surface, and stays within 0.005 RMSE of the
-    pass that filters every receiver."""
-    sc = _box_scene(24)
-    flt = dataclasses.replace(PixelFilter("blackman-harris", 1.5), threshold=-1.0)
-    one = render_filtered(sc, ["pcf"], pixel_filter=flt, method_overrides={"pcf": {"pixel_step": 1}})
-    copy = render_filtered(sc, ["pcf"], pixel_filter=flt, method_overrides={"pcf": {"step_fill": "copy"}})
-    blend = render_filtered(sc, ["pcf"], pixel_filter=flt)
-    a, b, c = (r.lights[0].passes["pcf"] for r in (one, copy, blend))
-    assert ((a > 0.05) & (a < 0.95)).sum() > 20              # a penumbra to get wrong
-    np.testing.assert_array_equal(a, b)
-    cov = blend.coverage > 0
-    assert not np.array_equal(a, c)
-    assert rmse(a, c, cov) <= 0.005
-
-
 def test_object_edges_and_hard_shadow_edges_get_the_full_grid():
     """refine_mask's ``full``: pixels beside another object (where V differs
     across it by more than ``geo_v``: an edge V does not see changes no
