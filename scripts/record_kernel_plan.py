@@ -40,7 +40,7 @@ def _light(kind: str):
 def _named(disp) -> bool:
     """A helper can find ``disp`` by its function's module and name (not so
     for a second dispatcher made from one Python function, e.g.
-    ``single_sample._warp_inline``: the caller compiles it itself)."""
+    ``single_sample.warp._warp_inline``: the caller compiles it itself)."""
     mod = sys.modules.get(disp.py_func.__module__)
     return getattr(mod, disp.py_func.__qualname__, None) is disp
 
