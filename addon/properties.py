@@ -65,14 +65,15 @@ TOOLTIPS: Dict[str, Tuple[str, Optional[float], Optional[float]]] = {
     "jitter": ("Jitter of blocker texels (texels): trades banding for noise (0: off)", 0.0, None),
     "edge_distance": ("Measure distance to a texel's square rather than its centre: smoother "
                       "penumbrae at the same cost", None, None),
-    "layer": ("Receiver depth used for the penumbra test: plane (tangent plane, no acne) or "
-              "constant (the paper)", None, None),
+    "layer": ("Receiver depth used for the penumbra search: constant (the paper) or plane (the "
+              "receiver's tangent plane: a tilted receiver does not shadow itself without the ID test)",
+              None, None),
     "id_test": ("Blockers must belong to another object (paper 3.2): no self-shadowing, but an "
                 "object cannot shadow itself", None, None),
     "bias_texels": ("Hard-shadow test tolerance, in texels of receiver slope: larger removes "
                     "acne but shrinks shadows", 0.0, None),
-    "blocker": ("Which blocker sets the penumbra: nearest (paper) or ratio (the widest over "
-                "all blockers, smoother, slower)", None, None),
+    "blocker": ("What sets the penumbra: sum (every blocker texel's share of the light) or nearest "
+                "(the paper's one nearest blocker: faster, wrong where shadows overlap)", None, None),
     "epsilon": ("Depth tolerance when merging light-sample layers (scene units): larger merges "
                 "nearby surfaces (fewer layers, light leaks), smaller keeps duplicates", 0.0, None),
     "bilinear": ("Filter the four neighbouring attenuations (paper figure 11): smoother edges, "
@@ -85,9 +86,16 @@ TOOLTIPS: Dict[str, Tuple[str, Optional[float], Optional[float]]] = {
 
 # str knobs that take one of a few values: "<method id>.<field>" or field name
 CHOICES: Dict[str, Tuple[str, ...]] = {
+    "surfaces": ("mesh", "object"),
+    "pcf.region": ("light", "figure4"),
+    "pcf.step_fill": ("interpolate", "copy"),
+    "single_sample.layer": ("constant", "plane"),
+    "single_sample.blocker": ("sum", "nearest"),
     "layered.warp": ("auto", "projective"),
-    "single_sample.layer": ("plane", "constant"),
-    "single_sample.blocker": ("nearest", "ratio"),
+    "layered.splat": ("footprint", "neighbours"),
+    "depth_raytrace.tracer": ("depth", "embree"),
+    "irregular.silhouette_from": ("centre", "light"),
+    "irregular.overlap": ("sampled", "zero"),
 }
 
 # acronyms and paper names kept as written in labels

@@ -93,12 +93,6 @@ def sweep(mid: str, light_kind: str = None) -> List[tuple]:
             if light_kind is None or len(e) < 3 or light_kind in e[2]]
 
 
-def default_setting(mid: str) -> str:
-    """The label of ``mid``'s sweep entry that runs it at its defaults: the
-    first with no setting beyond 64 light samples."""
-    return next(e[0] for e in SWEEPS[mid] if set(e[1].items()) <= {("samples", 64)})
-
-
 def _apply(method, params: dict, buffers):
     """Params for ``method`` from a sweep entry; ``map_scale`` multiplies the
     default map size (the output's larger side)."""

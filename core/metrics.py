@@ -63,7 +63,7 @@ def whole_light_mask(g: GBuffer, light: Light, margin: float = 0.02) -> np.ndarr
     """bool[H,W]: visible pixels that see the whole light above their tangent
     plane, by ``margin`` in cosine (the study's measure: "the pixels where
     the whole light is in front of the receiver"; the rule of
-    tests/test_cycles_reference.py's ``fully_facing``, with round area lights
+    tests/helpers.py's ``fully_facing``, with round area lights
     by 16 boundary points and suns by the cone's edge). Vectorised NumPy:
     within ``reach_mask``, it leaves out the receivers turned partly away
     from the light, where a method must also know what its own surface

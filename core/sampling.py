@@ -108,7 +108,7 @@ def stream_next(state):
 def stream_word(state):
     """(next state, a uniform 32-bit word): ``stream_next``'s step with all
     of its output's bits, for a caller that splits one word into several
-    coarser uniforms (pcf's fast sampler: three per sample)."""
+    coarser uniforms (pcf's sampler: three per sample)."""
     state = (state * np.uint32(747796405) + np.uint32(2891336453)) & np.uint32(0xFFFFFFFF)
     word = (((state >> ((state >> np.uint32(28)) + np.uint32(4))) ^ state) * np.uint32(277803737)) & np.uint32(0xFFFFFFFF)
     return state, ((word >> np.uint32(22)) ^ word) & np.uint32(0xFFFFFFFF)

@@ -384,7 +384,7 @@ def test_map_methods_see_fractional_mattes(method, params, alphas, expect):
 
 
 def test_layered_paper_splat_reads_a_dithered_veil_as_clear():
-    """Why layered's "auto" splat takes the footprint on matte scenes: the
+    """Why layered's default footprint splat matters on matte scenes: the
     paper's 4-neighbour splat spreads the ground seen through the dither's
     clear texels over the solid ones, and a 0.5 veil casts no shadow."""
     scene = matte_layers_scene(area_light(size=1.0, z=HL), [(HO, [[0.5]], CLOSEST, REPEAT)], res=16)

@@ -351,7 +351,7 @@ out["registered"] = "PENUMBRA_OT_compute_passes" in dir(bpy.types)
 print("RESULT " + json.dumps(out))
 '''
 
-# A second session is Blender started again: it puts the extensions'
+# Blender started again after the install puts the extensions'
 # site-packages before its own (here: before the venv's, which also has numba),
 # so the add-on runs on the wheels Blender installed from the zip.
 _RUN = r'''

@@ -75,7 +75,7 @@ EXTRA = {
     ("huge_sphere_light", "depth_raytrace"): 0.05,
     # layered's sphere-light samples fill the ball whose projection along
     # every direction is the facing disk, exact up to the perspective of a
-    # point at distance d: O((r / d)^2) (layered.py's docstring); here
+    # point at distance d: O((r / d)^2) (the layered package's docstring); here
     # r / d = 3.5 / 4, so no small bound follows: measured, kept with margin
     ("huge_sphere_light", "layered"): 0.08,
     # a sun of 143 degrees: the cone's rim directions are grazing
