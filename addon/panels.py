@@ -58,7 +58,7 @@ def draw_knobs(layout, settings, method_id: str):
 def _auto_choice(context):
     """``auto``'s last decision for the light being shown (its object:
     ``context.object`` when it holds this light, else the first that does)."""
-    ob = context.object
+    ob = getattr(context, "object", None)
     if ob is None or ob.data != context.light:
         ob = next((o for o in context.scene.objects if o.data == context.light), None)
     return last_auto(context.scene.name, ob.name) if ob is not None else None
