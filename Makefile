@@ -39,6 +39,7 @@ test: $(STAMP) .venv-5.0/.installed .venv-5.3/.installed
 
 bench: $(STAMP)
 	$(VENV)/bin/penumbra bench --out bench/results
+	$(PY) -m penumbra.bench.readme_tables
 
 samples: $(STAMP)
 	$(PY) sample_blends/make_samples.py

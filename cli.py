@@ -145,7 +145,6 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "compiles nothing and shows no bar)")
     b = sub.add_parser("bench", help="accuracy-versus-time study / per-phase timings")
     b.add_argument("--out", default=os.path.join("bench", "results"))
-    b.add_argument("--scene", default=None, help="the .blend to time (default: sample grids)")
     b.add_argument("--repeats", type=_positive("--repeats", 1, 100), default=3)
     b.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
     b.add_argument("--study-scenes", type=_study_scenes, default=None,

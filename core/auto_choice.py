@@ -62,11 +62,9 @@ from typing import Dict, List, Mapping, Optional, Sequence
 from .scene import LIGHT_KINDS
 
 AVERAGE, IRRADIANCE = "average", "irradiance"
-#: RMSE against the reference of the same V definition. In the study, 0.05
-#: is met by the sampling methods at 64 samples on every scene (0.004-0.042)
-#: and by the depth-map methods on one occluder (sphere_plane, torus_plane:
-#: 0.026-0.044), but not by those on the overlapping penumbrae of ``grids``
-#: and ``foliage`` (0.074-0.22): it separates "looks right" from "visibly wrong" there.
+#: RMSE against the reference of the same V definition: in the study it
+#: separates the depth-map methods on one occluder from the same methods on
+#: overlapping penumbrae (``bench/results/study.md``).
 DEFAULT_BUDGET = 0.05
 #: without a table: the fast depth-map method (average), the reference
 #: estimator (irradiance: no measured method writes that definition)

@@ -45,9 +45,9 @@ def _show_in_image_editors(context, img) -> int:
 
 
 class PENUMBRA_OT_preview(ModalFrameJob, bpy.types.Operator):
-    """Quick look at the soft shadows: a fast method at preview settings
-    (single_sample: the paper's nearest blocker) and reduced resolution,
-    shown in the "Penumbra Preview" image"""
+    """Quick look at the soft shadows: each light's method at its preview
+    settings (pcf for a method without them) and reduced resolution, shown
+    in the "Penumbra Preview" image"""
 
     bl_idname = "penumbra.preview"
     bl_label = "Preview Shadows"
