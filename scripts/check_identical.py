@@ -5,6 +5,7 @@ Passes and Preview on two scenes, then compare every channel and image bit for b
     python scripts/check_identical.py save DIR     # this commit's passes -> DIR
     python scripts/check_identical.py compare DIR  # this commit against DIR (exit 1 on any difference)
     ... [--scenes grids,torus_plane] [--no-addon]  # a quicker subset
+    ... [--visibility average]                     # the passes in that definition
 
 Small (64x64, 16 samples) so it runs in a few minutes once the kernels are cached.
 """
@@ -34,6 +35,7 @@ blend, out = sys.argv[1], sys.argv[2]
 penumbra.register()
 bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False)
 scene = bpy.context.scene
+scene.penumbra.visibility = sys.argv[4].upper()
 scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 64, 64, 100
 images = {}
 def grab(tag):
@@ -57,7 +59,7 @@ def _penumbra():
     return [exe] if os.path.exists(exe) else [sys.executable, "-m", "penumbra.cli"]
 
 
-def render_all(out: str, scenes, addon: bool) -> dict:
+def render_all(out: str, scenes, addon: bool, visibility: str = "irradiance") -> dict:
     import OpenEXR
     chans = {}
     for s in scenes:
@@ -66,7 +68,8 @@ def render_all(out: str, scenes, addon: bool) -> dict:
             d = os.path.join(out, flt)
             subprocess.run(_penumbra() + ["render", blend, "--out", d, "--methods", METHODS,
                                           "--resolution", "64x64", "--samples", "16", "--no-previews",
-                                          "--force", "--frame", "1", "--pixel-filter", flt, "--quiet"],
+                                          "--force", "--frame", "1", "--pixel-filter", flt, "--quiet",
+                                          "--visibility", visibility],
                            check=True, stdout=subprocess.DEVNULL)
             with OpenEXR.File(os.path.join(d, f"{s}.0001.exr"), separate_channels=True) as f:
                 for part in f.parts:
@@ -75,7 +78,7 @@ def render_all(out: str, scenes, addon: bool) -> dict:
     for s in (ADDON_SCENES if addon else ()):
         npz = os.path.join(out, f"addon_{s}.npz")
         subprocess.run([sys.executable, "-c", _ADDON, os.path.join(HERE, "sample_blends", f"{s}.blend"), npz,
-                        METHODS], check=True, stdout=subprocess.DEVNULL)
+                        METHODS, visibility], check=True, stdout=subprocess.DEVNULL)
         chans.update({f"addon/{s}/{k}": v for k, v in np.load(npz).items()})
     return chans
 
@@ -86,10 +89,11 @@ def main(argv):
     ap.add_argument("dir")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--no-addon", action="store_true")
+    ap.add_argument("--visibility", choices=("irradiance", "average"), default="irradiance")
     args = ap.parse_args(argv)
     scenes = [s for s in args.scenes.split(",") if s]
     with tempfile.TemporaryDirectory() as tmp:
-        now = render_all(tmp, scenes, not args.no_addon)
+        now = render_all(tmp, scenes, not args.no_addon, args.visibility)
     if args.mode == "save":
         os.makedirs(args.dir, exist_ok=True)
         np.savez(os.path.join(args.dir, "passes.npz"), **now)

@@ -149,3 +149,39 @@ sc = matte_layers_scene(area_light(1.0), [(2.0, [[0.0, 1.0], [1.0, 0.0]], CLOSES
 render_filtered(sc, {methods!r}, overrides={{"samples": 4}}, pixel_filter=parse({pixel_filter!r}))
 print(json.dumps({{"inside": inside, "outside": outside}}))
 """
+
+
+def polygon_form_factor(p, n, vertices) -> float:
+    """The point-to-polygon form factor (Lambert): the irradiance at point
+    ``p`` with normal ``n`` from a uniform Lambertian polygon ``vertices``
+    (float[k, 3], in order) over pi times its radiance,
+    (1 / 2 pi) sum_i beta_i (n . g_i), beta_i the angle edge i subtends at
+    ``p`` and g_i the unit normal of the plane through ``p`` and the edge.
+    The polygon must lie wholly above the point's tangent plane."""
+    p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
+    r = np.asarray(vertices, np.float64) - p
+    r /= np.linalg.norm(r, axis=1)[:, None]
+    total = 0.0
+    for i in range(len(r)):
+        a, b = r[i], r[(i + 1) % len(r)]
+        c = np.cross(a, b)
+        s = np.linalg.norm(c)
+        if s > 0:
+            total += np.arctan2(s, np.dot(a, b)) * np.dot(n, c / s)
+    return abs(total) / (2.0 * np.pi)
+
+
+def half_plane_irradiance_ratio(y: float, size: float = 1.0, light_z: float = 4.0, occluder_z: float = 2.0,
+                                edge_y: float = 0.0) -> float:
+    """The irradiance ratio (Agrawala et al. eq. 1 with / without V) at ground
+    point (0, y, 0) of ``synthetic.half_plane_scene`` under
+    ``synthetic.area_light(size, z=light_z)``: the light's part the point sees
+    past the occluder's edge (light points with y_l >= y + (edge_y - y) z_l /
+    z_o) is a rectangle; the ratio is its form factor over the whole light's."""
+    h = 0.5 * size
+    full = [(-h, -h, light_z), (h, -h, light_z), (h, h, light_z), (-h, h, light_z)]
+    cut = y + (edge_y - y) * light_z / occluder_z
+    lo = min(max(cut, -h), h)
+    seen = [(-h, lo, light_z), (h, lo, light_z), (h, h, light_z), (-h, h, light_z)]
+    f_all = polygon_form_factor((0, y, 0), (0, 0, 1), full)
+    return polygon_form_factor((0, y, 0), (0, 0, 1), seen) / f_all if lo < h else 0.0

@@ -25,6 +25,12 @@ PRECOMPUTE = "precompute"           # a method's light-space precompute, shared 
 
 AVERAGE = "average"        # Agrawala et al. equation 2
 IRRADIANCE = "irradiance"  # equation 1 with / without V
+#: the definitions a method's own pass can follow (its Params' ``visibility``), the default first
+VISIBILITIES = (IRRADIANCE, AVERAGE)
+#: light samples per pixel of every method that samples the light, and of a
+#: light's Light Samples in the add-on: a filtered pass's noise is then about
+#: that of Cycles' own shadow pair at 256 samples
+DEFAULT_LIGHT_SAMPLES = 256
 
 
 @dataclass
@@ -40,7 +46,9 @@ class Method:
 
     id: str = ""
     paper: str = ""
-    passes: Mapping[str, str] = {}          # pass id -> AVERAGE | IRRADIANCE
+    #: pass id -> AVERAGE | IRRADIANCE; the method's own pass (``id``) follows its
+    #: Params' ``visibility`` where the Params has one (``visibility``)
+    passes: Mapping[str, str] = {}
     needs: FrozenSet[str] = frozenset()
     Params: type = object
     physical: bool = False                  # claims to converge to the reference
@@ -56,6 +64,20 @@ class Method:
         """``buffers``: the frame's ``FrameBuffers``, or the view of it that
         shows only ``needs`` (``FrameBuffers.view``, what ``render_frame`` passes)."""
         raise NotImplementedError
+
+    def subpixel_overrides(self, params, share: int) -> Dict[str, object]:
+        """Params overrides for a filtered pass's sub-pixel receivers when
+        ``share`` of them make up one pixel (``filtered_frame``): a method that
+        draws light samples per receiver gives each its share of them, so a
+        pixel's receivers together take about what one receiver takes at the
+        pixel centre. Default: nothing changes (the method's cost does not
+        grow with the light samples per receiver)."""
+        return {}
+
+    def visibility(self, pass_id: str, params=None) -> str:
+        """Which V ``pass_id`` is (AVERAGE or IRRADIANCE) under ``params``."""
+        own = getattr(params, "visibility", None) if pass_id == self.id else None
+        return own if own is not None else self.passes[pass_id]
 
     # helpers -------------------------------------------------------------
     def make_params(self, overrides: Mapping[str, object] | None = None):
@@ -77,6 +99,8 @@ class Method:
             elif default is not None:
                 value = type(default)(value)
             setattr(p, f.name, value)
+        if getattr(p, "visibility", None) not in (None,) + VISIBILITIES:
+            raise ValueError(f"visibility must be one of {', '.join(VISIBILITIES)}, not {p.visibility!r}")
         return p
 
 

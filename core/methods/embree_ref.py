@@ -18,7 +18,7 @@ product of (1 - alpha) through alpha mattes (``alpha_rays.transmittance``).
 Parameters:
 
   ==========  =======  ==================================================
-  samples     64       shadow rays per pixel (1 for a light of size zero)
+  samples     256      shadow rays per pixel (1 for a light of size zero)
   seed        0        seed of the counter hash that jitters the samples
   ==========  =======  ==================================================
 
@@ -38,6 +38,7 @@ thread count gives the same bits.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -45,10 +46,10 @@ import numpy as np
 
 from .. import sampling
 from ..jit import HOT, kernel
-from ..kernels import each_in_threads
-from ..sampling import offset_origin, reference_sample, strata
+from ..kernels import each_in_threads, each_range
+from ..sampling import L_AX, L_AY, L_AZ, L_CX, L_HX, L_HY, L_SHAPE, offset_origin, reference_sample, strata
 from .registry import register
-from .base import AVERAGE, GBUFFER, IRRADIANCE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
+from .base import AVERAGE, DEFAULT_LIGHT_SAMPLES, GBUFFER, IRRADIANCE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer
 
 SUN_TFAR = np.float32(1e30)
 RAYS_PER_BATCH = 1 << 18
@@ -56,7 +57,7 @@ RAYS_PER_BATCH = 1 << 18
 
 @dataclass
 class EmbreeParams:
-    samples: int = 64      # shadow rays per pixel (stratified, jittered)
+    samples: int = DEFAULT_LIGHT_SAMPLES   # shadow rays per pixel (stratified, jittered)
     seed: int = 0
 
 
@@ -136,26 +137,110 @@ def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, thread
     return v_avg, v_irr, n * ns
 
 
+@kernel(opt=HOT, nogil=True)
+def unshadowed_range(i0, i1, P, Nrm, pix, lp, ns, seed, scale, out):
+    """out[i] for i in [i0, i1): the mean of the reference's weights w_s over
+    its ``ns`` light samples of pixel ``pix[i]`` (as ``generate_shadow_rays``
+    forms them; nothing is traced)."""
+    nx, ny = strata(ns)
+    for i in range(i0, i1):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        n0, n1, n2 = Nrm[i, 0], Nrm[i, 1], Nrm[i, 2]
+        ox, oy, oz = offset_origin(px, py, pz, n0, n1, n2, scale)
+        acc = 0.0
+        for s in range(ns):
+            _, _, _, _, _, _, dx, dy, dz, _, wt = reference_sample(
+                lp, seed, pix[i], s, nx, ny, px, py, pz, ox, oy, oz, n0, n1, n2)
+            cos_r = dx * n0 + dy * n1 + dz * n2
+            if cos_r > 0.0:
+                acc += wt * cos_r
+        out[i] = acc / ns
+
+
+#: corners of the polygon standing in for a round area light in ``area_irradiance_range``
+ROUND_CORNERS = 32
+
+
+@kernel(nogil=True)
+def area_irradiance_range(i0, i1, P, Nrm, lp, out):
+    """out[i] for i in [i0, i1): an area light's unshadowed irradiance at
+    point P[i] (normal Nrm[i]) in closed form, pi F / A, the mean of the
+    reference's weights over the light's area: F is Lambert's
+    point-to-polygon form factor, (1 / 2 pi) sum_i beta_i (n . g_i), of the
+    light's part above the point's tangent plane (the polygon clipped there;
+    a disk or ellipse is a ``ROUND_CORNERS``-gon of the same area), 0 on the
+    side the light does not emit to (its +Z)."""
+    k = ROUND_CORNERS if lp[L_SHAPE] == 1.0 else 4
+    cx, cy, cz = lp[L_CX], lp[L_CX + 1], lp[L_CX + 2]
+    ax = np.empty((k, 3))
+    if k == 4:
+        corners = ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))
+        for j in range(4):
+            for d in range(3):
+                ax[j, d] = lp[L_HX] * corners[j][0] * lp[L_AX + d] + lp[L_HY] * corners[j][1] * lp[L_AY + d]
+        area = 4.0 * lp[L_HX] * lp[L_HY]
+    else:
+        grow = math.sqrt(2.0 * math.pi / (k * math.sin(2.0 * math.pi / k)))   # the k-gon's area = the ellipse's
+        for j in range(k):
+            t = 2.0 * math.pi * j / k
+            for d in range(3):
+                ax[j, d] = grow * (lp[L_HX] * math.cos(t) * lp[L_AX + d] + lp[L_HY] * math.sin(t) * lp[L_AY + d])
+        area = math.pi * lp[L_HX] * lp[L_HY]
+    poly = np.empty((k + 2, 3))
+    for i in range(i0, i1):
+        n0, n1, n2 = Nrm[i, 0], Nrm[i, 1], Nrm[i, 2]
+        rx, ry, rz = cx - P[i, 0], cy - P[i, 1], cz - P[i, 2]
+        out[i] = 0.0
+        if area <= 0.0 or rx * lp[L_AZ] + ry * lp[L_AZ + 1] + rz * lp[L_AZ + 2] <= 0.0:
+            continue                                  # not on the side the light emits to
+        m = 0                                         # Sutherland-Hodgman: the part above the tangent plane
+        for j in range(k):
+            a0, a1, a2 = rx + ax[j, 0], ry + ax[j, 1], rz + ax[j, 2]
+            b0, b1, b2 = rx + ax[(j + 1) % k, 0], ry + ax[(j + 1) % k, 1], rz + ax[(j + 1) % k, 2]
+            da = a0 * n0 + a1 * n1 + a2 * n2
+            db = b0 * n0 + b1 * n1 + b2 * n2
+            if da > 0.0:
+                poly[m, 0], poly[m, 1], poly[m, 2] = a0, a1, a2
+                m += 1
+            if (da > 0.0) != (db > 0.0):
+                t = da / (da - db)
+                poly[m, 0], poly[m, 1], poly[m, 2] = a0 + t * (b0 - a0), a1 + t * (b1 - a1), a2 + t * (b2 - a2)
+                m += 1
+        if m < 3:
+            continue
+        total = 0.0
+        for j in range(m):
+            a0, a1, a2 = poly[j, 0], poly[j, 1], poly[j, 2]
+            b0, b1, b2 = poly[(j + 1) % m, 0], poly[(j + 1) % m, 1], poly[(j + 1) % m, 2]
+            la = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            lb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            if la == 0.0 or lb == 0.0:
+                continue
+            c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+            s = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            if s > 0.0:
+                beta = math.atan2(s / (la * lb), (a0 * b0 + a1 * b1 + a2 * b2) / (la * lb))
+                total += beta * (n0 * c0 + n1 * c1 + n2 * c2) / s
+        out[i] = 0.5 * abs(total) / area           # pi F / A, F = |total| / (2 pi)
+
+
 def unshadowed_irradiance(P, Nrm, pix, light, samples, seed, scale) -> np.ndarray:
     """float64[n]: the light's direct irradiance at points P (normals Nrm)
-    without occlusion, up to one constant factor per light: the mean of the
-    reference's weights w_i over ``samples`` of its own light samples
-    (``generate_shadow_rays``; nothing is traced). ``pixel_filter`` weights
-    the irradiance ratio's footprint with it (E0)."""
+    without occlusion, up to one constant factor per light (the mean of the
+    reference's weights w_s over the light): in closed form for an area light
+    (``area_irradiance_range``), else the mean over ``samples`` of the
+    reference's own light samples (``unshadowed_range``). ``pixel_filter``
+    weights the irradiance ratio's footprint with it (E0)."""
     lp = sampling.pack_light(light)
     n, ns = len(P), max(1, int(samples))
     out = np.zeros(n, np.float64)
-    per = max(1, RAYS_PER_BATCH // ns)
     P = np.ascontiguousarray(P, np.float64)
     Nrm = np.ascontiguousarray(Nrm, np.float64)
     pix = np.ascontiguousarray(pix, np.int64)
-    for a in range(0, n, per):
-        b = min(n, a + per)
-        m = (b - a) * ns
-        org, dirs = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
-        tfar, w = np.empty(m, np.float32), np.empty(m, np.float64)
-        generate_shadow_rays(P[a:b], Nrm[a:b], pix[a:b], lp, ns, int(seed), scale, org, dirs, tfar, w)
-        out[a:b] = w.reshape(b - a, ns).mean(axis=1)
+    if light.kind == "area" and not light.is_zero_size:
+        each_range(lambda a, b: area_irradiance_range(a, b, P, Nrm, lp, out), n)
+    else:
+        each_range(lambda a, b: unshadowed_range(a, b, P, Nrm, pix, lp, ns, int(seed), float(scale), out), n)
     return out
 
 
@@ -168,6 +253,10 @@ class EmbreeReference(Method):
     packed = True                # shades each receiver of a packed G-buffer on its own
     Params = EmbreeParams
     physical = True
+
+    def subpixel_overrides(self, params, share: int):
+        """Each sub-pixel receiver its share of the light samples (at least one)."""
+        return {"samples": max(1, -(-int(params.samples) // max(1, int(share))))}
 
     def run(self, buffers, light, params: EmbreeParams) -> MethodResult:
         timer = PhaseTimer()

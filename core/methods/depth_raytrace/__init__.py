@@ -71,7 +71,7 @@ import numpy as np
 from ... import sampling
 from ...sampling import strata
 from ...scene import Light
-from ..base import (AVERAGE, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, PRECOMPUTE, SHADOW_GEOMETRY,
+from ..base import (AVERAGE, DEFAULT_LIGHT_SAMPLES, GBUFFER, IRRADIANCE, LIGHT_SAMPLE_VIEWS, PRECOMPUTE, SHADOW_GEOMETRY,
                     SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer)
 from ..registry import register
 from .coherence import M_BLK, M_ERR, M_FLOOD, M_FULL, M_FULLRAYS, M_RAYS, M_SEEDED, M_SIZE, Points, Sampler
@@ -86,7 +86,7 @@ SUN_MIN_MAP_REACH = 4     # ... but at most this many times the map_scale side (
 
 @dataclass
 class DepthRaytraceParams:
-    samples: int = 256            # light samples per pixel (section 6: "the equivalent of 256")
+    samples: int = DEFAULT_LIGHT_SAMPLES   # light samples per pixel (section 6: "the equivalent of 256")
     seed: int = 0
     # reference images (5.1)
     map_scale: float = 2.0        # map side / output side: the paper's 1024^2 maps for 512^2 images
@@ -113,6 +113,7 @@ class DepthRaytraceParams:
     tile: int = 16                # coherent order: serpentine scan inside tile x tile blocks
     tracer: str = "depth"         # "depth" (reference images) | "embree" (real triangles)
 
+    visibility: str = "irradiance"   # the pass: "irradiance" (the ratio that composites, eq. 1) | "average" (eq. 2)
 
 def resolve_map_size(params: DepthRaytraceParams, W: int, H: int, light: Optional[Light] = None) -> int:
     """The reference maps' side: ``map_size``, else ``map_scale`` x the
@@ -133,11 +134,15 @@ def resolve_map_size(params: DepthRaytraceParams, W: int, H: int, light: Optiona
 class DepthRaytrace(Method):
     id = "depth_raytrace"
     paper = "Agrawala, Ramamoorthi, Heirich, Moll 2000, section 5"
-    passes = {"depth_raytrace": AVERAGE, "depth_raytrace_irr": IRRADIANCE}
+    passes = {"depth_raytrace": IRRADIANCE, "depth_raytrace_irr": IRRADIANCE}
     needs = frozenset({GBUFFER, SHADOW_GEOMETRY, SHADOW_TRIANGLES, LIGHT_SAMPLE_VIEWS, PRECOMPUTE})
     packed = True                # shades each receiver of a packed G-buffer on its own
     Params = DepthRaytraceParams
     physical = True
+
+    def subpixel_overrides(self, params, share: int):
+        """Each sub-pixel receiver its share of the light samples (at least one)."""
+        return {"samples": max(1, -(-int(params.samples) // max(1, int(share))))}
 
     def run(self, buffers, light, params: DepthRaytraceParams, maps: Optional[ReferenceMaps] = None
             ) -> MethodResult:
@@ -159,8 +164,7 @@ class DepthRaytrace(Method):
         box = casters_box(buffers.shadow_triangles[0], buffers.scale)
         if len(idx) == 0 or box is None:
             stats["rays_per_pixel"] = 0.0
-            return MethodResult({"depth_raytrace": out_a.reshape(H, W),
-                                 "depth_raytrace_irr": out_i.reshape(H, W)}, timer.result(), stats)
+            return MethodResult(self._passes(params, out_a, out_i, H, W), timer.result(), stats)
         with timer("order"):
             gid = g.seed_ids(idx)             # pixels of the view (a packed G-buffer's sub-pixels)
             order, tile_ptr = coherent_order(gid, buffers.width, params.tile)
@@ -220,9 +224,13 @@ class DepthRaytrace(Method):
         stats["rays_per_pixel"] = float(rays / len(sel))
         stats["precompute_s"] = float(t.get("reference_maps", 0.0))
         stats["trace_s"] = float(t.get("trace", 0.0))
-        return MethodResult(passes={"depth_raytrace": out_a.reshape(H, W),
-                                    "depth_raytrace_irr": out_i.reshape(H, W)},
-                            time_s=t, stats=stats)
+        return MethodResult(passes=self._passes(params, out_a, out_i, H, W), time_s=t, stats=stats)
+
+    @staticmethod
+    def _passes(params: DepthRaytraceParams, out_a, out_i, H, W):
+        """The method's pass in its ``visibility``, and the irradiance ratio."""
+        own = out_a if params.visibility == AVERAGE else out_i
+        return {"depth_raytrace": own.reshape(H, W), "depth_raytrace_irr": out_i.reshape(H, W)}
 
     @staticmethod
     def build_maps(buffers, light, params: DepthRaytraceParams) -> ReferenceMaps:

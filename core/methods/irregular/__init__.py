@@ -1,26 +1,18 @@
 """Soft irregular shadow mapping (Johnson, Hunt, Hux, Mark, Burns, Junkins
-2009), method id ``irregular``: average visibility (equation 2) exactly at
-the camera's visible points, from the shadow-casting triangles.
+2009), method id ``irregular``: visibility exactly at the camera's visible
+points, from the shadow-casting triangles.
 
 Parameters (``IrregularParams``):
-
-  ================  =========  ===============================================
-  silhouette_from   "centre"   silhouettes and layers seen from the light's
-                               centre (5.1) | "light" (see departures)
-  silhouettes       True       penumbra from silhouette edges only (2.1)
-  adjacency         True       adjacency from hashed vertex positions (2.1);
-                               False: "all edges are silhouettes"
-  bin_refine        True       quad width per bin (2.5, first reduction)
-  wedge_test        True       wedge / grid column test (2.5, second one)
-  rect_kernel       True       rectangle kernel for square / rectangle lights
-  overlap           "sampled"  equation 5's C: "sampled" | "zero"
-  overlap_samples   12         light samples per side that estimate C
-  horizon           False      V <= the light above the tangent plane
-  samples_per_cell  16.0       receivers per light-view grid column
-  depth_slices      16         depth cells per grid column (figure 3)
-  bin_size          16         grid columns per side of a bin
-  brute_force       False      every edge at every receiver (ground truth)
-  ================  =========  ===============================================
+  silhouette_from   "centre"    silhouettes and layers from the light's centre (5.1) | "light"
+  silhouettes       True        penumbra from silhouette edges only (2.1)
+  adjacency         True        hashed vertex positions (2.1); False: "all edges are silhouettes"
+  bin_refine, wedge_test  True  2.5's two overdraw reductions (quad width per bin; wedge test)
+  rect_kernel       True        rectangle kernel for square / rectangle lights
+  overlap, overlap_samples  "sampled", 12  equation 5's C ("zero"), light samples per side
+  horizon           False       V <= the light above the tangent plane
+  samples_per_cell, depth_slices, bin_size  16.0, 16, 16  the light-view grid (figure 3)
+  brute_force       False       every edge at every receiver (ground truth)
+  visibility        "irradiance"  the irradiance ratio | "average" (equation 2)
 
 Algorithm (figure 2): (a) the receivers, the G-buffer hits moved off their
 surface by ``sampling.offset_origin`` (as the reference), are counting-sorted
@@ -40,12 +32,10 @@ Departures from the paper:
   * occluders count once per layer: of a closed mesh only the faces through
     which rays from the light's centre enter it (leave it, when the centre
     is inside); C = 0 would otherwise double every penumbra of a solid;
-  * C is estimated from the depth complexity at an m x m grid of light
-    samples (Laine et al. 2005's counts; m = ``overlap_samples``): each
-    penumbra term adds its sign at the samples inside the region it
-    measures and C = mean_j max(count_j - 1, 0); without overlap C = 0 and
-    V stays analytic. The paper's version: ``overlap="zero"`` (C = 0,
-    overlapping occluders over-darken);
+  * C from the depth complexity at an m x m grid of light samples (Laine et
+    al. 2005's counts; m = ``overlap_samples``): each penumbra term adds its
+    sign at the samples inside its region, C = mean_j max(count_j - 1, 0).
+    The paper's: ``overlap="zero"`` (overlapping occluders over-darken);
   * square / rectangle lights: the exact rectangle kernel (2.3 allows
     Assarsson et al.'s kernels); the paper's disk kernel, on the ellipse of
     equal area and aspect: ``rect_kernel=False``;
@@ -54,8 +44,16 @@ Departures from the paper:
     occluder where the paper's single point of projection (5.1) misses what
     a receiver's own surface hides. The paper's version: "centre";
   * ``horizon`` (off: the paper's) bounds V by ``horizon.horizon_share``,
-    exact for a convex object; at a tessellated sphere's terminator it is
-    further from the reference, whose offset rays pass the facet's plane;
+    exact for a convex object (average only);
+  * visibility="irradiance": each term of equations 4 and 5 weighs the
+    light's emission towards the receiver (cos_l / d^2), taken as linear
+    over the light: exact at the term's region's centroid, so the terms
+    still add up (``geom.region_centroid``, ``light.emission_gradient``; C
+    from weighted samples). The light below the receiver's tangent plane
+    weighs nothing (cos_r = 0) and equation 5 counts the receiver's own
+    surface over it: V / h (h = ``horizon.horizon_share``), at most 1. cos_r
+    is left out otherwise: its clamp there is not linear over the light. The
+    paper's: visibility="average";
   * alpha-matte casters (not in the paper) are traced apart by the
     reference's rays (``matte_visibility``) and multiplied into V.
 
@@ -70,7 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...sampling import offset_points
-from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
+from ..base import AVERAGE, IRRADIANCE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 from ..embree_ref import trace_visibility
 from ..horizon import horizon_share
 from ..registry import register
@@ -106,6 +104,7 @@ class IrregularParams:
     overlap_samples: int = 12       # light samples per side of the grid of equal cells that estimates C (memory:
                                     # one byte per sample per receiver; more: a finer estimate of the overlap)
 
+    visibility: str = "irradiance"   # the pass: "irradiance" (the ratio that composites, eq. 1) | "average" (eq. 2)
 
 def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams, scale: float,
                    timer: PhaseTimer | None = None, bounds=None):
@@ -163,7 +162,7 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
             bounds = (tv.reshape(-1, 3).min(0), tv.reshape(-1, 3).max(0)) if len(tv) else (P.min(0), P.max(0))
         g = Grid(light, lm, Poff, bounds, params)
         Ps = np.ascontiguousarray(Poff[g.order])
-        RF = receiver_frames(light, lm, Ps)
+        RF = receiver_frames(light, lm, Ps, params.visibility == IRRADIANCE)
         stats.update(grid_faces=[f.label for f in g.faces], grid_columns=g.shape,
                      depth_slices=g.gd, bins=int(g.bin_base[-1]))
     ns = len(Ps)
@@ -212,7 +211,10 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
     if m:
         with timer("overlap"):
             over = np.zeros(n)
-            over[g.order] = overlap_from_counts(cnt_s, ls.counts)
+            if params.visibility == IRRADIANCE and RF[:, 12:14].any():
+                over[g.order] = overlap_from_counts(cnt_s, ls.counts, rows=ls.rows, first=ls.first, RF=RF)
+            else:
+                over[g.order] = overlap_from_counts(cnt_s, ls.counts)
             occ = np.clip(umbra + pen - over, 0.0, 1.0)
             stats["overlap_samples"] = m
     else:
@@ -226,24 +228,33 @@ def soft_irregular(P, Nrm, triangles, tri_object, light, params: IrregularParams
 MATTE_SAMPLES = 64
 
 
-def matte_visibility(mattes, P, Nrm, idx, light, scale) -> np.ndarray:
+def matte_visibility(mattes, P, Nrm, idx, light, scale, irradiance=False) -> np.ndarray:
     """Alpha-matte blockers (not in the paper): the receivers' average
-    transmittance through them, by the reference's shadow rays
-    (``embree_ref.trace_visibility``, MATTE_SAMPLES per receiver) against a
-    BVH of the matte triangles alone. The opaque triangles go through the
-    algorithm and the two are multiplied: the paper's own independence of
-    occluders (C = 0, section 5.2), here between the opaque and the matte
-    layers."""
+    transmittance through them (``irradiance``: its irradiance ratio), by
+    the reference's shadow rays (``embree_ref.trace_visibility``,
+    MATTE_SAMPLES per receiver) against a BVH of the matte triangles alone.
+    The opaque triangles go through the algorithm and the two are
+    multiplied: the paper's own independence of occluders (C = 0, section
+    5.2), here between the opaque and the matte layers."""
     ns = 1 if light.is_zero_size else MATTE_SAMPLES
-    va, _, _ = trace_visibility(mattes, P, Nrm, idx, light, ns, 0, scale)
-    return va
+    va, vi, _ = trace_visibility(mattes, P, Nrm, idx, light, ns, 0, scale)
+    return vi if irradiance else va
+
+
+def above_horizon(V, h):
+    """visibility="irradiance": eq. 5's V at receivers whose light is the
+    share ``h`` above their tangent plane (``horizon.horizon_share``) over
+    that share, at most 1 (module doc); V where h is 0."""
+    hv = np.asarray(h, np.float64)
+    out = np.minimum(V.astype(np.float64) / np.where(hv > 0.0, hv, 1.0), 1.0)
+    return np.where(hv > 0.0, out, V).astype(np.float32)
 
 
 @register
 class SoftIrregularShadowMapping(Method):
     id = "irregular"
     paper = "Johnson, Hunt, Hux, Mark, Burns, Junkins 2009"
-    passes = {"irregular": AVERAGE}
+    passes = {"irregular": IRRADIANCE}
     needs = frozenset({GBUFFER, SHADOW_TRIANGLES})
     packed = True                # shades each receiver of a packed G-buffer on its own
     Params = IrregularParams
@@ -260,10 +271,14 @@ class SoftIrregularShadowMapping(Method):
                 tris, tobj = tris[~has], tobj[~has]
         V, _, _, stats = soft_irregular(P, Nrm, tris, tobj, light, params, buffers.scale, timer,
                                         bounds=buffers.bounds())
+        irradiance = params.visibility == IRRADIANCE
+        if irradiance and not light.is_zero_size:
+            with timer("horizon"):
+                V = above_horizon(V, horizon_share(light, P, Nrm))
         if mattes is not None:
             with timer("mattes"):
-                V = V * matte_visibility(mattes, P, Nrm, g.seed_ids(idx), light, buffers.scale)
-        if params.horizon and not light.is_zero_size:
+                V = V * matte_visibility(mattes, P, Nrm, g.seed_ids(idx), light, buffers.scale, irradiance)
+        if params.horizon and not light.is_zero_size and not irradiance:
             with timer("horizon"):
                 V = np.minimum(V, horizon_share(light, P, Nrm).astype(np.float32))
         out = np.ones(H * W, np.float32)

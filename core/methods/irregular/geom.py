@@ -122,6 +122,61 @@ def square_sector(ax, ay, bx, by):
     return area
 
 
+@inner(forceinline=True)
+def _square_sector_moment(ax, ay, bx, by):
+    """``square_sector``'s region (A, B in counter-clockwise order): (area,
+    first moments x, y), triangle by triangle from the origin."""
+    px, py, sa = _square_exit(ax, ay)
+    ex, ey, sb = _square_exit(bx, by)
+    area, mx, my = 0.0, 0.0, 0.0
+    k = sa
+    for _ in range(5):
+        last = k == sb
+        qx = ex if last else (1.0 if (k == 0 or k == 3) else -1.0)
+        qy = ey if last else (1.0 if k < 2 else -1.0)
+        a = 0.5 * (px * qy - py * qx)
+        area += a
+        mx += a * (px + qx) / 3.0
+        my += a * (py + qy) / 3.0
+        if last:
+            break
+        px, py = qx, qy
+        k = (k + 1) % 4
+    return area, mx, my
+
+
+@inner
+def region_centroid(shape, ax, ay, bx, by):
+    """Centroid of the region whose share ``segment_area`` measures for a
+    clipped segment AB (the light's part in the wedge AOB beyond AB): the
+    sector's first moment less the triangle OAB's, over their areas'
+    difference; the segment's midpoint where that region is empty."""
+    cab = ax * by - ay * bx
+    if cab < 0.0:
+        ax, ay, bx, by = bx, by, ax, ay
+        cab = -cab
+    tri = 0.5 * cab
+    if shape == SHAPE_SQUARE:
+        if (ax == 0.0 and ay == 0.0) or (bx == 0.0 and by == 0.0):
+            return 0.5 * (ax + bx), 0.5 * (ay + by)
+        sec, mx, my = _square_sector_moment(ax, ay, bx, by)
+    else:
+        ra = math.sqrt(ax * ax + ay * ay)
+        rb = math.sqrt(bx * bx + by * by)
+        if not (ra > 0.0) or not (rb > 0.0):
+            return 0.5 * (ax + bx), 0.5 * (ay + by)
+        ux, uy = ax / ra + bx / rb, ay / ra + by / rb        # the bisector
+        un = math.sqrt(ux * ux + uy * uy)
+        half = 0.5 * math.atan2(cab / (ra * rb), (ax * bx + ay * by) / (ra * rb))
+        sec = half                                           # the unit disk's sector of angle 2 half
+        m = (2.0 / 3.0) * math.sin(half) / un if un > 0.0 else 0.0
+        mx, my = m * ux, m * uy
+    area = sec - tri
+    if not (area > 1e-12 * sec):
+        return 0.5 * (ax + bx), 0.5 * (ay + by)
+    return (mx - tri * (ax + bx) / 3.0) / area, (my - tri * (ay + by) / 3.0) / area
+
+
 @inner
 def rect_segment_area(ax, ay, bx, by):
     """Rectangle kernel: (square sector AOB - triangle AOB) / 4 for a segment
@@ -318,14 +373,40 @@ def count_beyond(ax, ay, bx, by, sign, ls, s):
             counts[s, i] += sign
 
 
-def overlap_from_counts(umbra, counts, threads=None):
+def overlap_from_counts(umbra, counts, threads=None, rows=None, first=None, RF=None):
     """Equation 5's C per receiver: the mean over the light samples of the
-    occluders counted beyond the first, max(U + count_j - 1, 0). Ranges of
-    receivers on Numba's thread count (``kernels.each_range``)."""
+    occluders counted beyond the first, max(U + count_j - 1, 0); with the
+    samples' ``rows`` and ``first`` (``light_samples``) and the receivers'
+    frames ``RF`` (``light.receiver_frames``), the mean weighted by the
+    light's emission, linear over it: sample j at (x_j, y_j) weighs 1 +
+    RF[s, 12:14] . (x_j, y_j) (the samples are symmetric about the centre:
+    the weights' mean is 1). Ranges of receivers on Numba's thread count
+    (``kernels.each_range``)."""
     C = np.zeros(counts.shape[0])
-    if counts.shape[1]:
+    if counts.shape[1] and RF is not None:
+        xs = np.concatenate([x0 + dx * np.arange(first[r + 1] - first[r]) for r, (_, x0, dx) in enumerate(rows)])
+        ys = np.repeat(rows[:, 0], np.diff(first))
+        each_range(lambda i0, i1: _overlap_weighted(i0, i1, umbra, counts, xs, ys, RF, C), counts.shape[0],
+                   threads)
+    elif counts.shape[1]:
         each_range(lambda i0, i1: _overlap_from_counts(i0, i1, umbra, counts, C), counts.shape[0], threads)
     return C
+
+
+@kernel(nogil=True)
+def _overlap_weighted(i0, i1, umbra, counts, xs, ys, RF, C):
+    """``overlap_from_counts`` weighted, for receivers i0..i1-1 into ``C``
+    (the samples at (xs[j], ys[j]))."""
+    m = counts.shape[1]
+    for s in range(i0, i1):
+        acc, accx, accy = 0.0, 0.0, 0.0
+        for j in range(m):
+            d = umbra[s] + counts[s, j] - 1
+            if d > 0:
+                acc += d
+                accx += d * xs[j]
+                accy += d * ys[j]
+        C[s] = (acc + RF[s, 12] * accx + RF[s, 13] * accy) / m
 
 
 @kernel(nogil=True)
@@ -475,6 +556,10 @@ def penumbra_term(px, py, pz, dx, dy, dz, tv, nv, fl, ot, mode, t, k, lit, RF, s
     K = segment_area(shape, ax2, ay2, bx2, by2)
     if K == 0.0:
         return 0.0
+    gx, gy = RF[s, 12], RF[s, 13]
+    if gx != 0.0 or gy != 0.0:        # the light's emission, linear over it: exact at the region's centroid
+        cx, cy = region_centroid(shape, ax2, ay2, bx2, by2)
+        K *= 1.0 + gx * cx + gy * cy
     inside = edge_side(px, py, pz, dx, dy, dz, ax, ay, az, bx, by, bz) == ref
     if ls.rows.shape[0]:
         count_beyond(ax2, ay2, bx2, by2, -1 if inside else 1, ls, s)

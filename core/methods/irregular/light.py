@@ -85,11 +85,15 @@ def light_model(light, rect_kernel: bool = True) -> LightModel:
                       approx="rectangle as equal-area ellipse")
 
 
-def receiver_frames(light, lm: LightModel, Ps: np.ndarray) -> np.ndarray:
-    """float64[n, 12]: e1/s1, e2/s2, n, h_p, p2x, p2y per receiver (see
-    ``geom.penumbra_term``); h_p <= 0 marks receivers without penumbra."""
+def receiver_frames(light, lm: LightModel, Ps: np.ndarray, emission: bool = False) -> np.ndarray:
+    """float64[n, 14]: e1/s1, e2/s2, n, h_p, p2x, p2y per receiver (see
+    ``geom.penumbra_term``); h_p <= 0 marks receivers without penumbra; then
+    (``emission``, an area light) g, the light's emission towards the
+    receiver (cos_l / d^2) as 1 + g . (x, y) over the unit shape, relative
+    to its mean (``emission_gradient``); zero otherwise (a sphere's facing
+    disk and a sun's cone are symmetric about their axis)."""
     n = len(Ps)
-    RF = np.zeros((n, 12))
+    RF = np.zeros((n, 14))
     if n == 0 or lm.zero:
         return RF
     if lm.is_sun:
@@ -121,4 +125,27 @@ def receiver_frames(light, lm: LightModel, Ps: np.ndarray) -> np.ndarray:
     RF[:, 9] = np.where(h > 1e-12 * max(lm.rL, 1e-300), h, 0.0)
     RF[:, 10] = d @ (ax / lm.s1)
     RF[:, 11] = d @ (ay / lm.s2)
+    if emission:
+        RF[:, 12:14] = emission_gradient(RF[:, 10], RF[:, 11], h, lm.s1, lm.s2)
     return RF
+
+
+def emission_gradient(px, py, h, s1, s2) -> np.ndarray:
+    """float64[n, 2]: g such that 1 + g . (x, y) is an area light's emission
+    towards receivers at height ``h`` over its unit-shape point (px, py)
+    (half sizes s1, s2), cos_l / d^2 = h / d^3, over its mean: central
+    differences between the shape's side midpoints, over their mean; |g_x| +
+    |g_y| at most 1, so no part of the light weighs less than nothing."""
+    def e(x, y):
+        dx, dy = (x - px) * s1, (y - py) * s2
+        d2 = dx * dx + dy * dy + h * h
+        return h / (d2 * np.sqrt(d2))
+    ex0, ex1, ey0, ey1 = e(-1.0, 0.0), e(1.0, 0.0), e(0.0, -1.0), e(0.0, 1.0)
+    mean = 0.25 * (ex0 + ex1 + ey0 + ey1)
+    ok = mean > 0.0
+    g = np.zeros((len(h), 2))
+    g[ok, 0] = 0.5 * (ex1 - ex0)[ok] / mean[ok]
+    g[ok, 1] = 0.5 * (ey1 - ey0)[ok] / mean[ok]
+    norm = np.abs(g).sum(axis=1)
+    g[norm > 1.0] /= norm[norm > 1.0, None]
+    return g

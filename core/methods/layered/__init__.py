@@ -1,10 +1,11 @@
 """Layered attenuation maps (Agrawala, Ramamoorthi, Heirich, Moll 2000,
 section 4), method id ``layered``, pass ``layered``: each camera point's
-average visibility (equation 2), read from a layered depth image (LDI) of
-attenuations built once per light from N light samples.
+irradiance ratio (equation 1 with / without V) or average visibility
+(equation 2), read from a layered depth image (LDI) built once per light
+from N light samples, each layer holding the set of samples that saw it.
 
 Parameters (``LayeredParams``):
-  samples      64           N light samples (the paper: "typically 64")
+  samples      256          N light samples (the paper: "typically 64")
   epsilon      None         depth tolerance, scene units; None: EPSILON_PER_EXTENT x
                             ``FrameBuffers.light_extent`` (visible receivers and light)
   map_size     None         LDI and sample maps' larger side; None: the frame's map size
@@ -19,20 +20,25 @@ Parameters (``LayeredParams``):
   diagonals    None         a diagonal neighbour for a gradient axis with none; None: on
                             where a shadow caster has an alpha matte, else off
   seed         0            the samples' jitter
+  visibility   "irradiance" the pass: the irradiance ratio; "average": equation 2
 
-Precompute (section 4, procedure Precompute): N stratified, jittered points
-of the light's unit square (section 3), one set for every pixel, each
-rendered as a depth + surface-id map (lines 1-3, ``samples``); each pixel
-warped into the view from the light's centre (line 5, ``warp``): for a
-planar light equation 3, dp = -dv / z, on the centre map's texel grid, else
-a projective warp; then inserted into the LDI (line 6, ``ldi``): within
-tolerance of a layer it increments the layer's count, at most once per
-sample, else it opens a layer; attenuation = count / N (line 7). Display
-(procedure Display, ``lookup``): a camera point is projected into the LDI
-(line 3) and matched against the layers of its LDI pixel (line 4); the
-matching layer's attenuation is V, no match is 0 (the umbra, figure 6).
+Precompute (procedure Precompute): N stratified, jittered points of the
+light (section 3), one set for every pixel, each rendered as a depth +
+surface-id map (lines 1-3, ``samples``), its pixels warped into the view
+from the light's centre (line 5, ``warp``: equation 3, dp = -dv / z, for a
+planar light, else projective) and inserted into the LDI (line 6, ``ldi``):
+within tolerance of a layer the sample joins the layer's set (a bitmask of
+ceil(N / 64) words, its popcount the paper's count), else it opens a layer.
+Display (procedure Display, ``lookup``): a camera point is projected into
+the LDI (line 3) and matched against its LDI pixel's layers (line 4); the
+matching layer's attenuation is V, no match is 0 (the umbra, figure 6). The
+attenuation: "average", count / N (line 7); "irradiance", sum over the set
+of w_s / sum over all samples of w_s, w_s = cos_r cos_l / d^2 of sample s at
+the point (the reference's weights; a sun's: cos_r), 0 where that sum is 0.
 
 Departures (the paper's version in brackets):
+  * visibility: count / N composites only where every sample weighs alike;
+    weighted at the receiver, unshadowed x V = shadowed ["average"].
   * splat: a sample pixel covers the LDI pixel centres in its warped
     footprint, 1.5 steps past its surface's silhouette (``neighbourhood``);
     the four neighbours overestimate object size (section 4) and fill
@@ -47,7 +53,9 @@ Departures (the paper's version in brackets):
     half the depth change across a texel: section 6.1's insufficient depth
     sampling, its "adaptive biases" [False: a sloped plane shadows itself].
   * horizon: V <= the share of samples above the tangent plane; the LDI
-    cannot resolve a curved object's terminator [False].
+    cannot resolve a curved object's terminator [False]. Average only: the
+    weights give a sample below the plane 0 already, and the unweighted share
+    would darken points the light above their plane reaches.
   * surfaces: a connected mesh piece is one surface in the gradient,
     footprint and silhouette tests, so an object's leaves stay apart
     ["object"]; diagonals: a one-texel diagonal line (a wire) takes its
@@ -55,11 +63,11 @@ Departures (the paper's version in brackets):
   * A point in front of every layer (undersampled) takes the nearest layer's
     attenuation (one sample: the shadow-map test); outside the LDI: lit.
 
-Lights (``samples``): cube faces, spheres and suns warp projectively. A
-sphere's samples fill its ball with density ~ 1 / sqrt(1 - |x|^2 / r^2),
-which projects along every direction to the uniform disk (error
-O((r / d)^2)); a sun's are directions, each an orthographic view; a light of
-size zero is one sample: the shadow-map test with bias epsilon.
+Lights (``samples``): a sphere's samples fill its ball with density
+~ 1 / sqrt(1 - |x|^2 / r^2), which projects along every direction to the
+uniform disk (error O((r / d)^2)); a sun's are directions, each an
+orthographic view; cube faces, spheres and suns warp projectively; a light
+of size zero is one sample: the shadow-map test with bias epsilon.
 """
 from __future__ import annotations
 
@@ -76,11 +84,11 @@ import numpy as np
 from ... import sampling
 from ...kernels import each_dealt_chunk
 from ...scene import Light
-from ..base import (AVERAGE, GBUFFER, LIGHT_SAMPLE_VIEWS, MESH_PIECES, PRECOMPUTE, SHADOW_GEOMETRY, Method,
-                    MethodResult, PhaseTimer)
+from ..base import (AVERAGE, DEFAULT_LIGHT_SAMPLES, IRRADIANCE, GBUFFER, LIGHT_SAMPLE_VIEWS, MESH_PIECES,
+                    PRECOMPUTE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer)
 from ..registry import register
-from .ldi import LAYERS_START, LDI, complexity, ldi_insert
-from .lookup import display_kernel, horizon_kernel
+from .ldi import LAYERS_START, LDI, complexity, ldi_insert, seen_words
+from .lookup import LayerArrays, SampleWeights, display_kernel, horizon_kernel
 from .neighbourhood import warp_local
 from .samples import centre_faces, sample_plans, sample_points
 from .warp import warp_projective, warp_shift
@@ -91,7 +99,7 @@ MAX_SLOPE = 30.0             # |d depth / d lateral| beyond which depths stay ra
 
 @dataclass
 class LayeredParams:
-    samples: int = 64              # N light samples (the paper: "typically 64")
+    samples: int = DEFAULT_LIGHT_SAMPLES   # N light samples (the paper: "typically 64")
     epsilon: Optional[float] = None  # depth tolerance (scene units); None: EPSILON_PER_EXTENT x light extent
     map_size: Optional[int] = None   # LDI and sample maps' larger side; None: views.default_map_size
     bilinear: bool = True          # filter the 4 neighbouring attenuations; False: the nearest LDI pixel
@@ -107,6 +115,7 @@ class LayeredParams:
                                    # where a shadow caster has an alpha matte, else off
     seed: int = 0
 
+    visibility: str = "irradiance"   # the pass: "irradiance" (the ratio that composites, eq. 1) | "average" (eq. 2)
 
 def resolved_epsilon(params: LayeredParams, extent: float) -> float:
     """``epsilon``, or EPSILON_PER_EXTENT times ``extent`` (``precompute``
@@ -154,8 +163,7 @@ def precompute(buffers, light: Light, params: LayeredParams,
     npix = F * h * w
     ldi_depth = np.zeros((npix, LAYERS_START), np.float64)
     ldi_span = np.zeros((npix, LAYERS_START), np.float64)
-    ldi_count = np.zeros((npix, LAYERS_START), np.int32)
-    ldi_last = np.full((npix, LAYERS_START), -1, np.int32)
+    ldi_seen = np.zeros((npix, LAYERS_START, seen_words(N)), np.uint64)
     ldi_n = np.zeros(npix, np.int32)
     cfaces = np.ascontiguousarray(np.stack([f.packed() for f in centre]))
     shadow = buffers.shadow_scene      # built here, not in the render threads
@@ -175,7 +183,7 @@ def precompute(buffers, light: Light, params: LayeredParams,
     by_n: Dict[str, float] = {}
 
     def consume(s, lv):
-        nonlocal ldi_depth, ldi_span, ldi_count, ldi_last
+        nonlocal ldi_depth, ldi_span, ldi_seen
         faces, _, m, shift = plans[s]
         if len(faces):
             depth = np.ascontiguousarray(lv.depth)
@@ -200,8 +208,8 @@ def precompute(buffers, light: Light, params: LayeredParams,
                 gx[:] = 0.0
                 gy[:] = 0.0
                 span[:] = 0.0
-            ldi_depth, ldi_span, ldi_count, ldi_last = ldi_insert(
-                ldi_depth, ldi_span, ldi_count, ldi_last, ldi_n, wf, wx, wy, wz, gx, gy, span,
+            ldi_depth, ldi_span, ldi_seen = ldi_insert(
+                ldi_depth, ldi_span, ldi_seen, ldi_n, wf, wx, wy, wz, gx, gy, span,
                 foot, footprint, h, w, s, eps, slope_t, float(params.steep_slope))
         done = s + 1
         if done == len(plans) or (done & (done - 1)) == 0:
@@ -234,8 +242,8 @@ def precompute(buffers, light: Light, params: LayeredParams,
     else:
         ctr = light.position
         reach = float(np.linalg.norm(pts - ctr, axis=1).max(initial=0.0)) * (1 + 1e-9) + 1e-300
-    return LDI(centre, ldi_depth, ldi_span, ldi_count, ldi_n, N, eps, mode, by_n,
-               np.ascontiguousarray(pts, np.float64), light.kind == "sun",
+    return LDI(centre, ldi_depth, ldi_span, ldi_seen, ldi_n, N, eps, mode, by_n,
+               np.ascontiguousarray(pts, np.float64), lp, light.kind == "sun",
                np.asarray(ctr, np.float64), float(reach), render_s, insert_s)
 
 
@@ -248,12 +256,14 @@ def display(ldi: LDI, P: np.ndarray, Nrm: np.ndarray, params: LayeredParams) -> 
     cfaces = np.ascontiguousarray(np.stack([f.packed() for f in ldi.faces]))
     P = np.ascontiguousarray(P, np.float64)
     Nrm = np.ascontiguousarray(Nrm, np.float64)
-    args = (P, Nrm, cfaces, h, w, ldi.depth, ldi.span, ldi.count, ldi.n_layers, 1.0 / ldi.samples,
-            ldi.epsilon, bool(params.bilinear) and ldi.samples > 1, bool(params.plane_depth),
-            1.0 / math.sqrt(1.0 + MAX_SLOPE * MAX_SLOPE), MAX_SLOPE if params.plane_depth else 0.0, out,
-            float(params.steep_slope))
-    each_dealt_chunk(lambda idx: display_kernel(idx, *args), len(P))
-    if params.horizon:
+    irr = params.visibility == IRRADIANCE
+    layers = LayerArrays(ldi.depth, ldi.span, ldi.seen, ldi.n_layers)
+    sw = SampleWeights(irr, 1.0 / ldi.samples, ldi.light, ldi.points, ldi.directional)
+    args = (P, Nrm, cfaces, h, w, layers, ldi.epsilon, bool(params.bilinear) and ldi.samples > 1,
+            bool(params.plane_depth), 1.0 / math.sqrt(1.0 + MAX_SLOPE * MAX_SLOPE),
+            MAX_SLOPE if params.plane_depth else 0.0, out, float(params.steep_slope), sw)
+    each_dealt_chunk(lambda idx: display_kernel(idx, *args, np.empty(ldi.samples), np.empty(2)), len(P))
+    if params.horizon and not irr:     # under the weights a sample below the tangent plane weighs 0
         hz = np.empty(len(P), np.float64)
         each_dealt_chunk(lambda idx: horizon_kernel(idx, P, Nrm, ldi.points, ldi.directional, ldi.centre,
                                                     ldi.reach, hz), len(P))
@@ -265,7 +275,7 @@ def display(ldi: LDI, P: np.ndarray, Nrm: np.ndarray, params: LayeredParams) -> 
 class LayeredAttenuationMaps(Method):
     id = "layered"
     paper = "Agrawala, Ramamoorthi, Heirich, Moll 2000, section 4"
-    passes = {"layered": AVERAGE}
+    passes = {"layered": IRRADIANCE}
     needs = frozenset({GBUFFER, SHADOW_GEOMETRY, LIGHT_SAMPLE_VIEWS, MESH_PIECES, PRECOMPUTE})
     packed = True                # shades each receiver of a packed G-buffer on its own
     Params = LayeredParams
@@ -295,6 +305,6 @@ class LayeredAttenuationMaps(Method):
                      "depth_complexity": ldi.depth_complexity(),
                      "depth_complexity_by_samples": ldi.complexity_by_samples,
                      "max_layers": int(ldi.n_layers.max(initial=0)),
-                     "nonempty_pixels": int((ldi.n_layers > 0).sum()),
+                     "nonempty_pixels": int((ldi.n_layers > 0).sum()), "ldi_bytes": ldi.nbytes(),
                      "render_s": ldi.render_s, "warp_insert_s": ldi.warp_insert_s}
         return MethodResult(passes={"layered": out.reshape(H, W)}, time_s=timer.result(), stats=stats)

@@ -13,6 +13,7 @@ from .light_region import SEARCH_STEPS, light_halfwidth, search_region
 from .receiver import NO_PLANE, receiver_plane
 from .samples import blocker_depth, sample_shadow
 from .tiles import region_decided
+from .weight import NO_WEIGHTS, weight_frame
 
 PIXEL_TILE = 32      # camera pixels per side of a tile of ``pcf_kernel`` (``filter_pixels``)
 PIXEL_BLOCK = 1024   # entries of a packed G-buffer dealt together to a chunk of ``pcf_kernel``
@@ -23,16 +24,20 @@ CameraPixels = namedtuple("CameraPixels", "P Nrm hit obj width rays pixel")
 camera's per-pixel ray terms (``pixel_ray_terms``) and, for a packed G-buffer
 (``GBuffer.pixel``), each entry's camera pixel (int64[N]; empty: entry i is
 pixel i)."""
-ShadowMap = namedtuple("ShadowMap", "faces depth bbox tiles planes lsize zmin")
+ShadowMap = namedtuple("ShadowMap", "faces depth bbox tiles planes lsize zmin lframe")
 """Packed light-view faces, their depth maps, finite-depth boxes, the
 per-tile depth min / max as sparse tables (``tile_tables``) and planes
 (``tile_planes``), per face the light's reach
-(``light_reach``: float64[F, 3]) and nearest depth (float64[F])."""
+(``light_reach``: float64[F, 3]), nearest depth (float64[F]) and the
+light in its view (``weight.light_frames``)."""
 Filter = namedtuple("Filter", "ResFactor MinSize MaxSize NumSamples MinSamples Bias0 Bias1 seed use_plane use_tiles "
-                              "light_region BlockerSamples PenumbraSamples pixel_step interpolate step_tolerance")
+                              "light_region BlockerSamples PenumbraSamples pixel_step interpolate step_tolerance "
+                              "irradiance")
 """The filter's parameters (the paper's names), ``receiver_plane``, ``tiles``
 and ``region="light"``'s switch and sample counts, ``pixel_step``, whether
-its other pixels are interpolated (``step_fill``) and ``step_tolerance``."""
+its other pixels are interpolated (``step_fill``), ``step_tolerance`` and
+whether region="light"'s samples weigh their light points
+(``visibility="irradiance"``)."""
 
 
 def filter_pixels(cam, smap, flt, out, height, threads=None) -> None:
@@ -137,6 +142,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
     else:
         plane = NO_PLANE
     lsize = smap.lsize[f]
+    wf = NO_WEIGHTS                   # region="light" under visibility="irradiance": ``weight``
     light = flt.light_region and z > 0.0 and (lsize[0] > 0.0 or lsize[1] > 0.0)
     if light:
         # the blocker search region (PCSS): the light's reach at the nearest depth it can hold
@@ -159,6 +165,8 @@ def _pcf_pixel(i, cam, smap, flt, out):
         ps, pt = light_halfwidth(lsize, z, zb)
         sres = min(max(ps, sres), MaxSize)
         tres = min(max(pt, tres), MaxSize)
+        ku = ps / sres if sres > 0.0 else 0.0      # the light's extent over the region's (its weights)
+        kv = pt / tres if tres > 0.0 else 0.0
         NumSamples = flt.PenumbraSamples
         if use_tiles:     # the filter region's own tile test (exact, as the search region's)
             known = region_decided(tiles[f], smap.planes[f], faces[f, 16] == 1.0, depth.shape[2],
@@ -166,5 +174,7 @@ def _pcf_pixel(i, cam, smap, flt, out):
             if known >= 0.0:
                 out[i] = 1.0 - known
                 return
+        if flt.irradiance:
+            wf = weight_frame(faces[f], smap.lframe[f], zb, px, py, pz, s, t, sres, tres, ku, kv)
     out[i] = 1.0 - sample_shadow(depth[f], bbox[f], s, t, z, sres, tres, NumSamples,
-                                 MinSamples, Bias0, Bias1, seed, j, plane)
+                                 MinSamples, Bias0, Bias1, seed, j, plane, wf)

@@ -1,8 +1,8 @@
 """Figure 4's ``SampleShadow``: a region's jittered ns x nt grid of depth
 map samples (``_grid``, ``_region_samples``), the fraction in shadow
-(``sample_shadow``) and the mean depth of the blockers among them
-(``blocker_depth``); Williams' hard test (``hard_shadow_kernel``), which a
-region of size zero reduces to."""
+(``sample_shadow``; or their light points' weight) and the mean depth of
+the blockers among them (``blocker_depth``); Williams' hard test
+(``hard_shadow_kernel``), which a region of size zero reduces to."""
 from __future__ import annotations
 
 import math
@@ -14,6 +14,7 @@ from ...jit import inner, kernel
 from ...kernels import face_project, pick_face
 from ...sampling import stream_start, stream_word
 from .receiver import DEPTH_REL_EPS, _receiver_form, plane_depth
+from .weight import NO_WEIGHTS, sample_weight
 
 
 @inner(forceinline=True)
@@ -35,11 +36,13 @@ def _grid(sres, tres, NumSamples, MinSamples):
 
 
 @inner(error_model="numpy")
-def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane):
+def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane, wf):
     """The region's ns x nt grid, each cell sampled once with jitter over the
     whole cell (section 2's method (c)) from pixel ``pixel``'s stream: (the
     samples the receiver is behind by more than a bias drawn in [Bias0,
-    Bias1], the sum of their map depths). One 32-bit random word per sample
+    Bias1], the sum of their map depths, and where ``wf`` (``weight``'s
+    frame; ``NO_WEIGHTS``: none) weighs them, the weight of the samples not
+    behind and of all). One 32-bit random word per sample
     gives the two jitters (11 bits each: 1/2048 of a cell) and the bias (10
     bits); the receiver's tangent-plane depth is compared by a
     multiplication (``_receiver_form``). Samples past the map's border read
@@ -61,16 +64,22 @@ def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, B
     fb = (Bias1 - Bias0) * (1.0 / 1024.0)
     bu0, bu1, bv0, bv1 = bbox_f[0], bbox_f[1], bbox_f[2], bbox_f[3]
     st = stream_start(seed, pixel)
+    weigh = wf[0] != 0.0
     n = 0
     acc = 0.0
+    wlit = 0.0
+    wall = 0.0
     for i in range(ns):
         su = s0 + i * ds
         for j in range(nt):
             st, wd = stream_word(st)
-            iu = int(math.floor(su + np.float64(wd & np.uint32(2047)) * fu))
-            iv = int(math.floor(t0 + j * dt + np.float64((wd >> np.uint32(11)) & np.uint32(2047)) * fv))
+            xs = su + np.float64(wd & np.uint32(2047)) * fu
+            ys = t0 + j * dt + np.float64((wd >> np.uint32(11)) & np.uint32(2047)) * fv
+            iu = int(math.floor(xs))
+            iv = int(math.floor(ys))
             iu = min(max(iu, 0), w - 1)
             iv = min(max(iv, 0), h - 1)
+            behind = False
             if iu >= bu0 and iu <= bu1 and iv >= bv0 and iv <= bv1:
                 d = np.float64(depth_f[iv, iu])
                 thr = d * DEPTH_REL_EPS + (Bias0 + np.float64(wd >> np.uint32(22)) * fb)
@@ -84,16 +93,24 @@ def _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, B
                     behind = plane_depth(plane, iu + 0.5, iv + 0.5, z) > thr
                 n += 1 if behind else 0           # no branch: in a penumbra it is a coin toss
                 acc += d if behind else 0.0
-    return n, acc
+            if weigh:
+                wt = sample_weight(wf, xs, ys)
+                wall += wt
+                wlit += 0.0 if behind else wt
+    return n, acc, wlit, wall
 
 
 @inner
 def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
-                  Bias0, Bias1, seed, pixel, plane):
+                  Bias0, Bias1, seed, pixel, plane, wf):
     """Reeves et al. figure 4 ``SampleShadow``: fraction of the region in
     shadow. ``s, t`` and ``sres, tres`` are already in texels (scaled).
     ``plane`` (from ``receiver_plane``) gives the receiver's depth at each
-    sample's texel centre; ``plane[0] == 0`` keeps the paper's constant z."""
+    sample's texel centre; ``plane[0] == 0`` keeps the paper's constant z.
+    ``wf`` (``weight.weight_frame``; ``NO_WEIGHTS``: the paper's count): each
+    sample weighs its light point's emission, the fraction is the weight of
+    the samples in shadow over the weight of all (the count where no sample
+    weighs anything)."""
     if z < 0.0:
         return 0.0
     lu = math.floor(s - sres)
@@ -103,7 +120,10 @@ def sample_shadow(depth_f, bbox_f, s, t, z, sres, tres, NumSamples, MinSamples,
     if lu > bbox_f[1] or hu < bbox_f[0] or lv > bbox_f[3] or hv < bbox_f[2]:
         return 0.0
     ns, nt = _grid(sres, tres, NumSamples, MinSamples)
-    inshadow, _ = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
+    inshadow, _, wlit, wall = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel,
+                                              Bias0, Bias1, plane, wf)
+    if wall > 0.0:
+        return 1.0 - wlit / wall
     return inshadow / (ns * nt)
 
 
@@ -114,7 +134,8 @@ def blocker_depth(depth_f, bbox_f, s, t, z, sres, tres, BlockerSamples, Bias0, B
     on the region) that the receiver is behind (``sample_shadow``'s test);
     0.0 when there is none."""
     ns, nt = _grid(sres, tres, BlockerSamples, np.int64(1))
-    n, acc = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane)
+    n, acc, _, _ = _region_samples(depth_f, bbox_f, s, t, z, sres, tres, ns, nt, seed, pixel, Bias0, Bias1, plane,
+                                   NO_WEIGHTS)
     return acc / n if n else 0.0
 
 

@@ -1,10 +1,9 @@
 """Hierarchical penumbra casting (Laine & Aila 2005), method id ``penumbra_casting``.
 
-Average visibility V = 1 - blocked / S of every camera G-buffer hit for S
-light samples (Agrawala et al. equation 2, the ``embree`` pass's quantity),
-found as the transpose of ray tracing: each blocker T finds the relations
-l_i -> r_j it blocks by traversing the receiver hierarchy and the three-level
-light sample hierarchy (L, groups G_k, samples l_i) at once (section 3).
+V of every camera G-buffer hit from S light samples (``visibility`` below)
+as the transpose of ray tracing: each blocker T finds the relations l_i -> r_j
+it blocks by traversing the receiver hierarchy and the three-level light
+sample hierarchy (L, groups G_k, samples l_i) at once (section 3).
 
 Parameters, default [the paper's value where it gives one]:
   samples 256 [256], GroupSize 32 [32]   light samples; samples per group G_k
@@ -21,7 +20,7 @@ Parameters, default [the paper's value where it gives one]:
   materialize_hard_volumes False [True]   line 70 on built V_li planes
   alpha_fetch True [True]   matte blockers by texture fetch (False: Embree rays)
   shared_samples_with_reference False   the reference's own per-pixel samples
-  chunks 0            receiver chunks cast in parallel (0: automatic); seed 0
+  chunks 0 (automatic), seed 0; visibility irradiance [average] (below)
 
 Algorithm (sections 3.1-3.3, figures 2 and 3): receivers r_j, each with a bit
 mask of blocked samples, in a BVH (``receivers``, ``hierarchy``); jittered
@@ -35,9 +34,14 @@ points (line 29); B: active plane sets; C: V_Gk and V_li built on first need;
 D: masks allocated on first need, freed in full umbra. Blockers that cannot
 shadow a receiver are culled first (``culling``). Section 3.4: sphere lights
 use bounding volumes; alpha-matte blockers follow the opaque ones
-(``alpha_blockers``); the receivers are cast in parallel chunks (``chunks``).
+(``alpha_blockers``); the receivers are cast in parallel chunks (``chunks``);
+V from the masks and transmittances (``visibility``).
 
 Departures from the paper (switch [the paper's value]):
+* visibility [average]: the paper's V = 1 - blocked / S (Agrawala et al.
+  eq. 2, ``embree``'s); by default each sample counts with the reference's
+  weight w_i = cos_r cos_l / d^2, V = sum w_i v_i / sum w_i (eq. 1 with and
+  without V, ``embree_irr``'s): unshadowed render x V = shadowed render.
 * materialize_hard_volumes [True]: line 70 with sample and receiver exchanged
   (``geometry.receiver_edge_functions``): per receiver and blocker its edge
   forms, per sample one dot product each, a 64-bit mask word at a time.
@@ -55,10 +59,9 @@ Departures from the paper (switch [the paper's value]):
   a segment from a sample outside the solid enters it through a face facing
   the sample (no inside-out parts assumed, not checked).
 Each keeps the blocked relations up to rays within rounding of an edge or
-surface. Without a switch: the SAH weights areas by point counts; the texture
-fetch runs per receiver after the traversal; sun (directions, w = 0) and
-sphere lights (a disk set rotated per receiver) beyond the paper's planar
-lights.
+surface. Without a switch: SAH areas weighted by point counts; the texture
+fetch per receiver after the traversal; sun (directions, w = 0) and sphere
+lights (a disk set rotated per receiver) beyond the paper's planar lights.
 """
 from __future__ import annotations
 
@@ -69,7 +72,7 @@ import numba
 import numpy as np
 
 from ...kernels import each_in_threads
-from ..base import AVERAGE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
+from ..base import AVERAGE, DEFAULT_LIGHT_SAMPLES, IRRADIANCE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 from ..registry import register
 from .alpha_blockers import matte_blockers, split_blockers
 from .cast import CastSwitches, LightGroups, cast_chunk_for
@@ -81,7 +84,7 @@ from .receivers import Setup, prepare
 
 @dataclass
 class PenumbraCastingParams:
-    samples: int = 256                # light samples per receiver
+    samples: int = DEFAULT_LIGHT_SAMPLES   # light samples per receiver
     GroupSize: int = 32               # light samples per group G_k
     LeafSize: int = 16                # receiver points per leaf
     MidpointLimit: int = 1024         # midpoint splits above, SAH below
@@ -106,6 +109,7 @@ class PenumbraCastingParams:
     chunks: int = 0                   # receiver chunks processed in parallel; 0 = automatic
     seed: int = 0
 
+    visibility: str = "irradiance"   # the pass: "irradiance" (the ratio that composites, eq. 1) | "average" (eq. 2)
 
 def cast(setup: Setup, tris: np.ndarray, params: PenumbraCastingParams, timer: PhaseTimer,
          threads: Optional[int] = None, mattes=None):
@@ -163,11 +167,15 @@ def finite_blockers(tris) -> np.ndarray:
 class PenumbraCasting(Method):
     id = "penumbra_casting"
     paper = "Laine, Aila 2005: Hierarchical Penumbra Casting"
-    passes = {"penumbra_casting": AVERAGE}
+    passes = {"penumbra_casting": IRRADIANCE}
     needs = frozenset({GBUFFER, SHADOW_TRIANGLES})   # it casts the triangles themselves: no BVH
     packed = True                # shades each receiver of a packed G-buffer on its own
     Params = PenumbraCastingParams
     physical = True
+
+    def subpixel_overrides(self, params, share: int):
+        """Each sub-pixel receiver its share of the light samples (at least one)."""
+        return {"samples": max(1, -(-int(params.samples) // max(1, int(share))))}
 
     def run(self, buffers, light, params: PenumbraCastingParams) -> MethodResult:
         timer = PhaseTimer()

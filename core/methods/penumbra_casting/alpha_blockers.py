@@ -2,8 +2,9 @@
 "Alpha matte textures"): processed after all opaque blockers, each relation
 l_i -> r_j left open gets its transmittance through the matte blockers, the
 product of (1 - alpha) of the texture at each crossing (as Cycles and
-``embree`` compute it, ``alpha_rays.transmittance``):
-V_j = (1 / S) sum of the open relations' transmittances. The umbra shortcuts
+``embree`` compute it, ``alpha_rays.transmittance``): V_j = (1 / S) sum of
+the open relations' transmittances, or their irradiance-weighted sum over
+the sum of every relation's weight (``visibility``). The umbra shortcuts
 of optimization A do not hold for a partly clear blocker, so each relation a
 matte blocker may take is tested once, after the opaque cast; relations in
 an opaque umbra never are.
@@ -38,7 +39,8 @@ from ...jit import kernel
 from .blockers import pad_triangles
 from .culling import light_volumes
 from .geometry import MAXP, box_vs_volume, point_in_volume
-from .light import sample_point
+from .light import receiver_samples
+from .visibility import sample_weights
 
 #: relations traced per Embree batch
 RELATIONS_PER_BATCH = 1 << 18
@@ -75,19 +77,31 @@ def _open_relations(fu, slot, pool, S, count):
 
 
 @kernel(nogil=True)
-def _relation_rays(smp, rec, r0, r1, fu, slot, pool, S, org, dirs, tfar, owner):
+def _relation_rays(smp, rec, r0, r1, fu, slot, pool, S, org, dirs, tfar, owner, wray, wsum):
     """The rays r_j -> l_i of the open relations of receivers [r0, r1), as
     the reference casts them (from the receiver point, float32, to the light
-    sample; a sun's samples are directions); ``owner``: each ray's receiver."""
+    sample; a sun's samples are directions); ``owner``: each ray's receiver.
+    With normals ``rec.N``: each ray's irradiance weight ``wray`` and each
+    receiver's sum of the weights of all its relations ``wsum[r - r0]``."""
+    weighted = rec.N.shape[0] > 0
+    P = np.empty((4, S))
+    wts = np.empty(S if weighted else 0)
     k = 0
     for r in range(r0, r1):
         if fu[r]:
             continue
         px, py, pz = rec.pts[r, 0], rec.pts[r, 1], rec.pts[r, 2]
+        receiver_samples(smp, rec, r, P)
+        if weighted:
+            sample_weights(smp.lp, P, px, py, pz, rec.N[r, 0], rec.N[r, 1], rec.N[r, 2], wts)
+            for i in range(S):
+                wsum[r - r0] += wts[i]
         for i in range(S):
             if slot[r] >= 0 and (pool[slot[r], i >> 6] >> np.uint64(i & 63)) & np.uint64(1):
                 continue
-            x, y, z, w = sample_point(smp, i, r, rec)
+            x, y, z, w = P[0, i], P[1, i], P[2, i], P[3, i]
+            if weighted:
+                wray[k] = wts[i]
             if w != 0.0:
                 dx, dy, dz = x / w - px, y / w - py, z / w - pz
             else:
@@ -104,12 +118,17 @@ def _relation_rays(smp, rec, r0, r1, fu, slot, pool, S, org, dirs, tfar, owner):
 
 def transmitted_visibility(bvh: raycast.TriangleScene, smp, rec, fu, slot, pool, S: int) -> np.ndarray:
     """V per receiver of one chunk (float64): its open relations'
-    transmittance through the matte blockers ``bvh``, summed, over S."""
+    transmittance through the matte blockers ``bvh``, summed, over S; with
+    normals ``rec.N`` weighted, over the sum of all its relations' weights
+    (where that is 0: the average, as ``visibility.chunk_visibility``)."""
     m = len(fu)
+    weighted = len(rec.N) > 0
     count = np.empty(m, np.int64)
     _open_relations(fu, slot, pool, S, count)
     none = raycast.TriangleScene(np.zeros((0, 3, 3), np.float32))
     total = np.zeros(m, np.float64)
+    lit = np.zeros(m if weighted else 0, np.float64)
+    wsum = np.zeros(m, np.float64)
     ends = np.cumsum(count)
     r0 = 0
     while r0 < m:
@@ -122,11 +141,17 @@ def transmitted_visibility(bvh: raycast.TriangleScene, smp, rec, fu, slot, pool,
             dirs = np.empty((n, 3), np.float32)
             tfar = np.empty(n, np.float32)
             owner = np.empty(n, np.int64)
-            _relation_rays(smp, rec, r0, r1, fu, slot, pool, S, org, dirs, tfar, owner)
+            wray = np.empty(n if weighted else 0, np.float64)
+            _relation_rays(smp, rec, r0, r1, fu, slot, pool, S, org, dirs, tfar, owner, wray, wsum[r0:r1])
             trans = alpha_rays.transmittance(none, bvh, org, dirs, tfar)
             total += np.bincount(owner, weights=trans, minlength=m)
+            if weighted:
+                lit += np.bincount(owner, weights=wray * trans, minlength=m)
         r0 = r1
-    return total / S
+    V = total / S
+    if weighted:
+        np.divide(lit, wsum, out=V, where=wsum > 0.0)
+    return V
 
 
 # -- the paper's texture fetch (section 4) -----------------------------------
@@ -227,7 +252,10 @@ def fetch_visibility(smp, rec, fu, slot, pool, S, ptr, lists, mb, mattes, V):
     (1 - alpha) at every matte blocker of ``lists[ptr[r]:ptr[r + 1]]`` the
     segment r_j -> l_i crosses (Laine & Aila section 4: the texture fetch at
     the ray-blocker intersection); more than ``alpha_rays.MAX_CROSSINGS``
-    crossings block it (as ``alpha_rays.transmittance``). Per receiver and
+    crossings block it (as ``alpha_rays.transmittance``). With normals
+    ``rec.N`` the sum is weighted and over the sum of all S weights (where
+    that is 0: the average); a receiver in no matte blocker's V_L keeps
+    ``visibility.chunk_visibility``'s V from ``V`` on entry. Per receiver and
     blocker: the edge functions U_e = (b - r) x (c - r) (linear forms in the
     direction d = l_i - r: U_e . d) and T's plane; per relation three dot
     products per blocker give the test, the barycentrics and t. The test
@@ -241,6 +269,9 @@ def fetch_visibility(smp, rec, fu, slot, pool, S, ptr, lists, mb, mattes, V):
     tr = np.empty(S, np.float32)
     hits = np.empty(S, np.int64)
     hit = np.empty(S, np.uint8)
+    weighted = rec.N.shape[0] > 0
+    P = np.empty((4, S))
+    wts = np.empty(S if weighted else 0)
     pts = rec.pts
     tris = mb.tris
     for r in range(fu.shape[0]):
@@ -250,9 +281,13 @@ def fetch_visibility(smp, rec, fu, slot, pool, S, ptr, lists, mb, mattes, V):
         sl = slot[r]
         a, b = ptr[r], ptr[r + 1]
         if a == b:                       # in no matte blocker's V_L: the opaque V
-            V[r] = _open_count(pool, sl, S) / S
+            if not weighted:
+                V[r] = _open_count(pool, sl, S) / S
             continue
         px, py, pz = pts[r, 0], pts[r, 1], pts[r, 2]
+        receiver_samples(smp, rec, r, P)
+        if weighted:
+            sample_weights(smp.lp, P, px, py, pz, rec.N[r, 0], rec.N[r, 1], rec.N[r, 2], wts)
         for i in range(S):
             hits[i] = 0
             if sl >= 0 and (pool[sl, i >> 6] >> np.uint64(i & 63)) & np.uint64(1):
@@ -260,7 +295,7 @@ def fetch_visibility(smp, rec, fu, slot, pool, S, ptr, lists, mb, mattes, V):
                 dx[i] = dy[i] = dz[i] = tmax[i] = 0.0
                 continue
             tr[i] = 1.0
-            x, y, z, w = sample_point(smp, i, r, rec)
+            x, y, z, w = P[0, i], P[1, i], P[2, i], P[3, i]
             if w != 0.0:
                 dx[i], dy[i], dz[i] = x / w - px, y / w - py, z / w - pz
                 tmax[i] = 1.0 - 1e-6     # the reference's ray length, in units of |d|
@@ -316,6 +351,14 @@ def fetch_visibility(smp, rec, fu, slot, pool, S, ptr, lists, mb, mattes, V):
         for i in range(S):
             total += tr[i]
         V[r] = total / S
+        if weighted:
+            lit = 0.0
+            tot = 0.0
+            for i in range(S):
+                tot += wts[i]
+                lit += wts[i] * tr[i]
+            if tot > 0.0:
+                V[r] = lit / tot
 
 
 def matte_pairs(mb: MatteBlockers, hier, pts, fu, tol):

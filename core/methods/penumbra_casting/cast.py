@@ -74,9 +74,10 @@ them that the solid's other triangles do not: G_k never active for it)."""
 LightGroups = namedtuple("LightGroups", "DVg nvg DEg neg g_start")
 """Bounding polygons Delta_Gk (vertices DVg/nvg, edges DEg/neg) and the bit
 range ``g_start[k]:g_start[k + 1]`` of each group G_k."""
-Receivers = namedtuple("Receivers", "pts set_id pix Pg M")
-"""Receiver points r_j, their sample set, pixel id, G-buffer position and
-(sphere) rotation rows M."""
+Receivers = namedtuple("Receivers", "pts set_id pix Pg M N", defaults=(np.zeros((0, 3)),))
+"""Receiver points r_j, their sample set, pixel id, G-buffer position,
+(sphere) rotation rows M and normals N for the irradiance weights (zero
+rows, the default: none, V is the average; ``visibility``)."""
 Hierarchy = namedtuple("Hierarchy", "perm bb left right start count depth")
 """The receiver hierarchy (``hierarchy.build_hierarchy``)."""
 UmbraBits = namedtuple("UmbraBits", "fu gu node_gu node_fu")
@@ -105,14 +106,6 @@ def _bits_full(pool, sl, a, b):
             return False
         i += n
     return True
-
-
-@inner(forceinline=True)
-def _popcount(x):
-    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
 @inner(forceinline=True)
@@ -274,21 +267,6 @@ def _hidden_behind(tris, k, nb, solids, disks, sid, x, y, z):
         if _through_disk(disks, c, x, y, z, tris[k, j, 0], tris[k, j, 1], tris[k, j, 2]) == 0:
             return False
     return True
-
-
-@kernel(nogil=True)
-def chunk_visibility(fu, slot, pool, S, out):
-    """V = 1 - blocked / S; full umbra (mask released) = 0; no mask = 1."""
-    for r in range(fu.shape[0]):
-        if fu[r]:
-            out[r] = 0.0
-        elif slot[r] < 0:
-            out[r] = 1.0
-        else:
-            c = 0
-            for w in range(pool.shape[1]):
-                c += _popcount(pool[slot[r], w])
-            out[r] = 1.0 - c / S
 
 
 def _make_cast_chunk(variant: str):

@@ -7,7 +7,8 @@ hierarchy, umbra bits and masks, and casts every blocker on a worker thread
 (the kernels release the GIL). A relation's status is a geometric fact, so
 any chunking gives the same bits. Per chunk: build the hierarchy
 (``build_chunk``), cast with the rebuilds of line 29 (``run_chunk``), then
-the visibility and the alpha-matte blockers (``alpha_blockers``).
+the visibility (``visibility``) and the alpha-matte blockers
+(``alpha_blockers``).
 """
 from __future__ import annotations
 
@@ -20,17 +21,17 @@ import numpy as np
 from .alpha_blockers import MatteBlockers, fetch_visibility, matte_pairs, transmitted_visibility
 from .cast import (N_ST, ST_GROUP_TESTS, ST_GROUP_VOLUMES, ST_HARD_BUILT, ST_HARD_TESTS, ST_HIDDEN, ST_HIDDEN_NODES,
                    ST_LEAF_VISITS, ST_LIVE, ST_NODES, ST_PAIRS, ST_PEAK, ST_POINT_TESTS, ST_POINTS, ST_ROOT_CULLED,
-                   ST_SLOTS, ST_UMBRA, Blockers, CastSwitches, Hierarchy, LightGroups, Masks, Receivers, UmbraBits,
-                   chunk_visibility)
+                   ST_SLOTS, ST_UMBRA, Blockers, CastSwitches, Hierarchy, LightGroups, Masks, Receivers, UmbraBits)
 from .hierarchy import build_hierarchy, node_umbra_bits
 from .light import MODE_SPHERE, LightSamples
+from .visibility import chunk_visibility
 
 
 @dataclass
 class Chunk:
     """One chunk's receivers (``rows`` of the setup's, in leaf order after
-    ``build_chunk``), its hierarchy, umbra bits (A), masks (D), counters
-    (``cast.ST_*``), thread times and visibility ``V``."""
+    ``build_chunk``; ``cast.Receivers``' fields), its hierarchy, umbra bits
+    (A), masks (D), counters (``cast.ST_*``), thread times and visibility ``V``."""
 
     rows: np.ndarray
     pts: np.ndarray
@@ -38,6 +39,7 @@ class Chunk:
     pix: np.ndarray
     Pg: np.ndarray
     M: np.ndarray
+    N: np.ndarray
     hier: Hierarchy = None
     fu: np.ndarray = None
     gu: np.ndarray = None
@@ -101,8 +103,10 @@ def chunk_receivers(pts, n_chunks):
 def make_chunks(setup, n_chunks: int) -> List[Chunk]:
     """``setup``'s receivers in about ``n_chunks`` chunks (``chunk_receivers``)."""
     sphere = setup.light.mode == MODE_SPHERE
+    weighted = len(setup.N) > 0
     return [Chunk(rows, np.ascontiguousarray(setup.pts[rows]), setup.set_id[rows].copy(), setup.idx[rows].copy(),
-                  np.ascontiguousarray(setup.Pg[rows]), np.ascontiguousarray(setup.M[rows]) if sphere else setup.M)
+                  np.ascontiguousarray(setup.Pg[rows]), np.ascontiguousarray(setup.M[rows]) if sphere else setup.M,
+                  np.ascontiguousarray(setup.N[rows]) if weighted else setup.N)
             for rows in chunk_receivers(setup.pts, n_chunks)]
 
 
@@ -119,6 +123,8 @@ def build_chunk(c: Chunk, job: CastJob) -> None:
                                             c.pix[perm], np.ascontiguousarray(c.Pg[perm]))
     if job.sphere:
         c.M = np.ascontiguousarray(c.M[perm])
+    if len(c.N):
+        c.N = np.ascontiguousarray(c.N[perm])
     c.hier = c.hier._replace(perm=np.arange(m, dtype=np.int64))
     nn = len(c.hier.left)
     c.hier_nodes_peak = nn
@@ -148,7 +154,7 @@ def run_chunk(c: Chunk, job: CastJob) -> None:
     t_start = time.perf_counter()
     leaf = job.switches.leaf_size
     t0 = 0
-    rec = Receivers(c.pts, c.set_id, c.pix, c.Pg, c.M)
+    rec = Receivers(c.pts, c.set_id, c.pix, c.Pg, c.M, c.N)
     masks = Masks(c.slot, c.pool, c.free)
     while True:
         t0 = job.kernel(t0, job.blk, job.grp, job.smp, rec, c.hier, UmbraBits(c.fu, c.gu, c.node_gu, c.node_fu),
@@ -170,7 +176,7 @@ def run_chunk(c: Chunk, job: CastJob) -> None:
         c.rebuilds += 1
         c.rebuild_s += time.perf_counter() - tr
     c.V = np.empty(len(c.rows))
-    chunk_visibility(c.fu, c.slot, c.pool, job.S, c.V)
+    chunk_visibility(job.smp, rec, c.fu, c.slot, c.pool, job.S, c.V)
     if job.mb is not None:
         ptr, lists = matte_pairs(job.mb, c.hier, c.pts, c.fu, job.switches.tol)
         c.matte_pairs = int(ptr[-1])

@@ -35,7 +35,7 @@ from typing import Optional
 import numpy as np
 
 from ... import sampling
-from ...jit import kernel
+from ...jit import inner, kernel
 from ...sampling import concentric_disk, light_sample, rand01, strata, stratum_uv
 
 MAXV = 16
@@ -304,6 +304,23 @@ def min_rotations(P, centre, w0):
     return M, ang
 
 
+@inner(forceinline=True)
+def _sphere_point(Q, M, centre, j, i, r):
+    """Disk sample ``Q[j, i]`` turned by receiver ``r``'s rotation M[r], around the centre."""
+    qx, qy, qz = Q[j, i, 0], Q[j, i, 1], Q[j, i, 2]
+    return (centre[0] + M[r, 0] * qx + M[r, 1] * qy + M[r, 2] * qz,
+            centre[1] + M[r, 3] * qx + M[r, 4] * qy + M[r, 5] * qz,
+            centre[2] + M[r, 6] * qx + M[r, 7] * qy + M[r, 8] * qz, 1.0)
+
+
+@inner(forceinline=True)
+def _shared_point(lp, seed, pix, s, nx, ny, px, py, pz):
+    """The reference's sample in stratum ``s`` of pixel ``pix`` seen from G-buffer point p."""
+    u, v = stratum_uv(seed, pix, s, nx, ny)
+    x, y, z, is_dir, _ = light_sample(lp, px, py, pz, u, v)
+    return x, y, z, (0.0 if is_dir else 1.0)
+
+
 @kernel(inline="always")   # per relation: a call would cost the tuples' reference counts
 def sample_point(smp, i, r, rec):
     """Homogeneous position of bit ``i`` of receiver ``r``'s light sample set
@@ -313,17 +330,33 @@ def sample_point(smp, i, r, rec):
         j = rec.set_id[r]
         return SP[j, i, 0], SP[j, i, 1], SP[j, i, 2], SP[j, i, 3]
     if smp.mode == MODE_SPHERE:
+        return _sphere_point(smp.Q, rec.M, smp.centre, rec.set_id[r], i, r)
+    Pg = rec.Pg
+    return _shared_point(smp.lp, smp.seed, rec.pix[r], smp.bit2s[i], smp.nx, smp.ny, Pg[r, 0], Pg[r, 1], Pg[r, 2])
+
+
+@inner
+def receiver_samples(smp, rec, r, P):
+    """``sample_point`` of every bit of receiver ``r`` into P (float64[4, S]:
+    rows x, y, z, w), the tables taken out of the tuples once, not per bit."""
+    S = P.shape[1]
+    if smp.mode == MODE_FIXED:
+        SP = smp.SP
+        j = rec.set_id[r]
+        for i in range(S):
+            for a in range(4):
+                P[a, i] = SP[j, i, a]
+    elif smp.mode == MODE_SPHERE:
         Q, M, centre = smp.Q, rec.M, smp.centre
         j = rec.set_id[r]
-        qx, qy, qz = Q[j, i, 0], Q[j, i, 1], Q[j, i, 2]
-        return (centre[0] + M[r, 0] * qx + M[r, 1] * qy + M[r, 2] * qz,
-                centre[1] + M[r, 3] * qx + M[r, 4] * qy + M[r, 5] * qz,
-                centre[2] + M[r, 6] * qx + M[r, 7] * qy + M[r, 8] * qz, 1.0)
-    Pg = rec.Pg
-    s = smp.bit2s[i]
-    u, v = stratum_uv(smp.seed, rec.pix[r], s, smp.nx, smp.ny)
-    x, y, z, is_dir, _ = light_sample(smp.lp, Pg[r, 0], Pg[r, 1], Pg[r, 2], u, v)
-    return x, y, z, (0.0 if is_dir else 1.0)
+        for i in range(S):
+            P[0, i], P[1, i], P[2, i], P[3, i] = _sphere_point(Q, M, centre, j, i, r)
+    else:
+        lp, bit2s, pix = smp.lp, smp.bit2s, rec.pix[r]
+        px, py, pz = rec.Pg[r, 0], rec.Pg[r, 1], rec.Pg[r, 2]
+        for i in range(S):
+            P[0, i], P[1, i], P[2, i], P[3, i] = _shared_point(lp, smp.seed, pix, bit2s[i], smp.nx, smp.ny,
+                                                               px, py, pz)
 
 
 @kernel
@@ -331,14 +364,12 @@ def all_sample_points(smp, rows, S, rec):
     """float64[len(rows), S, 4]: every sample of the given receivers, bit order
     (smp: LightSamples; rec: cast.Receivers)."""
     out = np.empty((rows.shape[0], S, 4))
+    P = np.empty((4, S))
     for k in range(rows.shape[0]):
-        r = rows[k]
+        receiver_samples(smp, rec, rows[k], P)
         for i in range(S):
-            x, y, z, w = sample_point(smp, i, r, rec)
-            out[k, i, 0] = x
-            out[k, i, 1] = y
-            out[k, i, 2] = z
-            out[k, i, 3] = w
+            for a in range(4):
+                out[k, i, a] = P[a, i]
     return out
 
 

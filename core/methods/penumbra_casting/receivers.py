@@ -5,7 +5,8 @@ The receivers r_j are the camera G-buffer hits, moved off their surface
 exactly like the ``embree`` reference's ray origins
 (``sampling.offset_points``); each gets its light sample set by a hash of
 its pixel (section 3.4) and, for a sphere light, its disk rotation
-(``light.min_rotations``). The tolerances scale with the scene's extent.
+(``light.min_rotations``); for the irradiance ratio they keep their normals
+(``visibility``). The tolerances scale with the scene's extent.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ... import sampling
+from ..base import IRRADIANCE
 from .cast import Receivers
 from .light import MODE_SPHERE, LightSamples, LightSetup, all_sample_points, assign_sets, light_setup, min_rotations
 
@@ -30,6 +32,7 @@ class Setup:
     pts: np.ndarray          # receiver points r_j (the reference's ray origins)
     set_id: np.ndarray       # light sample set of each receiver
     M: np.ndarray            # sphere light: each receiver's disk rotation (row-major 3x3)
+    N: np.ndarray            # normals for the irradiance weights (zero rows: the average)
     light: LightSetup
     seed: int
     tol: float               # slack of the culling tests (scene units)
@@ -40,7 +43,7 @@ class Setup:
         return LightSamples(L.mode, L.SP, L.Q, L.centre, L.lp, self.seed, L.bit2s, L.nx, L.ny)
 
     def receivers(self) -> Receivers:
-        return Receivers(self.pts, self.set_id, self.idx, self.Pg, self.M)
+        return Receivers(self.pts, self.set_id, self.idx, self.Pg, self.M, self.N)
 
     def sample_points(self, rows) -> np.ndarray:
         rows = np.ascontiguousarray(rows, np.int64)
@@ -65,4 +68,5 @@ def prepare(buffers, light, params) -> Setup:
     else:
         M = np.zeros((1, 9))
     set_id = assign_sets(g.seed_ids(idx), L.nsets, seed) if L.nsets > 1 else np.zeros(len(idx), np.int64)
-    return Setup(idx, Pg, pts, set_id, M, L, seed, tol, eps)
+    N = Nrm if params.visibility == IRRADIANCE else np.zeros((0, 3))
+    return Setup(idx, Pg, pts, set_id, M, N, L, seed, tol, eps)

@@ -1,8 +1,8 @@
 """Single sample soft shadows (Brabec & Seidel 2002), method id ``single_sample``.
 
-The pass ``single_sample`` (AVERAGE-like: plausible, not physical) from one
-depth and object-id map seen from the light's centre (``LIGHT_VIEW``: cube
-faces for point lights, orthographic for a sun) and the camera G-buffer.
+The pass ``single_sample`` (plausible, not physical) from one depth and
+object-id map seen from the light's centre (``LIGHT_VIEW``: cube faces for
+point lights, orthographic for a sun) and the camera G-buffer.
 
 Parameters (``SingleSampleParams``), name = default: meaning
   blocker = "sum"      the light every blocker texel hides, added up | "nearest"
@@ -15,11 +15,11 @@ Parameters (``SingleSampleParams``), name = default: meaning
   max_radius = 64.0    search box half size cap, texels per 256 texels of map side
   jitter, seed = 0.0, 0  4.3's blocker texel jitter (texels) and its hash seed
   edge_distance = True r to the texel's square rather than to its centre
-  layer = "constant"   3.2's layer P'_z | "plane": the receiver's tangent plane,
-                       which a tilted receiver never crosses, even without ids
+  layer = "constant"   3.2's layer P'_z | "plane": the receiver's tangent plane
   id_test = True       blockers carry another id than the receiver (3.2)
   bias_texels = 0.5    hard-test tolerance, texels of receiver slope + texel size
   map_size = None      the light map's larger side (``views.default_map_size``)
+  visibility = "irradiance"  the pass: the irradiance ratio | "average" (eq. 2)
 
 Algorithm. Each pixel is warped into the light view at float precision and
 hard-tested (3.2, 4.3 "subpixel accuracy"; ``warp``). A lit pixel searches
@@ -28,17 +28,16 @@ shadowed one for the nearest lit texel of its own id (3.3): the box around
 P' in square rings until no nearer texel can exist (4.2; ``search``), 8 x 8
 depth-range tiles passing over texels that cannot qualify (``tiles``). With
 3.2's f = r / r_max: outer V = meet + (1 - meet) clamp(f), inner V = meet
-(1 - clamp(f)); a failed search gives 1 / 0 (3.3). ``adaptive`` (4.3): hard
-test and id on every pixel; groups of block + 1 pixels along every block-th
-column, then every row, searched at their ends, interpolated inside where
-hard results and ids agree, else split at the middle. A light of size zero
-gives exactly the hard test; pixels outside the light view get V = 1.
+(1 - clamp(f)); a failed search gives 1 / 0 (3.3). ``adaptive`` (4.3): groups
+of block + 1 pixels along every block-th column, then every row, searched at
+their ends, interpolated inside where hard results and ids agree, else split.
+A light of size zero gives the hard test; outside the light view V = 1.
 
 Departures from the paper
 * 3.3's listing returns 0.5 f (inner) and 1 - 0.5 f (outer): 1 next to a
-  blocker, a jump at r_max. The formulas above are 3.2's f folded at
-  ``meet``; the inner rescale uses the blocker over P, not the lit texel
-  (3.2: "the distance between occluder and receiver").
+  blocker, a jump at r_max; above, 3.2's f folded at ``meet``; the inner
+  rescale uses the blocker over P (3.2: "the distance between occluder and
+  receiver").
 * auto_radius (section 6's future work): a blocker texel at depth z_b hides
   light iff its offset lies in the light's shape (area rectangle / ellipse,
   the disk facing P, a sun's cone) scaled by s(z_b) = 1/z_b - 1/P'_z
@@ -52,13 +51,18 @@ Departures from the paper
   paper's: surfaces="object" (section 5 groups polygons by scene node).
 * horizon: the id test leaves a surface turned partly away from the light
   fully lit; V x ``horizon.horizon_share``. The paper's: horizon=False.
-* edge_distance: r to the texel's square reaches ``meet`` at the hard edge;
-  figure 4's centre distance leaves section 5's "ring" there. The paper's:
-  edge_distance=False.
+* visibility="irradiance": the light below the receiver's plane weighs
+  nothing (cos_r = 0): no horizon share; with the sum, a part of the light a
+  blocker hides weighs the emission towards the receiver at its centre
+  (``weight``: cos_l / d^2). cos_r is left out otherwise: the map misses
+  blockers near the receiver's plane, to which cos_r would leave V. The
+  paper's: visibility="average".
+* edge_distance: r to the texel's square reaches ``meet`` at the hard edge
+  (figure 4's centre distance leaves 5's "ring"). The paper's: False.
 * adaptive=None searches every pixel for the sum, whose V is not linear
   between a group's ends. The paper's: adaptive=True.
-* bias_texels: a slope-scaled hard-test tolerance in the map's own texels;
-  the listing compares depths directly. The paper's: bias_texels=0.
+* bias_texels: a slope-scaled hard-test tolerance in the map's texels (the
+  listing compares depths directly). The paper's: bias_texels=0.
 """
 from __future__ import annotations
 
@@ -67,7 +71,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..base import AVERAGE, GBUFFER, LIGHT_VIEW, MESH_PIECES, Method, MethodResult, PhaseTimer
+from ..base import AVERAGE, IRRADIANCE, GBUFFER, LIGHT_VIEW, MESH_PIECES, Method, MethodResult, PhaseTimer
 from ..horizon import scale_by_horizon
 from ..registry import register
 from .adaptive import _marks, adaptive_walk
@@ -98,6 +102,7 @@ class SingleSampleParams:
     map_size: Optional[int] = None  # light map's larger side; None = views.default_map_size
     seed: int = 0                 # jitter hash seed
 
+    visibility: str = "irradiance"   # the pass: "irradiance" (the ratio that composites, eq. 1) | "average" (eq. 2)
 
 def resolved_adaptive(params: SingleSampleParams) -> bool:
     """``adaptive``, or when None: on for the paper's ramp, off for
@@ -110,17 +115,19 @@ def resolved_adaptive(params: SingleSampleParams) -> bool:
 
 
 def face_info(lv, light) -> np.ndarray:
-    """Per face: the area light's half axes in view coordinates (6) and the
-    nearest finite depth in the face (the nearest possible blocker)."""
+    """Per face: the area light's half axes in view coordinates (6), the
+    nearest finite depth in the face (the nearest possible blocker; 7th), and
+    the light's Z axis in view coordinates (8:11, ``weight``)."""
     F = len(lv.faces)
-    out = np.zeros((F, 8), np.float64)
-    ax, ay, _ = light.axes
+    out = np.zeros((F, 11), np.float64)
+    ax, ay, az = light.axes
     hx, hy = light.half_size
     for k, face in enumerate(lv.faces):
         R = np.asarray(face.view_from_world, np.float64)[:3, :3]
         if light.kind == "area":
             out[k, 0:3] = R @ ax * hx
             out[k, 3:6] = R @ ay * hy
+        out[k, 8:11] = R @ az
         d = lv.depth[k]
         fin = d[np.isfinite(d)]
         out[k, 6] = float(fin.min()) if fin.size else np.inf
@@ -203,7 +210,7 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
         with timer("interpolate"):
             adaptive_walk(hface, hinner, hid, need, out, H, W, colmarks, rowmarks, True)
         stats["searched"] = int(len(sel))
-    if params.horizon and prm[P_HARD] == 0.0:
+    if params.horizon and prm[P_HARD] == 0.0 and params.visibility != IRRADIANCE:   # (module doc)
         with timer("horizon"):
             scale_by_horizon(light, P, Nrm, hit, out)
     out[~np.isfinite(out)] = 1.0
@@ -226,7 +233,7 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
 class SingleSampleSoftShadows(Method):
     id = "single_sample"
     paper = "Brabec, Seidel 2002"
-    passes = {"single_sample": AVERAGE}
+    passes = {"single_sample": IRRADIANCE}
     needs = frozenset({GBUFFER, LIGHT_VIEW, MESH_PIECES})
     packed = True                # shades each receiver of a packed G-buffer on its own
     #: the Preview: the paper's nearest blocker on object ids, section 4.3's adaptive

@@ -9,6 +9,7 @@ from ...jit import inner
 from .gauge import _s_of
 from .layer import _nearer
 from .packed import NORM_MAX
+from .weight import bilinear_sum, part_weight
 
 
 COVER_GRID = 8   # blocker="sum": light points per side probing the box's share of the light
@@ -30,8 +31,27 @@ def _overlap_radial(r, hw):
     return min(max((1.0 - (r - hw)) / (2.0 * hw), 0.0), 1.0)
 
 
+@inner(forceinline=True)
+def _part_centre(c, hw):
+    """Centre of the part of [c - hw, c + hw] inside [-1, 1] (``c`` where
+    they do not meet)."""
+    lo, hi = max(c - hw, -1.0), min(c + hw, 1.0)
+    return 0.5 * (lo + hi) if hi > lo else c
+
+
+@inner(forceinline=True)
+def _part_centre_radial(x, y, hw):
+    """(x, y) moved along its radius r to the middle of the part of
+    [r - hw, r + hw] inside the unit disk's radius."""
+    r = math.sqrt(x * x + y * y)
+    if not (r + hw > 1.0) or not (r > 0.0):
+        return x, y
+    rc = 0.5 * (max(r - hw, 0.0) + 1.0) if r - hw < 1.0 else 1.0
+    return x * (rc / r), y * (rc / r)
+
+
 @inner
-def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, crad, use_id):
+def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, crad, use_id, irr, wf):
     """``blocker="sum"`` (not in the paper; section 3.4's one-blocker ramp
     cannot add up several blockers): the fraction of the light hidden by the
     blocker texels of the box, added up. A texel at depth z_b and offset d
@@ -45,7 +65,10 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
     the blockers' mean s) falls outside the scanned box (the map's border,
     ``max_radius``), the sum is divided by the part inside (``COVER_GRID``^2
     light points): the unseen part is taken to be blocked like the seen one.
-    Returns (fraction, texels read)."""
+    ``irr`` (visibility="irradiance"): each part counts by the light's
+    emission towards the receiver at its centre (``weight.part_weight`` on
+    ``wf``) over the light's mean emission at those points, and the box's
+    share is theirs weighted. Returns (fraction, texels read)."""
     A, B, C, ortho, tol = layer.A, layer.B, layer.C, layer.ortho, layer.tol
     h, w = depth_f.shape
     iu = int(math.floor(u))
@@ -58,6 +81,7 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
     area = 4.0 if norm == NORM_MAX else math.pi
     acc = 0.0
     sw = 0.0
+    m0, mx, my, mxy = 0.0, 0.0, 0.0, 0.0     # irr: the parts' moments (the bilinear weight's sum)
     nvis = 0
     for t in range(max(iv - crad, 0), min(iv + crad, h - 1) + 1):
         for s in range(max(iu - crad, 0), min(iu + crad, w - 1) + 1):
@@ -83,6 +107,15 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
                 wt = part * det / (sc * sc * area)
                 acc += wt
                 sw += wt * sc
+                if irr:
+                    if norm == NORM_MAX:
+                        xc, yc = _part_centre(x, hx / sc), _part_centre(y, hy / sc)
+                    else:
+                        xc, yc = _part_centre_radial(x, y, hr / sc)
+                    m0 += wt
+                    mx += wt * xc
+                    my += wt * yc
+                    mxy += wt * xc * yc
     if not (acc > 0.0):
         return 0.0, nvis
     # the part of the light whose back-projection at the mean s lies in the box
@@ -92,6 +125,8 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
     t0, t1 = max(iv - crad, 0), min(iv + crad, h - 1) + 1
     n_ball = 0
     n_in = 0
+    w_ball = 0.0
+    w_in = 0.0
     for a in range(COVER_GRID):
         ya = -1.0 + (2 * a + 1.0) / COVER_GRID
         for b in range(COVER_GRID):
@@ -99,10 +134,17 @@ def _coverage(depth_f, id_f, u, v, zr, pid, layer, G00, G01, G10, G11, norm, cra
             if norm != NORM_MAX and ya * ya + yb * yb > 1.0:
                 continue
             n_ball += 1
+            wg = part_weight(wf, ya, yb) if irr else 0.0
+            w_ball += wg
             su = u + s_ref * (n00 * ya + n01 * yb)
             sv = v + s_ref * (n10 * ya + n11 * yb)
             if su >= s0 and su < s1 and sv >= t0 and sv < t1:
                 n_in += 1
+                w_in += wg
+    accw = bilinear_sum(wf, m0, mx, my, mxy) if irr else 0.0
+    if irr and w_ball > 0.0:
+        # sum of (area share x weight) over the light's mean weight, over the box's weighted share
+        return min(accw * n_ball / (w_in if w_in > 0.0 else w_ball), 1.0), nvis
     if n_in == 0:
         return min(acc, 1.0), nvis
     return min(acc * n_ball / n_in, 1.0), nvis

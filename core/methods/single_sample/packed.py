@@ -7,12 +7,14 @@ import math
 
 import numpy as np
 
+from ..base import IRRADIANCE
+
 
 # packed parameter layout for the kernels
 (P_AUTO, P_MEET, P_RSCALE, P_RBIAS, P_RSHRINK, P_MAXRAD, P_JITTER, P_EDGE, P_PLANE, P_IDTEST,
  P_BIAS, P_SEED, P_KIND, P_RADIUS, P_SUNTAN, P_NORM, P_HARD, P_TOLREL, P_TOLABS,
- P_GSCALE, P_SUM) = range(21)
-N_PRM = 21
+ P_GSCALE, P_SUM, P_IRR) = range(22)
+N_PRM = 22
 # relative float32 precision allowance of stored depths (Embree hit distances
 # are float32; a few ULPs of the depth and of the largest coordinate)
 TOL_REL = 4e-6
@@ -43,6 +45,7 @@ def pack_params(params, light, hard_only: bool, coord_mag: float) -> np.ndarray:
     prm[P_BIAS] = max(float(params.bias_texels), 0.0)
     add_up = params.blocker == "sum" and params.auto_radius   # the light's real shape
     prm[P_SUM] = 1.0 if add_up else 0.0
+    prm[P_IRR] = 1.0 if add_up and params.visibility == IRRADIANCE else 0.0   # ``coverage``'s weights
     prm[P_SEED] = float(int(params.seed) & 0x7FFFFFFF)
     prm[P_KIND] = light.kind_code
     prm[P_RADIUS] = float(light.radius)

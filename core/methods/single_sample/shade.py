@@ -6,13 +6,14 @@ import math
 from ...jit import HOT, inner, kernel
 from ...kernels import borrowed, each_dealt_chunk, each_range
 from .coverage import _coverage
-from .gauge import Gauge, _s_of, _shape
+from .gauge import Gauge, _light_axes, _s_of, _shape
 from .layer import Layer, _layer_range
-from .packed import (NORM_EUCLID, P_AUTO, P_HARD, P_IDTEST, P_JITTER, P_MAXRAD, P_MEET, P_NORM, P_PLANE, P_RBIAS,
-                     P_RSCALE, P_RSHRINK, P_SUM)
+from .packed import (NORM_EUCLID, P_AUTO, P_HARD, P_IDTEST, P_IRR, P_JITTER, P_MAXRAD, P_MEET, P_NORM, P_PLANE,
+                     P_RBIAS, P_RSCALE, P_RSHRINK, P_SUM)
 from .search import SearchPoint, _search
 from .tiles import _tile_range
 from .warp import _warp, _warp_inline
+from .weight import NO_WEIGHTS, corner_weights
 
 
 @inner
@@ -74,8 +75,14 @@ def _shade(P, Nrm, pid_arr, i, faces, finfo, depth, ids, tiles, in_map, prm):
                     return 1.0, 0.0, 0
     if add_up:
         crad = int(math.ceil(min(rho_max * emax + off, maxrad)))
+        irr = prm[P_IRR] == 1.0
+        if irr:
+            a1x, a1y, a1z, a2x, a2y, a2z = _light_axes(prm, finfo[f], fp, pvx, pvy, pvz)
+            wf = corner_weights(prm, finfo[f], pvx, pvy, pvz, a1x, a1y, a1z, a2x, a2y, a2z)
+        else:
+            wf = NO_WEIGHTS
         cov, nvis = _coverage(depth[f], ids[f], u, v, zr, pid, Layer(A, B, C, ortho, tol),
-                              G00, G01, G10, G11, norm, crad, prm[P_IDTEST] == 1.0)
+                              G00, G01, G10, G11, norm, crad, prm[P_IDTEST] == 1.0, irr, wf)
         return 1.0 - cov, rho_max * emax + off, nvis
     rtex = rho_max * emax
     crad = int(math.ceil(min(rtex + off, maxrad)))

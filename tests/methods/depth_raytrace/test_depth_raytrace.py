@@ -47,7 +47,9 @@ def run_embree(fb, light, samples):
 # registration and the frame pipeline
 def test_registered_with_both_passes():
     m = producer_of("depth_raytrace")
-    assert m.passes == {"depth_raytrace": "average", "depth_raytrace_irr": "irradiance"}
+    assert m.passes == {"depth_raytrace": "irradiance", "depth_raytrace_irr": "irradiance"}
+    assert m.visibility("depth_raytrace", m.make_params({"visibility": "average"})) == "average"
+    assert m.visibility("depth_raytrace_irr", m.make_params({"visibility": "average"})) == "irradiance"
     assert producer_of("depth_raytrace_irr") is m
     assert m.physical
     p = m.make_params({"samples": 64, "seed": 3})
@@ -57,7 +59,7 @@ def test_registered_with_both_passes():
 def test_render_frame_records_error_against_reference():
     scene = half_plane_scene(area_light(1.0), res=32)
     res = render_frame(scene, ["embree", "embree_irr", "depth_raytrace", "depth_raytrace_irr"],
-                       overrides={"samples": 16})
+                       overrides={"samples": 16, "visibility": "average"})
     rec = res.lights[0].record
     assert rec["depth_raytrace"]["error"]["reference"] == "embree"
     assert rec["depth_raytrace_irr"]["error"]["reference"] == "embree_irr"
@@ -156,7 +158,7 @@ def sample_runs():
         light = scene.lights[0]
         e = run_embree(fb, light, 256)
         m = producer_of("depth_raytrace")
-        over = {"samples": 256}
+        over = {"samples": 256, "visibility": "average"}      # the paper's pass beside the irradiance ratio
         if ms:
             over["map_size"] = ms
         maps = m.build_maps(fb, light, m.make_params(over))
@@ -165,6 +167,17 @@ def sample_runs():
         out[name] = dict(fb=fb, light=light, embree=e, coh=coh, nocoh=nocoh,
                          mask=reach_mask(fb.gbuffer, light))
     return out
+
+
+def test_default_pass_is_the_irradiance_ratio():
+    scene = half_plane_scene(area_light(1.0), res=24)
+    res = render_frame(scene, ["embree_irr", "depth_raytrace", "depth_raytrace_irr"], overrides={"samples": 16})
+    lr = res.lights[0]
+    assert np.array_equal(lr.passes["depth_raytrace"], lr.passes["depth_raytrace_irr"])
+    assert lr.record["depth_raytrace"]["visibility"] == "irradiance"
+    assert lr.record["depth_raytrace"]["error"]["reference"] == "embree_irr"
+    avg = render_frame(scene, ["depth_raytrace"], overrides={"samples": 16, "visibility": "average"}).lights[0]
+    assert not np.array_equal(avg.passes["depth_raytrace"], lr.passes["depth_raytrace"])
 
 
 @pytest.mark.parametrize("name", list(SAMPLE_CASES))
@@ -205,7 +218,7 @@ def test_coherent_sampler_driving_embree():
     scene = load_sample("sphere_plane", (64, 64))
     fb = FrameBuffers(scene, 64, 64)
     light = scene.lights[0]
-    e = embree_pass(fb, light, 256)
+    e = embree_pass(fb, light, 256, pass_id="embree_irr")
     mask = reach_mask(fb.gbuffer, light)
     coh, _ = run(scene, fb, samples=256, tracer="embree")
     plain, _ = run(scene, fb, samples=256, tracer="embree", coherence=False)

@@ -114,3 +114,30 @@ def test_values_finite_and_in_range():
     r = run_embree(scene, samples=32)
     for v in r.passes.values():
         assert in_range(v)
+
+
+@pytest.mark.parametrize("shape", ["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"])
+def test_unshadowed_irradiance_of_an_area_light_is_the_reference_weights_mean(shape):
+    """E0 of an area light in closed form (Lambert's form factor of the part
+    of the light above the tangent plane, 0 behind its emitting side) is the
+    mean of the reference's own weights cos cos / d^2 over the light, as
+    many light samples give it (random receivers around, under and behind
+    the light, grazing ones among them)."""
+    from penumbra.core import sampling
+    from penumbra.core.methods import embree_ref as er
+    from synthetic import area_light
+    rng = np.random.default_rng(7)
+    n = 300
+    light = area_light(size=1.5, size_y=0.7, shape=shape, z=2.0)
+    P = np.c_[rng.uniform(-3, 3, n), rng.uniform(-3, 3, n), rng.uniform(-0.5, 2.5, n)]
+    N = rng.normal(size=(n, 3))
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    pix = np.arange(n, dtype=np.int64)
+    mc = np.zeros(n)
+    er.unshadowed_range(0, n, P, N, pix, sampling.pack_light(light), 16384, 0, 1.0, mc)
+    exact = er.unshadowed_irradiance(P, N, pix, light, 16, 0, 1.0)
+    assert (mc == 0).sum() > 20 and (exact[mc == 0] < 1e-3 * mc.max()).all()   # behind it, below the horizon
+    assert (mc[exact == 0] < 1e-3 * mc.max()).all()
+    lit = mc > 1e-3 * mc.max()
+    assert np.median(np.abs(exact[lit] / mc[lit] - 1.0)) < 2e-4
+    assert np.abs(exact - mc).max() < (0.05 if shape == "DISK" else 2e-3) * mc.max()

@@ -13,6 +13,7 @@ from penumbra.core.methods.pcf.receiver import DEPTH_REL_EPS, NO_PLANE, _receive
 from penumbra.core.methods.pcf.samples import sample_shadow
 from penumbra.core.methods.pcf.tiles import (TILE, _texel_box, region_decided, tile_minmax, tile_planes, tile_range,
                                             tile_tables)
+from penumbra.core.methods.pcf.weight import NO_WEIGHTS
 
 from helpers import buffers_of
 from synthetic import area_light, half_plane_scene, make_scene, persp_camera, quad, sphere_light, sun_light
@@ -25,9 +26,9 @@ def test_region_outside_map_bbox_is_lit():
     depth[2:4, 2:4] = 1.0
     bbox = finite_bbox(depth[None])[0]
     assert list(bbox) == [2, 3, 2, 3]
-    assert sample_shadow(depth, bbox, 6.5, 6.5, 5.0, 0.5, 0.5, 16, 1, 0.0, 0.0, 0, 0, NO_PLANE) == 0.0
-    assert sample_shadow(depth, bbox, 3.0, 3.0, -1.0, 1.0, 1.0, 16, 1, 0.0, 0.0, 0, 0, NO_PLANE) == 0.0
-    assert sample_shadow(depth, bbox, 3.0, 3.0, 5.0, 0.9, 0.9, 16, 1, 0.0, 0.0, 0, 0, NO_PLANE) == 1.0
+    assert sample_shadow(depth, bbox, 6.5, 6.5, 5.0, 0.5, 0.5, 16, 1, 0.0, 0.0, 0, 0, NO_PLANE, NO_WEIGHTS) == 0.0
+    assert sample_shadow(depth, bbox, 3.0, 3.0, -1.0, 1.0, 1.0, 16, 1, 0.0, 0.0, 0, 0, NO_PLANE, NO_WEIGHTS) == 0.0
+    assert sample_shadow(depth, bbox, 3.0, 3.0, 5.0, 0.9, 0.9, 16, 1, 0.0, 0.0, 0, 0, NO_PLANE, NO_WEIGHTS) == 1.0
 
 
 def test_sample_counts_follow_figure_4():
@@ -37,9 +38,9 @@ def test_sample_counts_follow_figure_4():
     bbox = np.array([0, 63, 0, 63])
     # half the map in shadow: fraction is a multiple of 1/(ns nt)
     depth[:, 32:] = 10.0
-    f = sample_shadow(depth, bbox, 32.0, 32.0, 5.0, 16.0, 16.0, 16, 2, 0.0, 0.0, 0, 0, NO_PLANE)
+    f = sample_shadow(depth, bbox, 32.0, 32.0, 5.0, 16.0, 16.0, 16, 2, 0.0, 0.0, 0, 0, NO_PLANE, NO_WEIGHTS)
     assert f == pytest.approx(0.5)
-    f1 = sample_shadow(depth, bbox, 20.0, 20.0, 5.0, 0.0, 0.0, 16, 3, 0.0, 0.0, 0, 0, NO_PLANE)
+    f1 = sample_shadow(depth, bbox, 20.0, 20.0, 5.0, 0.0, 0.0, 16, 3, 0.0, 0.0, 0, 0, NO_PLANE, NO_WEIGHTS)
     assert f1 == 1.0
 
 

@@ -18,8 +18,11 @@ FIELDS = frozenset(producer_of("single_sample").Params.__dataclass_fields__)
 
 def run_ss(scene, fb=None, light=None, **params):
     """(V, MethodResult, buffers) of ``single_sample`` on ``scene`` (its
-    first light unless ``light``); every name in ``params`` must be a field."""
+    first light unless ``light``); every name in ``params`` must be a field.
+    The average pass (equation 2: the closed forms and the ``embree``
+    reference of the tests) unless ``visibility`` is given."""
     assert set(params) <= FIELDS, set(params) - FIELDS
+    params.setdefault("visibility", "average")
     fb = fb or buffers_of(scene)
     r = run_method("single_sample", fb, light or scene.lights[0], **params)
     return r.passes["single_sample"], r, fb

@@ -16,7 +16,8 @@ from synthetic import area_light, half_plane_scene, sphere_light, sun_light
 def test_registered_with_its_pass():
     assert "single_sample" in pass_ids()
     m = producer_of("single_sample")
-    assert m.passes == {"single_sample": "average"}
+    assert m.passes == {"single_sample": "irradiance"}
+    assert m.visibility("single_sample", m.make_params({"visibility": "average"})) == "average"
     assert {"gbuffer", "light_view"} <= set(m.needs)
 
 
