@@ -42,7 +42,7 @@ from .scene import GBuffer, Scene
 from .compile_ahead import frame_keys, prefetch
 from .warmup import ensure_filter_compiled
 
-E0_SAMPLES = 64      # light samples per sub-pixel receiver for its unshadowed irradiance
+E0_SAMPLES = 16      # stratified light samples per sub-pixel receiver for its unshadowed irradiance (E0)
 
 
 def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
@@ -82,7 +82,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     # each unit's footprints (the geometry's and its passes' V); the coverage's are those
     # of the pixels beside a change of hit, which every unit refines on the full grid (the
     # geometry's own when there is no unit)
-    masks = [_refined(flt, g, [lr.passes[pid] for pid in pids], taps.size > 0) for lr, _, pids in units]
+    masks = [_refined(flt, g, [lr.computed[q] for q in method_registry.producers()[prod].passes], taps.size > 0)
+             for lr, prod, pids in units]
     if not units:
         masks = [_refined(flt, g, [], taps.size > 0)]
     flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
@@ -104,20 +105,34 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
         t1 = time.perf_counter()
         at = np.searchsorted(union, flat[i])      # the unit's samples in the traced union
         g_u = sub_g if len(at) == len(union) else _take(sub_g, at)    # the whole union: itself
-        sub_lr, sub_s = None, 0.0
-        if len(at):
-            gb = g_u if method_registry.producers()[prod].packed else raycast.unpack_gbuffer(g_u, SW, SH)
-            t2 = time.perf_counter()
-            sub = render_frame(sub_scene, pids, [lr.name], overrides, method_overrides,
-                               buffers=buffers.supersampled(sub_scene, SW, SH, gb, tg * len(at) / len(union)))
-            sub_s = time.perf_counter() - t2
-            sub_lr = sub.lights[0] if sub.lights else None
-        refine = masks[i][0]
+        refine, full = masks[i]
         rows, cols = samples[i]
+        sub_v, sub_t = {}, {}
+        t2 = time.perf_counter()
+        if len(at):
+            m = method_registry.producers()[prod]
+            on_full = full[rows // s, cols // s]     # a sub-sample's own pixel is on the full grid
+            groups = [(np.flatnonzero(on_full), _shared(m, overrides, method_overrides, s * s)),
+                      (np.flatnonzero(~on_full), _shared(m, overrides, method_overrides, flt.shade_grid ** 2))]
+            if groups[0][1] == groups[1][1]:           # one run over every sub-sample
+                groups = [(np.arange(len(at)), groups[0][1])]
+            for part, mo in groups:
+                if not len(part):
+                    continue
+                g_p = g_u if len(part) == len(at) else _take(g_u, part)
+                gb = g_p if m.packed else raycast.unpack_gbuffer(g_p, SW, SH)
+                sub = render_frame(sub_scene, pids, [lr.name], overrides, mo,
+                                   buffers=buffers.supersampled(sub_scene, SW, SH, gb, tg * len(part) / len(union)))
+                for pid in (sub.lights[0].passes if sub.lights else ()):
+                    v = sub.lights[0].passes[pid]
+                    v = v.reshape(-1) if m.packed else v[rows[part], cols[part]]
+                    sub_v.setdefault(pid, np.ones(len(at), np.float32))[part] = v
+                    sub_t[pid] = sub_t.get(pid, 0.0) + sub.lights[0].record[pid]["time_s"]["total"]
+        sub_s = time.perf_counter() - t2
         stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
                  "subpixel_receivers": int(g_u.hit.sum())}
         own_s = setup_s / len(units) + time.perf_counter() - t1 - sub_s
-        _resolve_unit(scene, flt, lr, pids, sub_lr, g_u, buffers, refine, rows, cols, stats, own_s)
+        _resolve_unit(scene, flt, lr, pids, sub_v, sub_t, g_u, buffers, refine, rows, cols, stats, own_s)
     for lr in base.lights:
         _errors(lr, buffers.reach(scene.light(lr.name)))   # the pixel-centre stage's mask, as its errors used
     rows, cols = samples[0]
@@ -178,13 +193,23 @@ def _take(g: GBuffer, at: np.ndarray) -> GBuffer:
                    pixel=g.pixel[at])
 
 
-def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_lr, sub_g: GBuffer, buffers: FrameBuffers,
+def _shared(m, overrides, method_overrides, share: int):
+    """``method_overrides`` with producer ``m``'s light samples shared among
+    the ``share`` sub-pixel receivers of a pixel (``Method.subpixel_overrides``):
+    a pixel's receivers together take about the light samples one pixel-centre
+    receiver does, as a renderer draws pixel position and light sample jointly."""
+    own = dict((method_overrides or {}).get(m.id, {}))
+    own.update(m.subpixel_overrides(m.make_params({**(overrides or {}), **own}), share))
+    return {**(method_overrides or {}), m.id: own}
+
+
+def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_v, sub_t, sub_g: GBuffer, buffers: FrameBuffers,
                   refine: np.ndarray, rows: np.ndarray, cols: np.ndarray, stats: Dict[str, int],
                   own_s: float) -> None:
     """Filter light ``lr``'s passes ``pids`` (one producer's) in place from
-    the sub-pixel stage ``sub_lr`` (packed passes at ``sub_g``, or
-    supersampled images read at the sub-samples (rows, cols); None: nothing
-    to refine); record the filter, the sub-pixel sample counts and the
+    the sub-pixel stage's values ``sub_v[pid]`` (float32 per sub-sample, in
+    ``sub_g``'s order; empty: nothing to refine) that took ``sub_t[pid]``
+    seconds; record the filter, the sub-pixel sample counts and the
     sub-pixel stage's time (``own_s``: the producer's share of the refine
     masks, footprints and G-buffer lists)."""
     light = scene.light(lr.name)
@@ -193,17 +218,15 @@ def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_lr, sub_g: GBuff
         rec = lr.record[pid]
         t = time.perf_counter()
         sub_time = 0.0
-        if sub_lr is not None and pid in sub_lr.passes:
+        if pid in sub_v:
             weight = None
             if rec["visibility"] == IRRADIANCE:
                 if e0 is None:
                     e0 = _unshadowed(sub_g, light, rec.get("params", {}).get("seed", 0), buffers.scale)
                 weight = e0
-            v = sub_lr.passes[pid]
-            v = v.reshape(-1) if v.shape == sub_g.shape else v[rows, cols]
-            lr.passes[pid] = np.clip(resolve_samples(flt, refine, lr.passes[pid], rows, cols, v, weight),
+            lr.passes[pid] = np.clip(resolve_samples(flt, refine, lr.passes[pid], rows, cols, sub_v[pid], weight),
                                      0.0, 1.0).astype(np.float32)
-            sub_time = sub_lr.record[pid]["time_s"]["total"]
+            sub_time = sub_t[pid]
         phases = {k: v for k, v in rec["time_s"].items() if k != "total"}
         phases["subpixel"] = round(sub_time + own_s / len(pids), 6)
         phases["resolve"] = round(time.perf_counter() - t, 6)

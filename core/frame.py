@@ -15,7 +15,7 @@ from . import methods as method_registry
 from .buffers import FrameBuffers
 from .frame_cache import FrameCache
 from .compile_ahead import frame_keys, prefetch
-from .methods.base import AVERAGE, IRRADIANCE, params_dict
+from .methods.base import AVERAGE, IRRADIANCE, VISIBILITIES, params_dict
 from .metrics import errors
 from .planner import Plan, plan_frame
 from .scene import Scene
@@ -31,6 +31,9 @@ class LightResult:
     passes: Dict[str, np.ndarray] = field(default_factory=dict)
     record: Dict[str, dict] = field(default_factory=dict)
     stats: Dict[str, dict] = field(default_factory=dict)
+    #: every pass the light's producers computed (those not asked for too), as
+    #: its passes are: what a filtered frame refines on, whatever was asked
+    computed: Dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
 
 @dataclass
@@ -46,6 +49,7 @@ class FrameResult:
     pixel_filter: Optional[dict] = None     # ``core/pixel_filter.py``: recorded when a filter was asked for
     coverage: Optional[np.ndarray] = None   # float32[H,W] alpha of a filtered frame (None: pixel centres)
     cache: Optional[FrameCache] = field(default=None, repr=False, compare=False)  # for a later ``previous``
+    visibility: str = IRRADIANCE            # the frame's definition of V (each pass's: its record)
 
     def to_json(self) -> dict:
         return {
@@ -56,9 +60,27 @@ class FrameResult:
             "buffers_time_s": {k: round(v, 6) for k, v in self.buffer_times.items()},
             "total_time_s": round(self.total_s, 6),
             "compile_s": round(self.compile_s, 6),
+            "visibility": self.visibility,
             **({"pixel_filter": self.pixel_filter} if self.pixel_filter is not None else {}),
             "lights": [{"name": lr.name, "layer": lr.layer, "methods": lr.record} for lr in self.lights],
         }
+
+
+def frame_visibility(overrides: Optional[Mapping[str, object]]) -> str:
+    """The frame's definition of V (``overrides["visibility"]``, applied to
+    every method that has the field): IRRADIANCE unless AVERAGE is asked for."""
+    v = (overrides or {}).get("visibility") or IRRADIANCE
+    if v not in VISIBILITIES:
+        raise ValueError(f"visibility must be one of {', '.join(VISIBILITIES)}, not {v!r}")
+    return v
+
+
+def _visibility(pid: str, overrides) -> str:
+    """Which V pass ``pid`` is in a frame with ``overrides``."""
+    if method_registry.is_external(pid):
+        return method_registry.visibility_of(pid)
+    m = method_registry.producer_of(pid)
+    return m.visibility(pid, m.make_params(overrides))
 
 
 def _params(m, overrides, method_overrides):
@@ -118,7 +140,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     notify = None if progress is None else (lambda msg: progress(msg, 0.0))
     prefetch(frame_keys(scene, passes, False))            # helper processes compile from the end
     compile_s = ensure_buffers_compiled(scene, notify)   # before the real buffers are built (and timed)
-    plan, reach = plan_frame(scene, passes, light_names, error_budget, buffers)
+    visibility = frame_visibility(overrides)
+    plan, reach = plan_frame(scene, passes, light_names, error_budget, buffers, visibility)
     if "auto" in passes:                                 # auto's methods, now chosen
         prefetch(frame_keys(scene, [p for lp in plan.lights if lp.action != "skip" for p in lp.passes], False))
     compile_s += _compile(plan, scene, overrides, method_overrides, progress)
@@ -131,7 +154,7 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         if lp.action == "skip":
             for pid in lp.passes:
                 lr.passes[pid] = np.ones(buffers.shape, np.float32)
-                lr.record[pid] = {"time_s": {"total": 0.0}, "visibility": method_registry.visibility_of(pid),
+                lr.record[pid] = {"time_s": {"total": 0.0}, "visibility": _visibility(pid, overrides),
                                   "params": {}, "skipped": lp.reason}
             results.append(lr)
             continue
@@ -174,14 +197,23 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         lp.decisions.append(f"{int(mask.sum())} of {int(buffers.gbuffer.hit.sum())} visible pixels can be "
                             f"lit by this light; the others get V = 1")
         unreached = ~mask
+        for m, _p, res, _t in done.values():
+            for pid, v in (res.passes.items() if m is not None else ()):
+                v = np.clip(np.nan_to_num(v, nan=1.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+                v[unreached] = 1.0   # no light there, so no shadow: the same as skipping the light
+                lr.computed[pid] = v
         for pid in lp.passes:
             ext = method_registry.is_external(pid)
             m, params, res, phases = done[pid if ext else method_registry.producer_of(pid).id]
-            v = np.nan_to_num(res.passes[pid], nan=1.0, posinf=1.0, neginf=0.0)
-            v = np.clip(v, 0.0, 1.0).astype(np.float32)
-            v[unreached] = 1.0   # no light there, so no shadow: the same as skipping the light
+            if ext:
+                v = np.clip(np.nan_to_num(res.passes[pid], nan=1.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+                v = v.astype(np.float32)
+                v[unreached] = 1.0
+            else:
+                v = lr.computed[pid]
             lr.passes[pid] = v
-            rec = {"time_s": phases, "visibility": method_registry.visibility_of(pid),
+            rec = {"time_s": phases,
+                   "visibility": method_registry.visibility_of(pid) if ext else m.visibility(pid, params),
                    "params": dict(params) if ext else params_dict(params)}
             if m is not None and len(m.passes) > 1:
                 rec["computed_with"] = [q for q in m.passes if q != pid]
@@ -198,4 +230,5 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
     if progress:
         progress("done", 1.0)
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
-                       time.perf_counter() - t0, compile_s, cache=cache if keep else None)
+                       time.perf_counter() - t0, compile_s, cache=cache if keep else None,
+                       visibility=visibility)

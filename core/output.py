@@ -30,7 +30,9 @@ def write_frame(result: FrameResult, out_dir: str, previews: bool = True) -> Dic
         layers = {k: {**v, exr.ALPHA_PASS: result.coverage} for k, v in layers.items()}
     record = result.to_json()
     if layers and any(layers.values()):
-        exr.write_multilayer(paths["exr"], layers, {"scene": result.scene_name, "frame": result.frame})
+        definitions = {lr.layer: {pid: rec["visibility"] for pid, rec in lr.record.items()} for lr in result.lights}
+        exr.write_multilayer(paths["exr"], layers, {"scene": result.scene_name, "frame": result.frame,
+                                                    "visibility": json.dumps(definitions, sort_keys=True)})
         record["exr"] = os.path.basename(paths["exr"])
     else:
         paths.pop("exr")

@@ -152,7 +152,7 @@ def alpha_notes(scene: Scene) -> List[str]:
 
 
 def auto_choice_for(scene: Scene, light: Light, error_budget: Optional[float] = None,
-                    visibility: str = auto_choice.AVERAGE, auto_table=auto_choice.PACKAGED):
+                    visibility: str = auto_choice.IRRADIANCE, auto_table=auto_choice.PACKAGED):
     """``auto``'s decision (``core.auto_choice.AutoChoice``) for ``light`` of
     the captured ``scene``, whose shape (shadow-casting triangles, pixels,
     light size) scales the measured times (``auto_choice`` rule 5): the one
@@ -167,7 +167,7 @@ def auto_choice_for(scene: Scene, light: Light, error_budget: Optional[float] = 
 
 
 def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
-              error_budget: Optional[float] = None, visibility: str = auto_choice.AVERAGE,
+              error_budget: Optional[float] = None, visibility: str = auto_choice.IRRADIANCE,
               auto_table=auto_choice.PACKAGED) -> Plan:
     """Per light: skip, hard or compute, with the reason; the light's passes
     and the producers and buffers they need. ``auto`` among ``passes`` is
@@ -232,13 +232,15 @@ def refine_with_receivers(plan: Plan, scene: Scene, reach: Dict[str, np.ndarray]
 
 
 def plan_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
-               error_budget: Optional[float] = None, buffers=None):
-    """The plan ``render`` follows: :func:`make_plan`, then
+               error_budget: Optional[float] = None, buffers=None,
+               visibility: str = auto_choice.IRRADIANCE):
+    """The plan ``render`` follows: :func:`make_plan` (``auto`` judged for
+    the frame's ``visibility``), then
     :func:`refine_with_receivers` with the reach masks (``metrics.reach_mask``)
     of the camera G-buffer of ``buffers`` (a ``core.buffers.FrameBuffers``,
     built only when some light is not skipped already; ``FrameBuffers.reach``).
     Returns (plan, reach)."""
-    plan = make_plan(scene, passes, light_names, error_budget=error_budget)
+    plan = make_plan(scene, passes, light_names, error_budget=error_budget, visibility=visibility)
     reach: Dict[str, np.ndarray] = {}
     if buffers is not None and any(lp.action != "skip" for lp in plan.lights):
         reach = {lp.name: buffers.reach(scene.light(lp.name)) for lp in plan.lights if lp.action != "skip"}

@@ -49,8 +49,9 @@ def test_frame_json_contract(tmp_path):
     assert light["name"] == "Key.Light" and light["layer"] == "Key_Light"
     m = light["methods"]
     assert set(m) == {"pcf", "embree", "embree_irr"}
-    assert m["pcf"]["visibility"] == "average" and m["embree_irr"]["visibility"] == "irradiance"
-    assert m["pcf"]["error"]["reference"] == "embree"
+    assert m["pcf"]["visibility"] == "irradiance" and m["embree_irr"]["visibility"] == "irradiance"
+    assert m["embree"]["visibility"] == "average"
+    assert m["pcf"]["error"]["reference"] == "embree_irr"
     assert "error" not in m["embree"]
     for k in ("rmse", "max_abs", "mean_signed"):
         assert np.isfinite(m["pcf"]["error"][k])
