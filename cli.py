@@ -18,6 +18,9 @@ from .farm import watchdog
 from .farm.command import add_farm_parser, cmd_farm
 
 MAX_SIDE = 16384
+VISIBILITY_CHOICES = ("irradiance", "average")      # core.methods.base.VISIBILITIES (no core import here)
+DEFAULT_BUDGET = 0.02                                # core.auto_choice.DEFAULT_BUDGET
+DEFAULT_LIGHT_SAMPLES = 256                          # core.methods.base.DEFAULT_LIGHT_SAMPLES
 
 
 class UsageError(Exception):
@@ -94,7 +97,7 @@ def _error_budget(text: str) -> float:
     except ValueError:
         v = float("nan")
     if not (math.isfinite(v) and 0.0 < v <= 1.0):
-        raise UsageError(f"bad --error-budget {text!r}: expected an RMSE in (0, 1], e.g. 0.05")
+        raise UsageError(f"bad --error-budget {text!r}: expected an RMSE in (0, 1], e.g. 0.02")
     return v
 
 
@@ -116,8 +119,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--force", action="store_true", help="recompute frames whose files already exist")
     r.add_argument("--resolution", type=_resolution, default=None, help="WxH (default: the scene's)")
     r.add_argument("--samples", type=_positive("--samples", 1, 65536), default=None,
-                   help="light samples per pixel for sampling methods")
+                   help=f"light samples per pixel for sampling methods (default: {DEFAULT_LIGHT_SAMPLES})")
     r.add_argument("--seed", type=_positive("--seed", 0, 2**31 - 1), default=0)
+    r.add_argument("--visibility", choices=VISIBILITY_CHOICES, default="irradiance",
+                   help="which V every method's pass is: irradiance (the default: the shadowed / unshadowed "
+                        "irradiance ratio, what the unshadowed render is multiplied by) or average (the "
+                        "visible share of the light)")
     r.add_argument("--pixel-filter", type=_pixel_filter, default="scene",
                    help="scene (the default: filtered like the scene's render, Cycles' pixel filter "
                         "or EEVEE's filter size), none (one receiver per pixel centre), box:W, "
@@ -128,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--threads", type=_positive("--threads", 1, 1024), default=None)
     r.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     r.add_argument("--error-budget", type=_error_budget, default=None,
-                   help="RMSE against the reference that 'auto' must meet (default: 0.05)")
+                   help=f"RMSE over lit pixels against the compositing truth that 'auto' must meet, "
+                        f"twice it over silhouettes (default: {DEFAULT_BUDGET})")
     r.add_argument("--quiet", action="store_true", help="no progress bar and no compiling notice")
     pl = sub.add_parser("plan", help="print what the scene calls for, and why")
     pl.add_argument("scene")
@@ -138,7 +146,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--resolution", type=_resolution, default=None,
                     help="WxH the lights' reach is judged at, as render's (default: the scene's)")
     pl.add_argument("--error-budget", type=_error_budget, default=None,
-                    help="RMSE against the reference that 'auto' must meet (default: 0.05)")
+                    help=f"RMSE over lit pixels against the compositing truth that 'auto' must meet, "
+                        f"twice it over silhouettes (default: {DEFAULT_BUDGET})")
+    pl.add_argument("--visibility", choices=VISIBILITY_CHOICES, default="irradiance",
+                    help="as render's: which V the passes would be (auto is judged for it)")
     pl.add_argument("--pixel-filter", type=_pixel_filter, default="scene",
                     help="as render's: the filter the passes would get (default: the scene's)")
     pl.add_argument("--quiet", action="store_true", help="accepted for symmetry with render (plan "
@@ -291,7 +302,8 @@ def _request(args, passes, frame=None):
     return FrameRequest.from_command_line(
         passes, frame=frame, resolution=args.resolution, lights=_light_names(args.lights),
         samples=getattr(args, "samples", None), seed=getattr(args, "seed", 0),
-        map_size=getattr(args, "map_size", None), error_budget=args.error_budget, pixel_filter=args.pixel_filter)
+        map_size=getattr(args, "map_size", None), error_budget=args.error_budget, pixel_filter=args.pixel_filter,
+        visibility=args.visibility)
 
 
 def _prepare(bpy_scene, path, request):
@@ -362,7 +374,7 @@ def cmd_plan(args) -> int:
     scene = job.captured
     for step in job.steps:
         plan, _reach = plan_frame(scene, step.passes, step.names, step.error_budget,
-                                  FrameBuffers(scene, *scene.resolution))
+                                  FrameBuffers(scene, *scene.resolution), step.overrides["visibility"])
         print(plan.describe())
     print(f"pixel filter: {job.pixel_filter.describe()}")
     return 0

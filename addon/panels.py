@@ -143,6 +143,7 @@ class PENUMBRA_PT_render(bpy.types.Panel):
         layout.prop(s, "output_folder")
         layout.prop(s, "seed")
         layout.prop(s, "error_budget")
+        layout.prop(s, "visibility")
         layout.prop(s, "pixel_filter")
         sub = layout.row()
         sub.active = s.pixel_filter not in ("NONE", "SCENE")

@@ -261,6 +261,7 @@ def _on_render_passes(self, context):
 def _make_classes():
     from ..core import methods as registry
     from ..core.auto_choice import DEFAULT_BUDGET
+    from ..core.methods.base import DEFAULT_LIGHT_SAMPLES
     knob_classes = {}
     for mid, m in registry.producers().items():
         knob_classes[mid] = _make_knob_group(m)
@@ -277,7 +278,7 @@ def _make_classes():
             name="Method", items=method_items(), default=AUTO,
             description="Soft-shadow method for this light's pass"),
         "light_samples": bpy.props.IntProperty(
-            name="Light Samples", default=64, min=1, max=65536,
+            name="Light Samples", default=DEFAULT_LIGHT_SAMPLES, min=1, max=65536,
             description="Points sampled on the light per pixel (references and sampling methods): "
                         "more means less noise at proportional cost"),
         "map_size": bpy.props.IntProperty(
@@ -309,6 +310,12 @@ def _make_classes():
         "cycles_samples": bpy.props.IntProperty(
             name="Cycles Samples", default=64, min=1, max=1 << 16,
             description="Samples of the Cycles shadow reference: less noise at proportional cost"),
+        "visibility": bpy.props.EnumProperty(
+            name="Visibility", default="IRRADIANCE",
+            items=[("IRRADIANCE", "Irradiance Ratio", "The light's shadowed / unshadowed irradiance: the "
+                    "unshadowed render x the pass = the shadowed render", 0),
+                   ("AVERAGE", "Average", "The share of the light each point sees, unweighted", 1)],
+            description="Which V every method's pass is"),
         "pixel_filter": bpy.props.EnumProperty(
             name="Pixel Filter", default="SCENE",
             items=[("NONE", "Pixel Centres", "One receiver at each pixel centre (no anti-aliasing)", 0),

@@ -10,12 +10,21 @@ node the user made. Two kinds live in the scene's compositing node group:
   ``bpy.data.node_groups``) used through a group node, fed by its own Render
   Layers node, in a frame named ``Penumbra Compositor`` (node names
   ``Penumbra:~...``). Per light the group outputs the method's pass, the
-  ``embree`` and ``cycles`` references, the error |method - reference| in
-  false colour (Map Range by the group's "Error Scale" input + Color Ramp;
-  black = no error) and a "side by side" image: method | embree over
+  ray-traced reference of its V definition (``embree_irr`` for the
+  irradiance ratio, ``embree`` for the average) and ``cycles``, the error
+  |method - reference| in false colour (Map Range by the group's "Error
+  Scale" input + Color Ramp; black = no error) and a "side by side" image:
+  method | ray-traced reference over
   cycles | error, each at half size in a quadrant of the render's frame.
   Its sources are the stored pass images or the light's layer of a
   multilayer EXR written by ``penumbra render`` (Image node ``layer``).
+  Per light the group also composites: its input "<layer>: unshadowed" is
+  the light's own render with its shadow off, and its output
+  "<layer>: shadowed" that render times the method's pass, the light's
+  shadowed render (the pass is the irradiance ratio: unshadowed x V =
+  shadowed). ``setup_compositor`` wires the input from the Render Layers
+  node: the light's light group's Combined pass, or Diffuse Direct when the
+  scene renders one light; else it is left for the user to connect.
   Sockets that stay the same keep their identifiers across rebuilds, so
   links to the group from the user's own nodes survive.
 """
@@ -72,18 +81,20 @@ def build_side_by_side(scene, layers: Dict[str, str], passes: Sequence[str]) -> 
 
 
 # --------------------------------------------------------------------------
-# the "Penumbra" node group: method | embree | cycles | error, per light
+# the "Penumbra" node group: method | references | error | composite, per light
 GROUP_NAME = "Penumbra"
 GROUP_MARK = "penumbra"              # ID property marking Penumbra's own node group (clear.py too)
 SETUP_PREFIX = PREFIX + "~"          # scene-tree nodes of the compositor setup
 SETUP_FRAME = "Penumbra Compositor"
-REFERENCES = ("embree", "cycles")    # shown beside the method, in this order
+#: shown beside the method, in this order: the ray-traced reference of the
+#: method's own V definition, then Cycles'
+REFERENCES = {"irradiance": ("embree_irr", "cycles"), "average": ("embree", "cycles")}
 ERROR_SCALE = 0.25                   # |error| shown at full colour by default
 # false colour of |method - reference| / Error Scale: black = no error
 ERROR_RAMP = ((0.0, (0.0, 0.0, 0.0, 1.0)), (0.3, (0.35, 0.0, 0.6, 1.0)),
               (0.65, (1.0, 0.35, 0.0, 1.0)), (1.0, (1.0, 1.0, 0.35, 1.0)))
 # quadrants of the side-by-side image, as offsets in quarters of the render size
-QUADRANTS = {"method": (-1, 1), "embree": (1, 1), "cycles": (-1, -1), "error": (1, -1)}
+QUADRANTS = {"method": (-1, 1), "ray traced": (1, 1), "cycles": (-1, -1), "error": (1, -1)}
 
 
 def socket_name(layer: str, what: str) -> str:
@@ -95,13 +106,14 @@ def socket_name(layer: str, what: str) -> str:
 class SetupResult:
     """What :func:`setup_compositor` built."""
 
-    def __init__(self, tree, group, node, lights, missing, error_refs):
+    def __init__(self, tree, group, node, lights, missing, error_refs, unwired=()):
         self.tree = tree              # the scene's compositing node group
         self.group = group            # the "Penumbra" node group
         self.node = node              # its group node in ``tree``
         self.lights = lights          # [(light name, layer, method)]
         self.missing = missing        # ["layer: pass"] with no source
         self.error_refs = error_refs  # layer -> reference the error compares with
+        self.unwired = list(unwired)  # ["layer: unshadowed"] inputs left for the user to connect
 
 
 def penumbra_group(create: bool = True):
@@ -118,7 +130,7 @@ def penumbra_group(create: bool = True):
         return None
     g = bpy.data.node_groups.new(GROUP_NAME, "CompositorNodeTree")
     g[GROUP_MARK] = 1
-    g.description = ("Penumbra: per light, the method's shadow pass, the embree and cycles "
+    g.description = ("Penumbra: per light, the method's shadow pass, the ray-traced and Cycles "
                      "references and the error, side by side")
     return g
 
@@ -138,7 +150,7 @@ def _new(tree, idname: str, name: str, label: str = "", location=(0.0, 0.0), par
     return n
 
 
-def _group_spec(lights) -> list:
+def _group_spec(lights, vis) -> list:
     """(panel, name, in_out, socket type, description) of every interface
     socket, in order."""
     spec = [("", "Image", "INPUT", "NodeSocketColor",
@@ -148,17 +160,22 @@ def _group_spec(lights) -> list:
             ("", "Image", "OUTPUT", "NodeSocketColor", "The render, unchanged")]
     for _name, layer, method in lights:
         names = []
-        for pid in [method, *REFERENCES]:
+        for pid in [method, *REFERENCES[vis[layer]]]:
             if pid not in names:
                 names.append(pid)
         for pid in names:
             what = "method" if pid == method else "reference"
             spec.append((layer, socket_name(layer, pid), "OUTPUT", "NodeSocketFloat",
                          f"{pid} shadow pass ({what}): 1 = lit, 0 = shadowed"))
+        spec.append((layer, socket_name(layer, "unshadowed"), "INPUT", "NodeSocketColor",
+                     "This light's render with its shadow off: its light group's Combined pass, or "
+                     "Diffuse Direct when it is the only light"))
+        spec.append((layer, socket_name(layer, "shadowed"), "OUTPUT", "NodeSocketColor",
+                     f"unshadowed x {method}: this light's shadowed render"))
         spec.append((layer, socket_name(layer, "error"), "OUTPUT", "NodeSocketColor",
                      f"|{method} - reference| in false colour (black: no error)"))
         spec.append((layer, socket_name(layer, "side by side"), "OUTPUT", "NodeSocketColor",
-                     f"{method} | embree over cycles | error, in the render's frame"))
+                     f"{method} | {REFERENCES[vis[layer]][0]} over cycles | error, in the render's frame"))
     return spec
 
 
@@ -225,32 +242,55 @@ def _pass_sources(group, layer: str, pids, exr_image, x: float, y: float, frame)
     return out
 
 
-def _visibility(method: str) -> str:
-    """"average" or "irradiance": which V the method's pass is."""
+def pass_visibility(method: str, layer: str, frame_visibility: str, written: Dict[str, Dict[str, str]]) -> str:
+    """"average" or "irradiance": which V ``method``'s pass of ``layer`` is:
+    as the EXR's header says (``written``: layer -> pass -> definition),
+    else the definition the frame computed it in for a method that follows
+    it (``frame_visibility``: the scene's setting), else the pass's own."""
+    if method in written.get(layer, {}):
+        return written[layer][method]
+    from ..core import methods as registry
+    if method in registry.pass_ids(external=False):
+        m = registry.producer_of(method)
+        return m.visibility(method, m.make_params({"visibility": frame_visibility}))
+    return registry.visibility_of(method) if registry.is_external(method) else "irradiance"
+
+
+def _written_visibility(exr_path: Optional[str]) -> Dict[str, Dict[str, str]]:
+    """layer -> pass -> definition from a Penumbra EXR's header ({} without one)."""
+    if not exr_path:
+        return {}
+    import json
+    import OpenEXR
+    with OpenEXR.File(bpy.path.abspath(exr_path), header_only=True) as f:
+        raw = f.parts[0].header.get("penumbra/visibility")
     try:
-        from ..core import methods as registry
-        return registry.visibility_of(method)
-    except Exception:                # unknown id: average visibility
-        return "average"
+        return json.loads(raw) if raw else {}
+    except (TypeError, ValueError):
+        return {}
 
 
-def _error_reference(method: str, available) -> Optional[str]:
+def _error_reference(method: str, available, visibility: str) -> Optional[str]:
     """The reference of the method's own V definition when present
     (DESIGN.md: average -> embree, irradiance -> embree_irr), else the
     other references in order."""
-    if _visibility(method) == "irradiance":
+    if visibility == "irradiance":
         order = ["embree_irr", "cycles", "embree"]
     else:
         order = ["embree", "cycles", "embree_irr"]
     return next((r for r in order if r != method and r in available), None)
 
 
-def build_penumbra_group(lights, exr_path: Optional[str] = None):
+def build_penumbra_group(lights, exr_path: Optional[str] = None, visibility: str = "irradiance"):
     """Rebuild the "Penumbra" node group for ``lights`` = [(light name,
     layer, method pass id)]. Sources: the stored pass images, or the layers
-    of the multilayer EXR at ``exr_path``. Returns (group, missing, refs)."""
+    of the multilayer EXR at ``exr_path``; ``visibility``: the definition the
+    frame computed the methods in (an EXR's header says it itself).
+    Returns (group, missing, refs)."""
+    written = _written_visibility(exr_path)
+    vis = {layer: pass_visibility(method, layer, visibility, written) for _n, layer, method in lights}
     group = penumbra_group()
-    _sync_interface(group, _group_spec(lights))
+    _sync_interface(group, _group_spec(lights, vis))
     for n in [n for n in group.nodes if _ours(n)]:
         group.nodes.remove(n)
     exr_image = None
@@ -287,16 +327,27 @@ def build_penumbra_group(lights, exr_path: Optional[str] = None):
     for row, (light_name, layer, method) in enumerate(lights):
         y = -400.0 * row
         frame = _new(group, "NodeFrame", f"{PREFIX}{layer}:frame", f"{light_name} ({method})", (0.0, y))
-        extra = ["embree_irr"] if _visibility(method) == "irradiance" else []
-        pids = list(dict.fromkeys([method, *REFERENCES, *extra]))
+        pids = list(dict.fromkeys([method, *REFERENCES[vis[layer]]]))
         src = _pass_sources(group, layer, pids, exr_image, 0.0, y, frame)
-        for pid in dict.fromkeys([method, *REFERENCES]):
+        for pid in pids:
             if pid in src:
                 L.new(src[pid], gout.inputs[socket_name(layer, pid)])
             else:
                 missing.append(socket_name(layer, pid))
+        # the composite: this light's unshadowed render x the method's pass
+        if method in src:
+            mul = _new(group, "ShaderNodeMix", f"{PREFIX}{layer}:shadowed", "unshadowed x pass",
+                       (300.0, y + 160.0), frame)
+            mul.data_type = "RGBA"
+            mul.blend_type = "MULTIPLY"
+            mul.inputs["Factor"].default_value = 1.0
+            L.new(gin.outputs[socket_name(layer, "unshadowed")], mul.inputs[6])
+            L.new(src[method], mul.inputs[7])
+            L.new(mul.outputs[2], gout.inputs[socket_name(layer, "shadowed")])
+        else:
+            missing.append(socket_name(layer, "shadowed"))
         # error: |method - reference| -> Map Range (0..Error Scale) -> Color Ramp
-        ref = _error_reference(method, src) if method in src else None
+        ref = _error_reference(method, src, vis[layer]) if method in src else None
         err = None
         if ref is not None:
             refs[layer] = ref
@@ -327,7 +378,7 @@ def build_penumbra_group(lights, exr_path: Optional[str] = None):
         else:
             missing.append(socket_name(layer, "error"))
         # side by side: each image at half size in its quadrant of a black canvas
-        quads = {"method": src.get(method), "embree": src.get("embree"),
+        quads = {"method": src.get(method), "ray traced": src.get(REFERENCES[vis[layer]][0]),
                  "cycles": src.get("cycles"), "error": err}
         prev = canvas
         for k, (role, sock) in enumerate(quads.items()):
@@ -354,6 +405,28 @@ def build_penumbra_group(lights, exr_path: Optional[str] = None):
     return group, missing, refs
 
 
+def unshadowed_socket(scene, rl, light_name: str, n_lights: int):
+    """The Render Layers output holding the light's own render: its light
+    group's Combined pass (``Combined_<group>``) when the light has one in
+    the node's view layer, else Diffuse Direct when the scene renders this
+    light alone and the pass is on; None otherwise (the user connects it).
+    Nothing of the user's render settings is changed."""
+    ob = bpy.data.objects.get(light_name)
+    layer = scene.view_layers.get(rl.layer) if rl.layer else None
+    group = getattr(ob, "lightgroup", "") if ob is not None else ""
+    names = []
+    if group and layer is not None and group in {g.name for g in getattr(layer, "lightgroups", ())}:
+        names.append(f"Combined_{group}")
+    if n_lights == 1 and layer is not None and layer.use_pass_diffuse_direct:
+        names.append("Diffuse Direct")
+    rl.update()
+    for name in names:
+        sock = rl.outputs.get(name)
+        if sock is not None and sock.enabled:
+            return sock
+    return None
+
+
 def clear_setup(tree) -> int:
     """Remove the compositor setup's nodes from ``tree`` (not the group)."""
     ours = [n for n in tree.nodes if _ours(n, SETUP_PREFIX) or n.name == SETUP_FRAME]
@@ -371,7 +444,8 @@ def setup_compositor(scene, lights, exr_path: Optional[str] = None, view_layer: 
     ``Penumbra:...``, inside the "Penumbra Compositor" frame) are replaced;
     the user's nodes and links are left alone."""
     lights = [(str(a), str(b), str(c)) for a, b, c in lights]
-    group, missing, refs = build_penumbra_group(lights, exr_path)
+    from . import settings
+    group, missing, refs = build_penumbra_group(lights, exr_path, settings.visibility(scene))
     tree = compositor_tree(scene)
     clear_setup(tree)
     x0 = max((n.location.x for n in tree.nodes), default=0.0) + 400.0
@@ -386,8 +460,15 @@ def setup_compositor(scene, lights, exr_path: Optional[str] = None, view_layer: 
     node.node_tree = group
     node.inputs["Error Scale"].default_value = float(error_scale)
     tree.links.new(compat.render_layers_socket(rl, "Image"), node.inputs["Image"])
+    unwired = []
+    for light_name, layer, _method in lights:
+        sock = unshadowed_socket(scene, rl, light_name, len(lights))
+        if sock is None:
+            unwired.append(socket_name(layer, "unshadowed"))
+        else:
+            tree.links.new(sock, node.inputs[socket_name(layer, "unshadowed")])
     if lights:
         viewer = _new(tree, "CompositorNodeViewer", f"{SETUP_PREFIX}Viewer", "Penumbra side by side",
                       (x0 + 640.0, 0.0), frame)
         tree.links.new(node.outputs[socket_name(lights[0][1], "side by side")], viewer.inputs["Image"])
-    return SetupResult(tree, group, node, lights, missing, refs)
+    return SetupResult(tree, group, node, lights, missing, refs, unwired)

@@ -85,7 +85,8 @@ class Step:
 def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
                samples: Optional[int] = None, preview: bool = False,
                references: Optional[Sequence[str]] = None,
-               lights: Optional[Sequence[str]] = None) -> Tuple[List[LightJob], List[str]]:
+               lights: Optional[Sequence[str]] = None,
+               visibility: Optional[str] = None) -> Tuple[List[LightJob], List[str]]:
     """One LightJob per captured light whose Penumbra setting is enabled.
 
     ``methods``: pass ids for every light instead of each light's method +
@@ -94,11 +95,13 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
     else the first that has, with those settings under the light's own
     knobs, light views at ``PREVIEW_MAP_SCALE`` of the default map's side;
     ``references``: instead of the scene's; ``lights``: names of Blender
-    light objects (None: every light). Returns (jobs, notes)."""
+    light objects (None: every light); ``visibility``: which V every pass
+    is (None: the scene's). Returns (jobs, notes)."""
     from ..core import methods as registry
     from ..core.planner import auto_choice_for
     from ..core.views import default_map_size
     seed = settings.seed(scene)
+    visibility = visibility or settings.visibility(scene)
     refs = list(settings.references(scene) if references is None else references)
     fast = preview_methods() if preview else []
     jobs, notes = [], []
@@ -115,7 +118,7 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
             passes = list(methods)
         else:
             if asks_for_auto(s):
-                choice = auto_choice_for(captured, lt, settings.error_budget(scene))
+                choice = auto_choice_for(captured, lt, settings.error_budget(scene), visibility)
                 _last_auto[(scene.name, lt.name)] = choice
             m = s.method if choice is None else choice.method
             if preview and m not in fast:
@@ -124,7 +127,7 @@ def light_jobs(scene, captured, *, methods: Optional[Sequence[str]] = None,
                     choice = replace(choice, method=m, reason=f"{choice.reason}; the preview runs {m} "
                                                               f"instead (methods with preview settings only)")
             passes = list(dict.fromkeys([m] + refs))
-        ov = {"seed": seed}
+        ov = {"seed": seed, "visibility": visibility}
         n = samples or (int(s.light_samples) if s is not None else None)
         if n:
             ov["samples"] = int(n)

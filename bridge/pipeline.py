@@ -29,6 +29,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 import bpy
 
 from ..core.cancel import CancelToken, Cancelled, watching
+from ..core.methods.base import IRRADIANCE
 from . import buffer_cache, settings
 from .capture import blend_stem, capture_scene, light_object, render_resolution
 from .jobs import Step, light_jobs, make_steps
@@ -61,7 +62,9 @@ class FrameRequest:
     (preview quality: ``bridge/jobs.py``; pixel centres unless
     ``pixel_filter`` names a filter; the last Preview's buffers while the
     camera and the geometry did not change: ``buffer_cache.py``),
-    ``pixel_filter`` (a ``--pixel-filter`` spec; None: the scene's).
+    ``pixel_filter`` (a ``--pixel-filter`` spec; None: the scene's),
+    ``visibility`` (which V every method's pass is, ``irradiance`` or
+    ``average``; None: the scene's).
     Running: ``in_render`` (inside a render: no Cycles reference),
     ``threads`` (Numba threads, 0: all cores, None: unchanged),
     ``per_light`` (one step per light), ``catch_errors`` (a failed step ends
@@ -82,6 +85,7 @@ class FrameRequest:
     references: Optional[Sequence[str]] = None
     preview: bool = False
     pixel_filter: Optional[str] = None
+    visibility: Optional[str] = None
     in_render: bool = False
     threads: Optional[int] = None
     per_light: bool = False
@@ -92,12 +96,13 @@ class FrameRequest:
     def from_command_line(cls, methods: Sequence[str], *, frame: Optional[int] = None,
                           resolution: Optional[Tuple[int, int]] = None, lights: Optional[Sequence[str]] = None,
                           samples: Optional[int] = None, seed: int = 0, map_size: Optional[int] = None,
-                          error_budget: Optional[float] = None, pixel_filter: Optional[str] = None) -> "FrameRequest":
+                          error_budget: Optional[float] = None, pixel_filter: Optional[str] = None,
+                          visibility: Optional[str] = None) -> "FrameRequest":
         """``penumbra render`` / ``plan``: ``methods`` (``auto`` among them
         resolved per light by the planner) for every light of ``lights``."""
         return cls(frame=frame, resolution=resolution, light_settings=False, methods=list(methods),
                    lights=lights, samples=samples, seed=seed, map_size=map_size, error_budget=error_budget,
-                   pixel_filter=pixel_filter, skip_deleted=False)
+                   pixel_filter=pixel_filter, visibility=visibility, skip_deleted=False)
 
     @classmethod
     def from_scene_settings(cls, *, preview: bool = False, methods: Optional[Sequence[str]] = None,
@@ -174,7 +179,7 @@ def merge_results(captured, results):
     return FrameResult(captured.name, captured.frame, (W, H), plan, lights, times,
                        sum(r.total_s for r in results), sum(r.compile_s for r in results),
                        results[0].pixel_filter, next((r.coverage for r in results if r.coverage is not None),
-                                                     None))
+                                                     None), visibility=results[0].visibility)
 
 
 def empty_result(captured):
@@ -423,7 +428,7 @@ def external_producers(scene, captured, passes: Sequence[str], in_render: bool =
 def _uniform_step(request: FrameRequest) -> Step:
     """The command line's one step: the same passes and settings for every
     light (the lights' own Penumbra settings do not apply)."""
-    overrides = {"seed": request.seed}
+    overrides = {"seed": request.seed, "visibility": request.visibility or IRRADIANCE}
     if request.samples:
         overrides["samples"] = request.samples
     return Step(list(request.lights) if request.lights is not None else None, list(request.methods),
@@ -450,7 +455,8 @@ def prepare_frame(scene, request: FrameRequest) -> FrameJob:
         steps = [step]
     else:
         jobs, notes = light_jobs(scene, captured, methods=request.methods, samples=request.samples,
-                                 preview=request.preview, references=request.references, lights=request.lights)
+                                 preview=request.preview, references=request.references, lights=request.lights,
+                                 visibility=request.visibility)
         all_passes = [p for j in jobs for p in j.passes]
         external, ext_notes = external_producers(scene, captured, all_passes, request.in_render,
                                                  pixel_filter=flt)

@@ -59,6 +59,13 @@ def error_budget(scene) -> float:
     return float(getattr(ss, "error_budget", DEFAULT_BUDGET)) if ss is not None else DEFAULT_BUDGET
 
 
+def visibility(scene) -> str:
+    """Which V every method's pass is (``scene.penumbra.visibility``):
+    ``irradiance`` (the default) or ``average``."""
+    ss = scene_settings(scene) if scene is not None else None
+    return str(getattr(ss, "visibility", "IRRADIANCE")).lower() if ss is not None else "irradiance"
+
+
 def output_folder(scene) -> str:
     """The scene's Penumbra output folder ('' when unset)."""
     ss = scene_settings(scene)

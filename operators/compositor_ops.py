@@ -141,6 +141,10 @@ class PENUMBRA_OT_setup_compositor(bpy.types.Operator):
         except (RuntimeError, ValueError) as exc:
             self.report({"ERROR"}, f"Penumbra: {exc}")
             return {"CANCELLED"}
+        if res.unwired:
+            self.report({"INFO"}, "Penumbra: connect each light's render with its shadow off (its light group's "
+                                  "Combined pass) to " + ", ".join(res.unwired) + "; the group's "
+                                  "'<layer>: shadowed' output is then that render with the shadow")
         if res.missing:
             self.report({"WARNING"}, "Penumbra: no source for " + ", ".join(res.missing)
                         + " (compute it first; its outputs stay empty)")

@@ -47,7 +47,7 @@ def test_light_and_scene_properties(registered):
     light = bpy.data.lights.new("L", "AREA")
     s = light.penumbra
     assert s.enabled is True and s.method == "auto"
-    assert s.light_samples == 64 and s.map_size == 0
+    assert s.light_samples == 256 and s.map_size == 0
     items = {e.identifier for e in s.bl_rna.properties["method"].enum_items}
     assert items == {"auto", *registry.pass_ids(external=False)}
     s.method = "embree_irr"

@@ -85,8 +85,10 @@ def _composite(scene, socket, path):
 
 
 def _store(layer, method_v, embree_v, cycles_v):
+    """pcf (the irradiance ratio, the default) beside its ray-traced reference
+    of the same definition (embree_irr) and cycles."""
     images.store_pass_image(layer, "pcf", method_v)
-    images.store_pass_image(layer, "embree", embree_v)
+    images.store_pass_image(layer, "embree_irr", embree_v)
     images.store_pass_image(layer, "cycles", cycles_v)
 
 
@@ -120,13 +122,13 @@ def test_builds_twice_without_duplicates_and_leaves_user_nodes_alone():
     # the user's node: same name, place, links; their output still fed by their blur
     assert _user_state(tree) == before
     assert tree.nodes["My Blur"].location[:] == (123.0, 45.0)
-    # per light: the method, embree, cycles, error and side-by-side sockets
+    # per light: the method, its references, error and side-by-side sockets
     for _name, layer, method in LIGHTS:
-        for what in (method, "embree", "cycles", "error", "side by side"):
+        for what in (method, "embree_irr", "cycles", "error", "shadowed", "side by side"):
             s = r2.node.outputs.get(C.socket_name(layer, what))
             assert s is not None, what
             assert r2.group.nodes[f"{C.PREFIX}Group Output"].inputs[C.socket_name(layer, what)].is_linked
-    assert r2.missing == [] and r2.error_refs == {"Key_Light": "embree", "Fill": "embree"}
+    assert r2.missing == [] and r2.error_refs == {"Key_Light": "embree_irr", "Fill": "embree_irr"}
     # socket identifiers survive the rebuild (links from the user's own group nodes stay)
     assert {s.name: s.identifier for s in r2.node.outputs} == ids1
     # the viewer shows the first light's side by side
@@ -165,7 +167,7 @@ def test_error_of_identical_passes_is_black_and_side_by_side(tmp_path):
     scene = _two_light_scene()
     _user_blur_tree(scene)
     g = _gradient()
-    _store("Key_Light", g, g, 0.5 * g)            # pcf == embree: no error
+    _store("Key_Light", g, g, 0.5 * g)            # pcf == embree_irr: no error
     _store("Fill", np.zeros_like(g), np.ones_like(g), g)   # pcf off by 1 everywhere
     res = C.setup_compositor(scene, LIGHTS)
     node = res.node
@@ -183,7 +185,7 @@ def test_error_of_identical_passes_is_black_and_side_by_side(tmp_path):
     node.inputs["Error Scale"].default_value = 1.0
     half = _composite(scene, node.outputs[C.socket_name("Fill", "error")], tmp_path / "err3.exr")
     assert 0.05 < half.max() < 0.99
-    # side by side: method top-left, embree top-right, cycles bottom-left, error bottom-right
+    # side by side: method top-left, embree_irr top-right, cycles bottom-left, error bottom-right
     sbs = _composite(scene, node.outputs[C.socket_name("Key_Light", "side by side")], tmp_path / "sbs.exr")
     top, bottom = sbs[: H // 2, :, 0], sbs[H // 2:, :, 0]
     half_g = 0.5 * (g[: H // 2, 0::2] + g[: H // 2, 1::2])    # bilinear at half size
@@ -198,7 +200,8 @@ def test_exr_source(tmp_path):
     g = _gradient()
     path = str(tmp_path / "shot.0001.exr")
     exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "embree_irr": g, "cycles": 1 - g},
-                                "Fill": {"single_sample": g, "embree": 0.25 * g}})
+                                "Fill": {"single_sample": g, "embree": 0.25 * g}},
+                         {"visibility": '{"Fill": {"single_sample": "average"}}'})   # Fill's pass: the average
     res = C.setup_compositor(scene, [("Key.Light", "Key_Light", "pcf"), ("Fill", "Fill", "single_sample")],
                              exr_path=path)
     src = res.group.nodes[f"{C.PREFIX}Key_Light:exr"]
@@ -206,7 +209,8 @@ def test_exr_source(tmp_path):
     assert os.path.samefile(bpy.path.abspath(src.image.filepath), path)
     assert res.group.nodes[f"{C.PREFIX}Fill:exr"].layer == "Fill"
     assert res.missing == ["Fill: cycles"]                  # that EXR has no cycles pass for Fill
-    assert res.error_refs == {"Key_Light": "embree", "Fill": "embree"}
+    # each pass against the reference of its definition: the header's for Fill, the default for Key_Light
+    assert res.error_refs == {"Key_Light": "embree_irr", "Fill": "embree"}
     err = _composite(scene, res.node.outputs[C.socket_name("Key_Light", "error")], tmp_path / "e.exr")
     assert np.abs(err).max() < 1e-6
     cyc = _composite(scene, res.node.outputs[C.socket_name("Key_Light", "cycles")], tmp_path / "c.exr")
@@ -221,7 +225,7 @@ def test_side_by_side_nodes_and_setup_coexist():
     g = _gradient()
     _store("Key_Light", g, g, g)
     C.setup_compositor(scene, LIGHTS[:1])
-    C.build_side_by_side(scene, {"Key.Light": "Key_Light"}, ["pcf", "embree"])
+    C.build_side_by_side(scene, {"Key.Light": "Key_Light"}, ["pcf", "embree_irr"])
     ours_tree = _ours(scene)
     assert f"{C.SETUP_PREFIX}Penumbra" in ours_tree.nodes          # Compute Passes keeps the setup
     assert f"{C.PREFIX}Key_Light:pcf" in ours_tree.nodes
@@ -255,11 +259,11 @@ def test_setup_operator_from_exr_and_bad_input(registered, tmp_path):
     scene = _two_light_scene()
     g = _gradient()
     path = str(tmp_path / "shot.0001.exr")
-    exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree": g, "cycles": g}})
+    exr.write_multilayer(path, {"Key_Light": {"pcf": g, "embree_irr": g, "cycles": g}})
     scene.objects["Key.Light"].data.penumbra.method = "pcf"        # not auto: a fixed pass name
     assert bpy.ops.penumbra.setup_compositor(source="EXR", filepath=path) == {"FINISHED"}
     node = compat.compositor_tree(scene, create=False).nodes[f"{C.SETUP_PREFIX}Penumbra"]
-    assert [s.name for s in node.outputs][:4] == ["Image", "Key_Light: pcf", "Key_Light: embree",
+    assert [s.name for s in node.outputs][:4] == ["Image", "Key_Light: pcf", "Key_Light: embree_irr",
                                                    "Key_Light: cycles"]
     with pytest.raises(RuntimeError, match="no such EXR"):
         bpy.ops.penumbra.setup_compositor(source="EXR", filepath=str(tmp_path / "none.exr"))
@@ -272,3 +276,45 @@ def test_setup_operator_from_exr_and_bad_input(registered, tmp_path):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     with pytest.raises(RuntimeError, match="no passes to show"):
         bpy.ops.penumbra.setup_compositor()
+
+
+def test_the_group_composites_the_unshadowed_render_times_the_pass(tmp_path):
+    """The group's "<layer>: shadowed" output is its "<layer>: unshadowed"
+    input times the method's pass (the irradiance ratio composites: the
+    light's render with its shadow off x V = the shadowed render)."""
+    scene = _two_light_scene()
+    _user_blur_tree(scene)
+    g = _gradient()
+    _store("Key_Light", g, g, g)
+    _store("Fill", np.ones_like(g), g, g)
+    res = C.setup_compositor(scene, LIGHTS)
+    assert res.unwired == [C.socket_name("Key_Light", "unshadowed"), C.socket_name("Fill", "unshadowed")]
+    colour = np.stack([0.2 + 0.0 * g, 0.6 + 0.0 * g, g[::-1, ::-1]], -1)
+    images.store_pass_image("Unshadowed", "render", colour[..., 2])
+    src = bpy.data.images[images.pass_image_name("Unshadowed", "render")]
+    tree = compat.compositor_tree(scene, create=False)
+    img = tree.nodes.new("CompositorNodeImage")
+    img.image = src
+    tree.links.new(img.outputs["Image"], res.node.inputs[C.socket_name("Key_Light", "unshadowed")])
+    out = _composite(scene, res.node.outputs[C.socket_name("Key_Light", "shadowed")], tmp_path / "shadowed.exr")
+    np.testing.assert_allclose(out[..., 0], g[::-1, ::-1] * g, atol=1e-4)
+
+
+def test_setup_wires_each_lights_light_group_to_its_unshadowed_input():
+    """A light in a light group of the view layer gets that group's Combined
+    pass; the user's render settings are left as they are."""
+    scene = _two_light_scene()
+    _user_blur_tree(scene)
+    g = _gradient()
+    _store("Key_Light", g, g, g)
+    _store("Fill", g, g, g)
+    vl = scene.view_layers[0]
+    vl.lightgroups.add(name="KeyGroup")
+    bpy.data.objects["Key.Light"].lightgroup = "KeyGroup"
+    passes_before = (vl.use_pass_diffuse_direct, [lg.name for lg in vl.lightgroups])
+    res = C.setup_compositor(scene, LIGHTS)
+    assert res.unwired == [C.socket_name("Fill", "unshadowed")]
+    sock = res.node.inputs[C.socket_name("Key_Light", "unshadowed")]
+    (link,) = sock.links
+    assert link.from_socket.name == "Combined_KeyGroup" and link.from_node.bl_idname == "CompositorNodeRLayers"
+    assert (vl.use_pass_diffuse_direct, [lg.name for lg in vl.lightgroups]) == passes_before
