@@ -1,54 +1,47 @@
 """``auto``: per light, the cheapest method whose measured error meets the
 scene's error budget.
 
-The measurements are the accuracy study's (``bench/study.py``): every
-method on the sample scenes against ``embree`` at 1024 samples. The study
-writes ``bench/results/auto_table.json``; a full run (``make bench``) also
-installs it here as ``core/auto_table.json`` (``python -m penumbra.bench.study
-install-table`` copies a chosen one), which ships inside the extension.
+The measurements are the accuracy study's (``bench/study.py``): every method
+at its defaults (256 light samples), its pass filtered like the render, on
+the sample scenes against the compositing truth, Cycles' shadow ratio at
+1024 samples with the scene's pixel filter; a row per scene holds each
+pass's time, its RMSE over the pixels the light reaches and over the
+silhouette pixels. The study writes ``bench/results/auto_table.json``; a full
+run (``make bench``) installs it as ``core/auto_table.json``, which ships in
+the extension (``python -m penumbra.bench.study install-table`` copies a
+chosen one).
+
+Parameters: ``budget`` (RMSE over the pixels the light reaches, default
+``DEFAULT_BUDGET`` 0.02, the scene's Error Budget; over the silhouette
+pixels the allowance is ``SILHOUETTE_ALLOWANCE`` (2) times it), ``visibility`` (the frame's definition of V: ``irradiance``,
+the default, or ``average``), the table, and the scene at hand
+(``SceneShape``) when there is one.
 
 The rules, in order (each decision says which one in its reason):
 
-1. A light of size zero casts a hard shadow: ``pcf``, whose size-zero path
-   is the plain shadow-map test (one depth comparison per pixel, no
-   filtering; DESIGN.md: every method equals the hard shadow there), so no
-   table is needed (``embree_irr`` for the irradiance ratio, see 4).
-2. No readable table: the documented fallback ``FALLBACK`` (``pcf`` for
-   average visibility, ``embree_irr`` for the irradiance ratio).
+1. A light of size zero casts a hard shadow, the same in both definitions:
+   ``pcf``, whose size-zero path is the plain shadow-map test.
+2. No readable table: the documented fallback ``FALLBACK`` (``pcf``).
 3. Scene matching: the table's scenes lit by the same kind of light (area,
-   sphere, sun); when none is, every measured scene. With the scene at hand
-   (rule 5), of those the ones that, like it, have (or have not) shadow-casting
-   alpha mattes (rays through mattes cost what the triangle count does not
-   say), when the table has any. The light's size is not
-   matched: the scenes' penumbra widths depend on size *relative to* their
-   distances, which a size alone does not give. A method counts with its
-   *worst* RMSE over the matched scenes (so it meets the budget only if it
-   did on every one) and its mean time; a method not measured (or failed) on
-   one of them is not a candidate.
-4. Candidates are the registered passes of the definition needed
-   (``average`` or ``irradiance``: errors are only measured against the
-   reference of the same definition, DESIGN.md), less the references
-   (``embree``, ``embree_irr``): ``auto`` picks which paper's method stands
-   in for the reference, never the reference it is compared with. The one
-   method writing the irradiance ratio (``depth_raytrace_irr``) is not in
-   the study, so that definition falls back to ``embree_irr``.
-5. The scene at hand (``SceneShape``: shadow-casting triangles, output
-   pixels, light size relative to its distance from the casters): each
-   candidate's and the reference's measured time is scaled to it by
-   ``COST_MODEL`` (how each method's time grows with pixels, triangles and
-   light size; measured in ``bench/scaling.py`` for ``embree`` and
-   ``penumbra_casting``). A candidate predicted slower than the reference
-   there is dropped; when every one is, ``auto`` runs the reference itself
-   (rule "reference is fastest"). Without a shape (or a table scene without
-   its triangle count) times are not scaled.
-6. The cheapest candidate with worst RMSE <= budget wins; when none meets
-   the budget: with a shape, the reference if its own worst RMSE meets it
-   (rule "reference is fastest": no method faster than it does), else the
-   most accurate one (the reference too, with a shape), and the reason says so.
-
-Table rows are each method at its default parameters with 64 light samples
-(a light's default Light Samples), which is what the light runs with when
-``auto`` picks it.
+   sphere, sun); when none is, every measured scene. With the scene at hand,
+   of those the ones that, like it, have (or have not) shadow-casting alpha
+   mattes, when the table has any. A method counts with its *worst* error
+   over the matched scenes, ``max(RMSE, silhouette RMSE / 2)`` (so "meets
+   the budget" means both RMSEs do), and its mean time; a method not
+   measured (or failed) on one of them is not a candidate.
+4. Candidates are the registered passes measured in the definition needed,
+   less the references (``embree``, ``embree_irr``): ``auto`` picks which
+   paper's method stands in for the reference.
+5. The scene at hand (shadow-casting triangles, output pixels, light size
+   relative to its distance from the casters): each candidate's and the
+   reference's measured time is scaled to it by ``COST_MODEL``. A candidate
+   predicted slower than the reference there is dropped; when every one is,
+   ``auto`` runs the reference itself (rule "reference is fastest"). Without
+   a shape, times are not scaled.
+6. The cheapest candidate with worst error <= budget wins; when none meets
+   the budget: with a shape, the reference if its own worst error meets it,
+   else the most accurate one (the reference too, with a shape), and the
+   reason says so.
 """
 from __future__ import annotations
 
@@ -62,15 +55,18 @@ from typing import Dict, List, Mapping, Optional, Sequence
 from .scene import LIGHT_KINDS
 
 AVERAGE, IRRADIANCE = "average", "irradiance"
-#: RMSE against the reference of the same V definition: in the study it
-#: separates the depth-map methods on one occluder from the same methods on
-#: overlapping penumbrae (``bench/results/study.md``).
-DEFAULT_BUDGET = 0.05
-#: without a table: the fast depth-map method (average), the reference
-#: estimator (irradiance: no measured method writes that definition)
-FALLBACK = {AVERAGE: "pcf", IRRADIANCE: "embree_irr"}
-#: a light of size zero: the plain shadow-map test (pcf's size-zero path)
-HARD = {AVERAGE: "pcf", IRRADIANCE: "embree_irr"}
+#: RMSE against the compositing truth over the pixels the light reaches: about
+#: the noise of Cycles' own shadow pair at 256 samples on the sample scenes
+#: (``bench/results/study.md``)
+DEFAULT_BUDGET = 0.02
+#: over the silhouette pixels (an edge in the filter's footprint) a method may
+#: miss by this many times the budget
+SILHOUETTE_ALLOWANCE = 2.0
+#: without a table: the fast depth-map method, in either definition
+FALLBACK = {AVERAGE: "pcf", IRRADIANCE: "pcf"}
+#: a light of size zero: the plain shadow-map test (pcf's size-zero path;
+#: a hard shadow's V is 0 or 1, the same in both definitions)
+HARD = {AVERAGE: "pcf", IRRADIANCE: "pcf"}
 #: never candidates: what the picked method's error is measured against
 REFERENCES = ("embree", "embree_irr")
 TABLE_FORMAT = "penumbra-auto-table/1"
@@ -152,6 +148,15 @@ COST_MODEL = {
 _DEFAULT_COST = (1.0, "log", 0.0)
 
 
+def budget_error(row: Mapping) -> float:
+    """A measured row's error in budget terms: its RMSE over the lit pixels
+    or its silhouette RMSE / ``SILHOUETTE_ALLOWANCE``, whichever is larger
+    (a row without a silhouette figure: its RMSE)."""
+    e = float(row["rmse"])
+    sil = row.get("rmse_silhouette")
+    return e if sil is None else max(e, float(sil) / SILHOUETTE_ALLOWANCE)
+
+
 def predicted_seconds(mid: str, row: dict, measured: MeasuredScene, shape: Optional[SceneShape]) -> float:
     """The measured ``row`` of ``mid`` scaled from ``measured`` to ``shape``."""
     t = float(row["seconds"])
@@ -188,7 +193,7 @@ class AutoChoice:
     rule: str                    # "hard" | "fallback" | "meets budget" | "most accurate" | "reference is fastest"
     budget: float
     visibility: str = AVERAGE
-    rmse: Optional[float] = None         # worst measured RMSE over the matched scenes
+    rmse: Optional[float] = None         # worst measured error (``budget_error``) over the matched scenes
     seconds: Optional[float] = None      # mean measured time over the matched scenes
     scenes: List[str] = field(default_factory=list)
 
@@ -222,6 +227,9 @@ def parse_table(data: Mapping, path: str = "") -> AutoTable:
                     raise TableError(f"{where}: {s['scene']}/{mid}: unknown visibility {vis!r}")
                 methods[str(mid)] = dict(m, seconds=_number(m["seconds"], f"{where}: {mid} seconds"),
                                          rmse=_number(m["rmse"], f"{where}: {mid} rmse"))
+                if m.get("rmse_silhouette") is not None:
+                    methods[str(mid)]["rmse_silhouette"] = _number(m["rmse_silhouette"],
+                                                                   f"{where}: {mid} rmse_silhouette")
             tri = s.get("triangles")
             rel = s.get("light_relative")
             mat = s.get("mattes")
@@ -272,7 +280,7 @@ def _fmt_s(seconds: float) -> str:
     return f"{seconds * 1e3:.1f} ms" if seconds < 1.0 else f"{seconds:.2f} s"
 
 
-def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DEFAULT_BUDGET,
+def choose(kind: str, size: float, visibility: str = IRRADIANCE, budget: float = DEFAULT_BUDGET,
            table=PACKAGED, known: Optional[Sequence[str]] = None,
            shape: Optional[SceneShape] = None) -> AutoChoice:
     """The pass id ``auto`` runs for a light of ``kind`` ("area" | "sphere" |
@@ -337,7 +345,7 @@ def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DE
         if shape is not None and ref_t is not None and t > ref_t:
             slower.append(mid)              # rule 5: slower than the reference here
             continue
-        stats[mid] = (max(r["rmse"] for r in rows), t)
+        stats[mid] = (max(budget_error(r) for r in rows), t)
     where = f"{how}: {', '.join(names)}"
     here = f"; for this scene ({shape.describe()}) " if shape is not None else ""
     if slower:
@@ -353,35 +361,35 @@ def choose(kind: str, size: float, visibility: str = AVERAGE, budget: float = DE
                              f"{visibility} visibility on {where}", f"{m}: fallback, nothing measured",
                           "fallback", budget, visibility, scenes=names)
     meet = [mid for mid, (e, _t) in stats.items() if e <= budget]
-    ref_e = max(r["rmse"] for r in ref_rows) if ref_t is not None else None
+    ref_e = max(budget_error(r) for r in ref_rows) if ref_t is not None else None
     if not meet and shape is not None and ref_e is not None:
         if ref_e <= budget:
             return AutoChoice(ref, f"auto -> {ref}: the reference is fastest here, no method predicted faster "
-                                   f"than its {_fmt_s(ref_t)} meets the budget {budget:g} (its own worst RMSE "
+                                   f"than its {_fmt_s(ref_t)} meets the budget {budget:g} (its own worst error "
                                    f"{ref_e:.3f}) on {where}{here}", f"{ref}: reference fastest within {budget:g}",
                               "reference is fastest", budget, visibility, ref_e, ref_t, names)
         if ref_e < min(e for e, _t in stats.values()):
             return AutoChoice(ref, f"auto -> {ref}: no measured method meets the budget {budget:g}; the reference "
-                                   f"(worst RMSE {ref_e:.3f} in {_fmt_s(ref_t)}) is more accurate than every method "
+                                   f"(worst error {ref_e:.3f} in {_fmt_s(ref_t)}) is more accurate than every method "
                                    f"predicted faster than it on {where}{here}",
-                              f"{ref}: most accurate, RMSE {ref_e:.3f} > {budget:g}",
+                              f"{ref}: most accurate, error {ref_e:.3f} > {budget:g}",
                               "most accurate", budget, visibility, ref_e, ref_t, names)
     if meet:
         m = min(meet, key=lambda k: (stats[k][1], stats[k][0]))
         e, t = stats[m]
-        return AutoChoice(m, f"auto -> {m}: cheapest measured method meeting the budget, worst RMSE "
+        return AutoChoice(m, f"auto -> {m}: cheapest measured method meeting the budget, worst error "
                              f"{e:.3f} <= {budget:g} in {_fmt_s(t)} on {where}{here}",
-                          f"{m}: RMSE {e:.3f} <= {budget:g} ({scope})",
+                          f"{m}: error {e:.3f} <= {budget:g} ({scope})",
                           "meets budget", budget, visibility, e, t, names)
     m = min(stats, key=lambda k: (stats[k][0], stats[k][1]))
     e, t = stats[m]
     return AutoChoice(m, f"auto -> {m}: no measured method meets the budget {budget:g}; the most "
-                         f"accurate one, worst RMSE {e:.3f} in {_fmt_s(t)} on {where}{here}",
-                      f"{m}: most accurate, RMSE {e:.3f} > {budget:g}",
+                         f"accurate one, worst error {e:.3f} in {_fmt_s(t)} on {where}{here}",
+                      f"{m}: most accurate, error {e:.3f} > {budget:g}",
                       "most accurate", budget, visibility, e, t, names)
 
 
-def choose_for_light(light, visibility: str = AVERAGE, budget: float = DEFAULT_BUDGET,
+def choose_for_light(light, visibility: str = IRRADIANCE, budget: float = DEFAULT_BUDGET,
                      table=PACKAGED, known: Optional[Sequence[str]] = None, scene=None) -> AutoChoice:
     """``choose`` for a captured ``core.scene.Light`` (of ``scene``, whose
     shape then scales the measured times: rule 5)."""

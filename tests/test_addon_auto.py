@@ -107,7 +107,7 @@ def test_cli_plan_prints_autos_pick_under_the_budget(capsys, tmp_path):
     from penumbra.cli import main
     blend = sample_path("torus_plane")                      # a spot light: sphere kind
     picks = []
-    for budget in ("0.02", "0.3"):
+    for budget in ("0.005", "0.3"):
         assert main(["plan", blend, "--methods", "auto,embree", "--error-budget", budget]) == 0
         out = capsys.readouterr().out
         want = ac.choose("sphere", 0.8, budget=float(budget), shape=_torus_shape(None))
@@ -125,19 +125,21 @@ def test_cli_plan_prints_autos_pick_under_the_budget(capsys, tmp_path):
 
 
 def test_cli_render_auto_writes_the_picked_method_under_its_id(tmp_path):
-    """``penumbra render --methods auto,embree``: the light's pass is the
+    """``penumbra render --methods auto,embree_irr``: the light's pass is the
     method auto picked for the budget, under that id (never ``auto``), with
-    its error against the reference and the decision in the plan."""
+    its error against the reference of its definition and the decision in
+    the plan."""
     import OpenEXR
     from penumbra.cli import main
     blend = sample_path("torus_plane")
     want = ac.choose("sphere", 0.8, budget=0.3, shape=_torus_shape((48, 48)))
-    assert main(["render", blend, "--methods", "auto,embree", "--out", str(tmp_path), "--resolution", "48x48",
+    assert main(["render", blend, "--methods", "auto,embree_irr", "--out", str(tmp_path), "--resolution", "48x48",
                  "--samples", "16", "--error-budget", "0.3", "--no-previews"]) == 0
     rec = json.load(open(next(tmp_path.glob("*.json"))))
     (light,) = rec["lights"]
-    assert set(light["methods"]) == {want.method, "embree"}
-    assert light["methods"][want.method]["error"]["reference"] == "embree"
+    assert set(light["methods"]) == {want.method, "embree_irr"}
+    assert light["methods"][want.method]["visibility"] == "irradiance"
+    assert light["methods"][want.method]["error"]["reference"] == "embree_irr"
     plan = rec["plan"]["lights"][0]
     assert plan["auto"]["method"] == want.method and plan["decisions"][0] == want.reason
     exr = OpenEXR.File(str(next(tmp_path.glob("*.exr"))), separate_channels=True)
