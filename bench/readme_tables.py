@@ -1,7 +1,9 @@
 """The README's two tables, speed and accuracy, made from ``bench/results/``:
-each method at its defaults (its first sweep entry with no setting beyond 64
-light samples, ``study.default_setting``) on every study scene at the study's
-larger size, and the machine they were measured on (``machine.json``).
+each method at its defaults (``study.default_setting``: its filtered
+irradiance pass at ``study.AUTO_LIGHT_SAMPLES`` light samples) and Cycles' own pair of renders
+(``study.CYCLES_SAMPLES``) on every study scene at the study's larger size,
+against the compositing truth, and the machine they were measured on
+(``machine.json``).
 
     python -m penumbra.bench.readme_tables            # rewrite README.md's tables
     python -m penumbra.bench.readme_tables --check    # exit 1 when README.md is not current
@@ -18,7 +20,8 @@ import sys
 from typing import Dict, List, Optional
 
 from .harness import ROOT
-from .study import SCENES, SIZES, SWEEPS, default_setting
+from .study import AUTO_LIGHT_SAMPLES, CYCLES_SAMPLES, SCENES, SIZES, SWEEPS, default_setting
+from .truth import TRUTH_SAMPLES
 
 RESULTS = os.path.join(ROOT, "bench", "results")
 README = os.path.join(ROOT, "README.md")
@@ -30,26 +33,28 @@ def _rows(results: str) -> List[dict]:
         return [r for r in csv.DictReader(f) if r.get("status") == "ok"]
 
 
-def _grid(rows: List[dict], column: str, fmt: str) -> Dict[str, Dict[str, str]]:
-    """method -> scene -> the formatted ``column`` of its default row at the
-    scene's larger study size."""
+def _grid(rows: List[dict], columns, fmt: str) -> Dict[str, Dict[str, str]]:
+    """row label -> scene -> the formatted ``columns`` (joined by " / ") of
+    each method's default row and of Cycles' pairs at the scene's larger
+    study size."""
     out: Dict[str, Dict[str, str]] = {}
-    for mid in SWEEPS:
-        label = default_setting(mid)
+    wanted = [(f"`{'embree_irr' if mid == 'embree' else mid}`", mid, default_setting(mid)) for mid in SWEEPS]
+    wanted += [(f"Cycles pair, {n} spp", "cycles", f"samples={n}") for n in CYCLES_SAMPLES]
+    for label, mid, setting in wanted:
         for scene in SCENES:
             size = "x".join(str(v) for v in SIZES[scene][-1])
             hit = [r for r in rows if r["method"] == mid and r["scene"] == scene and r["size"] == size
-                   and r["setting"] == label]
-            if hit:
-                out.setdefault(mid, {})[scene] = format(float(hit[0][column]), fmt)
+                   and r["setting"] == setting]
+            if hit and all(hit[0].get(c) not in (None, "") for c in columns):
+                out.setdefault(label, {})[scene] = " / ".join(format(float(hit[0][c]), fmt) for c in columns)
     return out
 
 
 def _table(grid: Dict[str, Dict[str, str]]) -> List[str]:
     scenes = [s for s in SCENES if any(s in g for g in grid.values())]
-    lines = ["| method | " + " | ".join(scenes) + " |", "|---|" + "---|" * len(scenes)]
-    for mid, by_scene in grid.items():
-        lines.append(f"| `{mid}` | " + " | ".join(by_scene.get(s, "-") for s in scenes) + " |")
+    lines = ["| pass | " + " | ".join(scenes) + " |", "|---|" + "---|" * len(scenes)]
+    for label, by_scene in grid.items():
+        lines.append(f"| {label} | " + " | ".join(by_scene.get(s, "-") for s in scenes) + " |")
     return lines
 
 
@@ -68,12 +73,14 @@ def tables(results: str = RESULTS) -> str:
     """The markdown between the README's markers."""
     rows = _rows(results)
     size = "x".join(str(v) for v in SIZES[SCENES[0]][-1])
-    lines = [BEGIN, "", f"Speed: wall seconds per pass at {size}, 64 light samples, warm (median of the "
-                        f"study's runs); {machine_line(results)}.", ""]
-    lines += _table(_grid(rows, "seconds", ".3f"))
-    lines += ["", f"Accuracy: RMSE against `embree` at 1024 samples over the pixels the light reaches, "
-                  f"the same runs.", ""]
-    lines += _table(_grid(rows, "rmse", ".4f"))
+    lines = [BEGIN, "", f"Speed: wall seconds of a frame's pass at {size} (the filtered irradiance ratio, "
+                        f"{AUTO_LIGHT_SAMPLES} light samples, warm, median of the study's runs; Cycles: its two renders); "
+                        f"{machine_line(results)}.", ""]
+    lines += _table(_grid(rows, ("seconds",), ".3f"))
+    lines += ["", f"Accuracy: RMSE against Cycles' shadow ratio at {TRUTH_SAMPLES} samples (filtered like "
+                  f"the render) over the pixels the light reaches / over the silhouette pixels, the same runs.",
+              ""]
+    lines += _table(_grid(rows, ("rmse", "rmse_silhouette"), ".3f"))
     lines += ["", END]
     return "\n".join(lines)
 

@@ -1,14 +1,21 @@
 """The accuracy-versus-time study (``--part study``): every method and quality knob on
-the sample scenes at two resolutions, against a converged reference.
+the sample scenes at two resolutions, against the compositing truth.
 
-For each run: median wall time per phase over ``repeats`` warm runs, and the
-error against ``embree`` (or ``embree_irr``, same V definition) at
-REFERENCE_SAMPLES: RMSE, max abs, mean signed, RMSE inside the penumbra
-(0.02 < ref < 0.98). Output under ``bench/results/``: ``study.csv`` (every
-run), ``study.md`` (table + one sentence per method), ``pareto_<scene>.png``
-(error vs time, log axes, Pareto front), ``sheet_<scene>.png`` (passes and
-error images), ``auto_table.json`` (the Pareto fronts the planner's ``auto``
-reads). A method that fails a scene is recorded as failed, not dropped.
+The truth is Cycles' shadow ratio (the light's Diffuse Direct with its shadow
+over the same without it) at ``truth.TRUTH_SAMPLES``, filtered like the
+scene renders (``bench/truth.py``). Every method runs as ``penumbra render``
+runs it by default: the irradiance ratio, filtered like the render
+(``filtered_frame.render_filtered``). For each run: the median wall time of
+the frame over ``repeats`` warm runs, and its error against the truth over
+the pixels the light reaches (RMSE, max abs, mean signed, RMSE inside the
+truth's penumbra 0.02 < V < 0.98) and over the silhouette pixels (those whose
+filter footprint holds an edge of the geometry). Cycles' own pair at fewer
+samples is measured beside them, in the same run (method ``cycles``).
+Output under ``bench/results/``: ``study.csv`` (every run), ``study.md``,
+``pareto_<scene>.png`` (error vs time, log axes, Pareto front),
+``sheet_<scene>.png`` (passes and error images), ``auto_table.json`` (what
+the planner's ``auto`` reads). A method that fails a scene is recorded as
+failed, not dropped.
 """
 from __future__ import annotations
 
@@ -27,11 +34,15 @@ import numpy as np
 from ..core import auto_choice
 from ..core import methods as registry
 from ..core.buffers import FrameBuffers
-from ..core.metrics import errors, reach_mask, whole_light_mask
-from ..core.warmup import ensure_compiled
-from .harness import ROOT, load_sample
+from ..core.methods.base import DEFAULT_LIGHT_SAMPLES
+from ..core.filtered_frame import render_filtered
+from ..core.metrics import errors, reach_mask
+from .harness import ROOT, load_sample, open_sample
+from .truth import TRUTH_SAMPLES, cycles_pair, cycles_truth
 
-REFERENCE_SAMPLES = 1024
+#: Cycles' own pair beside the methods: its samples (the truth's noise at each)
+CYCLES_SAMPLES = (16, 64, 256)
+QUICK_TRUTH_SAMPLES = 128
 SCENES = ("grids", "sphere_plane", "torus_plane", "foliage", "sun_pillars", "leaf_cards")
 #: per scene, the two sizes a full run measures (the larger one is the Pareto
 #: plot's, the contact sheet's and the auto table's); small, so a full run of
@@ -42,7 +53,9 @@ QUICK_SIZES = ((48, 48), (64, 64))
 # method id -> list of (label, params) or (label, params, light kinds it runs
 # for). The knobs each paper names; "paper:" rows are the paper's version
 # where a default departs from it, so the study shows both. The entry whose
-# params are {} or {"samples": 64} is the method's default (``default_setting``).
+# params are {} or {"samples": 256} is the method's default (``default_setting``);
+# the first entry is the contact sheet's. Variants of a sampling method run at
+# 64 samples, beside its samples=64 row.
 SWEEPS: Dict[str, List] = {
     # the default: the filter region from the light's size at the mean blocker depth (PCSS-like);
     # the paper's figure-4 region behind region="figure4"
@@ -53,7 +66,7 @@ SWEEPS: Dict[str, List] = {
             ("paper: figure-4 region, NumSamples=16 ResFactor=3", {"region": "figure4"}),
             ("paper: figure-4 region, ResFactor=8", {"region": "figure4", "ResFactor": 8.0}),
             ("paper: figure-4 region, receiver_plane off", {"region": "figure4", "receiver_plane": False})],
-    "embree": [(f"samples={n}", {"samples": n}) for n in (4, 16, 64, 256)],
+    "embree": [(f"samples={n}", {"samples": n}) for n in (256, 4, 16, 64)],
     # the defaults: every blocker texel's light summed, ids = connected mesh pieces, no
     # adaptive sampling (section 4.3's interpolation is made for a ramp), V x the light above
     # the receiver's tangent plane (horizon)
@@ -67,15 +80,15 @@ SWEEPS: Dict[str, List] = {
                                                                          "horizon": False})],
     # the default: the footprint splat and the bilinear display (the paper's 4-neighbour splat and
     # nearest pixel on surfaces steeper than steep_slope), ids = connected mesh pieces
-    "layered": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}), ("samples=256", {"samples": 256}),
+    "layered": [("samples=256", {"samples": 256}), ("samples=16", {"samples": 16}), ("samples=64", {"samples": 64}),
                 ("nearest LDI pixel", {"samples": 64, "bilinear": False}),
                 ("footprint splat, bilinear everywhere", {"samples": 64, "steep_slope": float("inf")}),
                 ("paper: 4-neighbour splat, nearest pixel, object ids",
                  {"samples": 64, "splat": "neighbours", "bilinear": False, "surfaces": "object"})],
-    "depth_raytrace": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
-                       ("samples=256", {"samples": 256}), ("no coherence", {"samples": 64, "coherence": False})],
-    "penumbra_casting": [("samples=64", {"samples": 64}), ("samples=16", {"samples": 16}),
-                         ("samples=256", {"samples": 256}),
+    "depth_raytrace": [("samples=256", {"samples": 256}), ("samples=16", {"samples": 16}),
+                       ("samples=64", {"samples": 64}), ("no coherence", {"samples": 64, "coherence": False})],
+    "penumbra_casting": [("samples=256", {"samples": 256}), ("samples=16", {"samples": 16}),
+                         ("samples=64", {"samples": 64}),
                          # the paper's per-triangle blockers (no coplanar polygons, no interior slices)
                          ("paper: triangles", {"samples": 64, "coplanar_blockers": False,
                                                "interior_blockers": False})],
@@ -127,28 +140,52 @@ def run_study(out_dir: str, repeats: int = 3, scenes=SCENES, resolutions=None, q
     return rows
 
 
+def silhouette_mask(g, radius: float) -> np.ndarray:
+    """bool[H, W]: pixels with a pixel centre within ``radius`` (the pixel
+    filter's) that sees another object, or the world where this one sees a
+    surface or the other way round: the footprints that hold an edge."""
+    H, W = g.hit.shape
+    r = int(np.ceil(radius))
+    key = np.where(g.hit, g.object_id, -1)
+    pad = np.pad(key, r, mode="edge")
+    out = np.zeros((H, W), bool)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            out |= pad[r + dy:r + dy + H, r + dx:r + dx + W] != key
+    return out
+
+
 def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
-    """The reference and every sweep entry on sample ``name`` at ``res``: its
-    rows; its contact sheet into ``sheets``."""
+    """The truth, Cycles' pair and every sweep entry on sample ``name`` at
+    ``res``: its rows; its contact sheet into ``sheets``."""
+    from ..bridge import settings
     rows = []
+    flt = settings.pixel_filter(open_sample(name), "scene")
+    truth = cycles_truth(name, res, QUICK_TRUTH_SAMPLES if quick else TRUTH_SAMPLES)
     scene = load_sample(name, res)
     light = scene.lights[0]
     shape = auto_choice.scene_shape(scene, light)     # what auto's cost model scales from
     fb = FrameBuffers(scene, *res)
-    ref_m = producers["embree"]
-    ref_ns = 64 if quick else REFERENCE_SAMPLES
-    ref_p = ref_m.make_params({"samples": ref_ns, "seed": 12345})
-    compile_s = ensure_compiled(ref_m, light, ref_p)          # kernel compilation: not in any time
-    t0 = time.perf_counter()
-    ref = ref_m.run(fb, light, ref_p)
-    ref_time = time.perf_counter() - t0
-    mask = reach_mask(fb.gbuffer, light)
-    whole = mask & whole_light_mask(fb.gbuffer, light)    # the receivers with the whole light in front
-    refs = {"average": ref.passes["embree"], "irradiance": ref.passes["embree_irr"]}
-    sheet = {"reference (embree)": refs["average"]}
+    lit = reach_mask(fb.gbuffer, light)
+    edges = lit & silhouette_mask(fb.gbuffer, flt.radius)
+    sheet = {f"Cycles {QUICK_TRUTH_SAMPLES if quick else TRUTH_SAMPLES} spp (truth)": truth}
     common = dict(scene=name, size=f"{res[0]}x{res[1]}", threads=numba.get_num_threads(),
                   load=round(os.getloadavg()[0], 2), light_kind=light.kind, light_extent=light.extent,
-                  triangles=shape.triangles, light_relative=shape.light_relative, mattes=shape.mattes)
+                  triangles=shape.triangles, light_relative=shape.light_relative, mattes=shape.mattes,
+                  visibility="irradiance")
+
+    def measured(row, v):
+        e, es = errors(v, truth, lit), errors(v, truth, edges)
+        row.update(rmse=e["rmse"], max_abs=e["max_abs"], mean_signed=e["mean_signed"],
+                   rmse_penumbra=e["rmse_penumbra"], rmse_silhouette=es["rmse"])
+        return row
+
+    for n in (CYCLES_SAMPLES[:1] if quick else CYCLES_SAMPLES):
+        v, seconds = cycles_pair(name, res, n)
+        rows.append(measured(dict(common, method="cycles", setting=f"samples={n}", seconds=seconds,
+                                  status="ok", repeats=1), v))
+        print(f"{name} {res[0]}x{res[1]} cycles pair {n:5d} spp {seconds:.2f}s rmse {rows[-1]['rmse']:.4f}",
+              flush=True)
     for mid in SWEEPS:
         if mid not in producers:
             continue
@@ -160,27 +197,24 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
                 p, unknown = _apply(m, params, fb)
                 if unknown:
                     raise ValueError(f"unknown knob(s) {unknown}")
-                compile_s += ensure_compiled(m, light, p)   # kernel compilation, timed apart
-                m.run(fb, light, p)                         # warm: shared buffers, caches
-                phase_runs, out = [], None
+                pid = mid if mid in m.passes else next(iter(m.passes))
+                pid = "embree_irr" if mid == "embree" else pid
+                own = {k: v for k, v in params_of(p).items()}
+
+                def frame():
+                    return render_filtered(scene, [pid], pixel_filter=flt, method_overrides={mid: own},
+                                           overrides={"visibility": "irradiance"})
+                frame()                                     # warm: kernels compiled, caches filled
+                walls, out = [], None
                 for _ in range(repeats):
                     t = time.perf_counter()
-                    out = m.run(fb, light, p)
-                    wall = time.perf_counter() - t
-                    phases = dict(out.time_s)
-                    phases["wall"] = wall
-                    phase_runs.append(phases)
-                med = {k: statistics.median(r.get(k, 0.0) for r in phase_runs) for k in phase_runs[0]}
-                row["seconds"] = med["wall"]
-                row["phases"] = json.dumps({k: round(v, 5) for k, v in med.items() if k not in ("wall", "total")})
-                pid = mid if mid in out.passes else next(iter(out.passes))
-                vis = m.passes[pid]
-                v = np.where(mask, out.passes[pid], 1.0)
-                e = errors(v, refs[vis], mask)
-                ew = errors(v, refs[vis], whole)
-                row.update(visibility=vis, rmse=e["rmse"], max_abs=e["max_abs"],
-                           mean_signed=e["mean_signed"], rmse_penumbra=e["rmse_penumbra"],
-                           rmse_whole=ew["rmse"], rmse_penumbra_whole=ew["rmse_penumbra"])
+                    out = frame()
+                    walls.append(time.perf_counter() - t)
+                rec = out.lights[0].record[pid]
+                row["seconds"] = statistics.median(walls)
+                row["phases"] = json.dumps({k: round(v, 5) for k, v in rec["time_s"].items() if k != "total"})
+                v = np.where(lit, out.lights[0].passes[pid], 1.0)
+                measured(row, v)
                 if label == entries[0][0]:
                     sheet[mid] = v
             except Exception as exc:  # a failing method is shown, not dropped
@@ -188,22 +222,24 @@ def _measure_scene(name, res, repeats, quick, producers, sheets) -> List[dict]:
                            trace=traceback.format_exc(limit=2))
             rows.append(row)
             print(f"{name} {res[0]}x{res[1]} {mid:16s} {label:28s} "
-                  + (f"{row['seconds']:.4f}s rmse {row['rmse']:.4f}" if row["status"] == "ok"
-                     else row["error"]), flush=True)
-    rows.append(dict(common, method="embree (reference)", setting=f"samples={ref_ns}", seconds=ref_time,
-                     status="ok", repeats=1, visibility="average", rmse=0.0, max_abs=0.0, mean_signed=0.0,
-                     rmse_penumbra=0.0, rmse_whole=0.0, rmse_penumbra_whole=0.0))
-    print(f"{name} {res[0]}x{res[1]} kernel compilation {compile_s:.2f}s (in no row's seconds)", flush=True)
-    sheets[(name, res)] = (sheet, refs["average"], mask)
+                  + (f"{row['seconds']:.4f}s rmse {row['rmse']:.4f} silhouettes {row['rmse_silhouette']:.4f}"
+                     if row["status"] == "ok" else row["error"]), flush=True)
+    sheets[(name, res)] = (sheet, truth, lit)
     return rows
 
 
+def params_of(p) -> dict:
+    """A Params dataclass as the overrides that make it."""
+    from ..core.methods.base import params_dict
+    return params_dict(p)
+
+
 #: study.csv's columns; the numbers among them (read back by ``kept_rows``)
-CSV_KEYS = ["scene", "size", "method", "setting", "status", "visibility", "seconds", "phases", "rmse", "max_abs",
-            "mean_signed", "rmse_penumbra", "threads", "repeats", "error", "light_kind", "light_extent",
-            "triangles", "light_relative", "mattes", "load", "rmse_whole", "rmse_penumbra_whole"]
-_FLOATS = ("seconds", "rmse", "max_abs", "mean_signed", "rmse_penumbra", "light_extent", "light_relative", "load",
-           "rmse_whole", "rmse_penumbra_whole")
+CSV_KEYS = ["scene", "size", "method", "setting", "status", "visibility", "seconds", "phases", "rmse",
+            "rmse_silhouette", "max_abs", "mean_signed", "rmse_penumbra", "threads", "repeats", "error",
+            "light_kind", "light_extent", "triangles", "light_relative", "mattes", "load"]
+_FLOATS = ("seconds", "rmse", "rmse_silhouette", "max_abs", "mean_signed", "rmse_penumbra", "light_extent",
+           "light_relative", "load")
 _INTS = ("threads", "repeats", "triangles", "mattes")
 
 
@@ -266,7 +302,7 @@ def write_outputs(rows, sheets, out_dir):
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("wall time per light (s, median of warm runs)")
-        ax.set_ylabel("RMSE against embree 1024 spp")
+        ax.set_ylabel(f"RMSE against Cycles' ratio at {TRUTH_SAMPLES} spp")
         ax.set_title(f"{scene}: accuracy versus time")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
@@ -294,33 +330,34 @@ def write_outputs(rows, sheets, out_dir):
     reps = sorted({int(r["repeats"]) for r in rows if r.get("repeats") not in (None, "") and "reference" not in r["method"]})
     threads = sorted({int(r["threads"]) for r in rows if r.get("threads") not in (None, "")})
     loads = [float(r["load"]) for r in rows if r.get("load") not in (None, "")]
-    lines = [f"Times: median wall seconds of {'/'.join(map(str, reps))} warm runs, "
-             f"{'/'.join(map(str, threads))} Numba threads"
+    lines = [f"Times: median wall seconds of {'/'.join(map(str, reps))} warm frames (the method's filtered "
+             f"irradiance pass; Cycles: its pair of renders), {'/'.join(map(str, threads))} Numba threads"
              + (f", 1-minute load average {min(loads):.1f}-{max(loads):.1f} (per scene in study.csv)" if loads else "")
-             + f"; errors against embree ({', '.join(sorted({r['setting'] for r in rows if 'reference' in r['method']}))})"
-             " over the pixels the light reaches; \"whole light\": over those that see the whole light above"
-             " their tangent plane (``metrics.whole_light_mask``).", "",
-             "| scene | size | method | setting | time s | rmse | max abs | mean signed | rmse penumbra "
-             "| rmse whole light | rmse penumbra whole light |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             + f"; errors against Cycles' shadow ratio at {TRUTH_SAMPLES} samples filtered like the render, over"
+             " the pixels the light reaches, and over the silhouette pixels (an edge in the filter's footprint).",
+             "",
+             "| scene | size | method | setting | time s | rmse | rmse silhouettes | max abs | mean signed "
+             "| rmse penumbra |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
 
-    def num(r, k):
-        return f"{float(r[k]):.4f}" if r.get(k) not in (None, "") else ""
+    def num(r, k, fmt=".4f"):
+        return format(float(r[k]), fmt) if r.get(k) not in (None, "") else ""
 
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | FAILED: {r.get('error','')[:60]} | | | | | | |")
+            lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | FAILED: "
+                         f"{r.get('error', '')[:60]} | | | | | |")
             continue
-        lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | {r['seconds']:.4f} | "
-                     f"{r['rmse']:.4f} | {r['max_abs']:.3f} | {r['mean_signed']:+.4f} | {r['rmse_penumbra']:.4f} | "
-                     f"{num(r, 'rmse_whole')} | {num(r, 'rmse_penumbra_whole')} |")
+        lines.append(f"| {r['scene']} | {r['size']} | {r['method']} | {r['setting']} | {num(r, 'seconds')} | "
+                     f"{num(r, 'rmse')} | {num(r, 'rmse_silhouette')} | {num(r, 'max_abs', '.3f')} | "
+                     f"{num(r, 'mean_signed', '+.4f')} | {num(r, 'rmse_penumbra')} |")
     with open(os.path.join(out_dir, "study.md"), "w") as f:
         f.write("\n".join(lines) + "\n")
 
 
 # --------------------------------------------------------------------------
 # The planner's table (core/auto_choice.py reads it; format penumbra-auto-table/1)
-AUTO_LIGHT_SAMPLES = 64      # a light's default Light Samples (addon/properties.py)
+AUTO_LIGHT_SAMPLES = DEFAULT_LIGHT_SAMPLES   # a light's default Light Samples (addon/properties.py)
 
 
 def _pixels(size: str) -> int:
@@ -333,7 +370,7 @@ def _largest_size(rows, scene) -> str:
 
 
 def default_setting(mid: str):
-    """The sweep label of ``mid`` at its default parameters (64 light samples
+    """The sweep label of ``mid`` at its default parameters (``AUTO_LIGHT_SAMPLES``
     where it samples): what a light runs when ``auto`` picks the method."""
     for label, params in sweep(mid):
         if params in ({}, {"samples": AUTO_LIGHT_SAMPLES}):
@@ -358,8 +395,11 @@ def auto_table(rows, fronts=None) -> dict:
             r = next((r for r in here if r["method"] == mid and r["setting"] == label), None)
             if r is None or r["status"] != "ok":
                 continue
-            methods[mid] = {"setting": label, "visibility": r["visibility"], "seconds": float(r["seconds"]),
+            pid = "embree_irr" if mid == "embree" and r["visibility"] == "irradiance" else mid
+            methods[pid] = {"setting": label, "visibility": r["visibility"], "seconds": float(r["seconds"]),
                             "rmse": float(r["rmse"]), "rmse_penumbra": float(r["rmse_penumbra"])}
+            if r.get("rmse_silhouette") not in (None, ""):
+                methods[pid]["rmse_silhouette"] = float(r["rmse_silhouette"])
         entry = {"scene": scene, "size": size, "light_kind": lit["light_kind"],
                  "light_extent": float(lit["light_extent"]), "methods": methods}
         if lit.get("triangles") not in (None, ""):            # auto's rule 5 (SceneShape)
@@ -368,7 +408,8 @@ def auto_table(rows, fronts=None) -> dict:
         if lit.get("mattes") not in (None, ""):               # auto's rule 3 (alpha mattes or not)
             entry["mattes"] = int(lit["mattes"])
         scenes.append(entry)
-    out = {"format": "penumbra-auto-table/1", "reference": f"embree {REFERENCE_SAMPLES} spp",
+    out = {"format": "penumbra-auto-table/1",
+           "reference": f"Cycles' shadow ratio at {TRUTH_SAMPLES} spp, filtered like the render",
            "settings": f"each method at its default parameters, {AUTO_LIGHT_SAMPLES} light samples",
            "threads": max((int(r.get("threads") or 0) for r in rows), default=0), "scenes": scenes}
     if fronts:
