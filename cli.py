@@ -159,14 +159,16 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--repeats", type=_positive("--repeats", 1, 100), default=3)
     b.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
     b.add_argument("--study-scenes", type=_study_scenes, default=None,
-                   help="comma-separated sample scenes for --part study (default: all); the other "
-                        "scenes' rows are kept from --out's study.csv")
+                   help="comma-separated sample scenes for --part study, filter and cycles (default: each "
+                        "part's own); study keeps the other scenes' rows of --out's study.csv")
     b.add_argument("--startup-methods", type=_startup_methods, default=None,
                    help="comma-separated rows of the start-up table: method ids and 'all' (the seven in one "
                         "run; default: every row)")
-    b.add_argument("--part", choices=("all", "skeleton", "startup", "methods", "scaling", "study", "filter"),
+    b.add_argument("--part", choices=("all", "skeleton", "startup", "methods", "scaling", "study", "filter",
+                                      "cycles"),
                    default="all", help="pipeline phases (with buffers, Preview and start-up), the start-up table "
-                   "alone, per-method tables, triangle-count scaling, the accuracy-versus-time study, or filtered passes")
+                   "alone, per-method tables, triangle-count scaling, the accuracy-versus-time study, filtered "
+                   "passes, or penumbra render against Cycles' shadow pair")
     add_farm_parser(sub)
     return p
 

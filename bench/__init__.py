@@ -6,6 +6,7 @@ the extension; ``blender_manifest.toml`` excludes ``/bench/``).
 - :mod:`.scaling`: embree and penumbra_casting against triangle count (``--part scaling``),
 - :mod:`.study`: accuracy versus time and the planner's table (``--part study``),
 - :mod:`.pixel_filter`: the cost and error of filtered passes (``--part filter``),
+- :mod:`.vs_cycles`: ``penumbra render`` against Cycles' shadow pair at 1080p (``--part cycles``),
 - :mod:`.harness`: what they share (sample scenes, machine, median of warm runs).
 
 Medians of ``--repeats`` warm runs; thread counts stated. Results go to
@@ -22,7 +23,7 @@ from .phases import (BUFFER_COLUMNS, STARTUP_COLUMNS, bench_buffers, bench_previ
 
 
 def run_bench(args) -> int:
-    """The ``bench`` command: ``args.part`` (all, skeleton, startup, methods, scaling, study, filter),
+    """The ``bench`` command: ``args.part`` (all, skeleton, startup, methods, scaling, study, filter, cycles),
     ``args.out``, ``args.repeats``, ``args.quick``."""
     repeats = max(1, args.repeats)
     print(f"machine: {json.dumps(machine())}")
@@ -62,4 +63,8 @@ def run_bench(args) -> int:
         from .study import run_study
         from .study import SCENES
         run_study(args.out, repeats=repeats, quick=args.quick, scenes=getattr(args, "study_scenes", None) or SCENES)
+    if args.part in ("all", "cycles"):
+        from .vs_cycles import SCENES as CYCLES_SCENES, bench_vs_cycles
+        print("penumbra render against Cycles' shadow pair")
+        print(bench_vs_cycles(args.out, repeats, args.quick, getattr(args, "study_scenes", None) or CYCLES_SCENES))
     return 0
