@@ -68,7 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...sampling import offset_points
-from ..base import AVERAGE, IRRADIANCE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
+from ..base import IRRADIANCE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 from ..embree_ref import trace_visibility
 from ..horizon import horizon_share
 from ..registry import register

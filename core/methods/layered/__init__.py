@@ -84,7 +84,7 @@ import numpy as np
 from ... import sampling
 from ...kernels import each_dealt_chunk
 from ...scene import Light
-from ..base import (AVERAGE, DEFAULT_LIGHT_SAMPLES, IRRADIANCE, GBUFFER, LIGHT_SAMPLE_VIEWS, MESH_PIECES,
+from ..base import (DEFAULT_LIGHT_SAMPLES, IRRADIANCE, GBUFFER, LIGHT_SAMPLE_VIEWS, MESH_PIECES,
                     PRECOMPUTE, SHADOW_GEOMETRY, Method, MethodResult, PhaseTimer)
 from ..registry import register
 from .ldi import LAYERS_START, LDI, complexity, ldi_insert, seen_words

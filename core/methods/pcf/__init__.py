@@ -72,7 +72,7 @@ import numpy as np
 from ... import views
 from ...kernels import finite_bbox
 from ..registry import register
-from ..base import AVERAGE, IRRADIANCE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
+from ..base import IRRADIANCE, GBUFFER, LIGHT_VIEW, Method, MethodResult, PhaseTimer
 from .anchors import auto_pixel_step
 from .footprint import pixel_ray_terms
 from .light_region import light_reach

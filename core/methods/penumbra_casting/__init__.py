@@ -72,7 +72,7 @@ import numba
 import numpy as np
 
 from ...kernels import each_in_threads
-from ..base import AVERAGE, DEFAULT_LIGHT_SAMPLES, IRRADIANCE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
+from ..base import DEFAULT_LIGHT_SAMPLES, IRRADIANCE, GBUFFER, SHADOW_TRIANGLES, Method, MethodResult, PhaseTimer
 from ..registry import register
 from .alpha_blockers import matte_blockers, split_blockers
 from .cast import CastSwitches, LightGroups, cast_chunk_for

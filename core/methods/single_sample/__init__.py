@@ -71,7 +71,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..base import AVERAGE, IRRADIANCE, GBUFFER, LIGHT_VIEW, MESH_PIECES, Method, MethodResult, PhaseTimer
+from ..base import IRRADIANCE, GBUFFER, LIGHT_VIEW, MESH_PIECES, Method, MethodResult, PhaseTimer
 from ..horizon import scale_by_horizon
 from ..registry import register
 from .adaptive import _marks, adaptive_walk
