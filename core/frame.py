@@ -83,6 +83,15 @@ def _visibility(pid: str, overrides) -> str:
     return m.visibility(pid, m.make_params(overrides))
 
 
+def _finite_pass(v: np.ndarray, unreached: np.ndarray) -> np.ndarray:
+    """A method's pass as the frame writes it: float32 in [0, 1], NaN as 1,
+    and 1 where the light cannot reach (no light there, so no shadow: the
+    same as skipping the light)."""
+    v = np.clip(np.nan_to_num(v, nan=1.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+    v[unreached] = 1.0
+    return v
+
+
 def _params(m, overrides, method_overrides):
     ov = dict(overrides or {})
     ov.update((method_overrides or {}).get(m.id, {}))
@@ -199,19 +208,11 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         unreached = ~mask
         for m, _p, res, _t in done.values():
             for pid, v in (res.passes.items() if m is not None else ()):
-                v = np.clip(np.nan_to_num(v, nan=1.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
-                v[unreached] = 1.0   # no light there, so no shadow: the same as skipping the light
-                lr.computed[pid] = v
+                lr.computed[pid] = _finite_pass(v, unreached)
         for pid in lp.passes:
             ext = method_registry.is_external(pid)
             m, params, res, phases = done[pid if ext else method_registry.producer_of(pid).id]
-            if ext:
-                v = np.clip(np.nan_to_num(res.passes[pid], nan=1.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
-                v = v.astype(np.float32)
-                v[unreached] = 1.0
-            else:
-                v = lr.computed[pid]
-            lr.passes[pid] = v
+            lr.passes[pid] = _finite_pass(res.passes[pid], unreached) if ext else lr.computed[pid]
             rec = {"time_s": phases,
                    "visibility": method_registry.visibility_of(pid) if ext else m.visibility(pid, params),
                    "params": dict(params) if ext else params_dict(params)}
