@@ -185,3 +185,13 @@ def half_plane_irradiance_ratio(y: float, size: float = 1.0, light_z: float = 4.
     seen = [(-h, lo, light_z), (h, lo, light_z), (h, h, light_z), (-h, h, light_z)]
     f_all = polygon_form_factor((0, y, 0), (0, 0, 1), full)
     return polygon_form_factor((0, y, 0), (0, 0, 1), seen) / f_all if lo < h else 0.0
+
+
+def placement(scale, angle_z: float, offset) -> np.ndarray:
+    """A 4x4 world-from-object matrix: scale (sx, sy, sz), then a rotation
+    by ``angle_z`` about Z, then the translation ``offset``."""
+    c, s = np.cos(angle_z), np.sin(angle_z)
+    m = np.eye(4)
+    m[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ np.diag(scale)
+    m[:3, 3] = offset
+    return m
