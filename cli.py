@@ -374,6 +374,8 @@ def cmd_plan(args) -> int:
     path = _check_blend(args.scene)
     job = _prepare(open_blend(path), path, _request(args, passes))
     scene = job.captured
+    instances, unique, placed = scene.geometry_counts()
+    print(f"geometry: {instances:,} instance(s), {unique:,} unique / {placed:,} instanced triangles")
     for step in job.steps:
         plan, _reach = plan_frame(scene, step.passes, step.names, step.error_budget,
                                   FrameBuffers(scene, *scene.resolution), step.overrides["visibility"])

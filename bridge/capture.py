@@ -38,7 +38,7 @@ import numpy as np
 
 import bpy
 
-from ..core.scene import Camera, Light, ObjectInfo, Scene, finite_triangles
+from ..core.scene import Camera, Light, MeshInstances, ObjectInfo, Scene, finite_triangles
 from .mattes import MatteCapture
 
 log = logging.getLogger(__name__)
@@ -421,19 +421,54 @@ def _capture_from_depsgraph(depsgraph, scene, resolution) -> Scene:
     filter_render = depsgraph.mode != "RENDER"
     visible = _render_visible_objects(depsgraph.view_layer) if filter_render else None
 
-    cache: Dict[tuple, tuple] = {}
-    pieces: List[tuple] = []        # (object name, world tris, (tri_matte, tri_uv) or None)
+    meshes = _Meshes()
+    pieces: List[tuple] = []        # (object name, mesh index, world_from_mesh)
     infos: Dict[str, dict] = {}
     lights: List[Light] = []
     mattes = MatteCapture(i for i in depsgraph.ids if isinstance(i, bpy.types.Material))
 
-    with np.errstate(invalid="ignore", over="ignore"):     # non-finite input is dropped below
-        for inst in depsgraph.object_instances:
-            _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights, mattes)
-    return _assemble(scene, depsgraph, resolution, pieces, infos, lights, mattes)
+    for inst in depsgraph.object_instances:
+        _capture_instance(inst, filter_render, visible, meshes, pieces, infos, lights, mattes)
+    return _assemble(scene, depsgraph, resolution, meshes, pieces, infos, lights, mattes)
 
 
-def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights, mattes):
+class _Meshes:
+    """The unique evaluated meshes of a capture: an instance's mesh is read
+    once per geometry (``_geometry_cache_key``, with the object's matte
+    lookup), an object that is not an instance gets a mesh of its own.
+    Triangles with a non-finite vertex are dropped from their mesh."""
+
+    def __init__(self):
+        self.index: Dict[tuple, int] = {}
+        self.vertices: List[np.ndarray] = []
+        self.faces: List[np.ndarray] = []
+        self.alpha: List[Optional[tuple]] = []
+        self.dropped = 0
+
+    def of(self, ob, key, mattes: MatteCapture, lut) -> int:
+        """The mesh index of evaluated object ``ob`` (-1: no surface)."""
+        if key is not None and key in self.index:
+            return self.index[key]
+        co, idx, alpha = _object_mesh_arrays(ob, mattes, lut)
+        if len(idx):
+            ok = np.isfinite(co[idx].reshape(len(idx), 9)).all(axis=1)
+            if not ok.all():
+                self.dropped += int((~ok).sum())
+                idx = idx[ok]
+                if alpha is not None:
+                    alpha = (alpha[0][ok], alpha[1][ok])
+        m = -1
+        if len(idx):
+            m = len(self.faces)
+            self.vertices.append(co)
+            self.faces.append(idx)
+            self.alpha.append(alpha)
+        if key is not None:
+            self.index[key] = m
+        return m
+
+
+def _capture_instance(inst, filter_render, visible, meshes, pieces, infos, lights, mattes):
     """Add one depsgraph object instance to the capture lists."""
     ob = inst.object
     otype = ob.type
@@ -455,17 +490,10 @@ def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights
     key = _geometry_cache_key(ob) if inst.is_instance else None
     if key is not None and lut is not None:
         key = key + (lut.tobytes(),)
-    arrays = cache.get(key) if key is not None else None
-    if arrays is None:
-        arrays = _object_mesh_arrays(ob, mattes, lut)
-        if key is not None:
-            cache[key] = arrays
-    co, idx, alpha = arrays
-    if len(idx) == 0:
+    mesh = meshes.of(ob, key, mattes, lut)
+    if mesh < 0:
         return                      # no surface (an instancer, an empty curve): no object id
     m = _matrix(inst.matrix_world)
-    world_co = (co @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
-    tris = world_co[idx]
     casts = bool(ob.visible_shadow)
     cam_vis = bool(ob.visible_camera)
     if inst.is_instance and inst.parent is not None:
@@ -477,31 +505,30 @@ def _capture_instance(inst, filter_render, visible, cache, pieces, infos, lights
     else:
         infos[name] = dict(casts_shadow=casts, visible_camera=cam_vis,
                            pass_index=int(ob.pass_index))
-    pieces.append((name, tris, alpha))
+    pieces.append((name, mesh, m))
 
 
-def _assemble(scene, depsgraph, resolution, pieces, infos, lights, mattes) -> Scene:
+def _assemble(scene, depsgraph, resolution, meshes: _Meshes, pieces, infos, lights, mattes) -> Scene:
     names = sorted(infos)
     ids = {n: i for i, n in enumerate(names)}
     objects = [ObjectInfo(name=n, id=ids[n], **infos[n]) for n in names]
-    # order triangles by object id (stable within an object) so the soup
-    # itself is deterministic too
-    pieces.sort(key=lambda p: ids[p[0]])
-    if pieces:
-        triangles = np.concatenate([p[1] for p in pieces], axis=0)
-        tri_object = np.concatenate([np.full(len(p[1]), ids[p[0]], np.int32) for p in pieces])
-    else:
-        triangles = np.zeros((0, 3, 3), np.float32)
-        tri_object = np.zeros(0, np.int32)
-    alpha = _assemble_mattes(pieces, mattes)
-    dropped = 0
+    instances = MeshInstances(
+        vertices=meshes.vertices, faces=meshes.faces,
+        mesh=np.array([p[1] for p in pieces], np.int32),
+        world_from_mesh=np.array([p[2] for p in pieces], np.float64).reshape(-1, 4, 4),
+        object_id=np.array([ids[p[0]] for p in pieces], np.int32))
+    with np.errstate(invalid="ignore", over="ignore"):   # non-finite placements are dropped below
+        triangles, tri_object = instances.flatten()
+    alpha = _assemble_mattes(instances, meshes.alpha, mattes)
+    dropped = meshes.dropped
     if len(triangles):              # finite_triangles cannot reshape an empty array
         if alpha is None:
-            triangles, tri_object, dropped = finite_triangles(triangles, tri_object)
+            triangles, tri_object, more = finite_triangles(triangles, tri_object)
         else:                       # the kept triangles' indices filter the mattes too
-            triangles, kept, dropped = finite_triangles(triangles, np.arange(len(triangles)))
+            triangles, kept, more = finite_triangles(triangles, np.arange(len(triangles)))
             tri_object = tri_object[kept]
             alpha = alpha.subset(kept)
+        dropped += more
     if dropped:
         log.warning("capture: dropped %d triangle(s) with non-finite vertices", dropped)
     lights.sort(key=lambda lt: lt.name)
@@ -511,17 +538,22 @@ def _assemble(scene, depsgraph, resolution, pieces, infos, lights, mattes) -> Sc
         camera=_capture_camera(scene, depsgraph), lights=lights,
         resolution=resolution if resolution is not None else render_resolution(scene),
         frame=int(scene.frame_current), name=blend_stem(scene), alpha=alpha,
-        alpha_opaque=list(mattes.opaque))
+        alpha_opaque=list(mattes.opaque), instances=instances)
     return captured
 
 
-def _assemble_mattes(pieces, mattes: MatteCapture):
-    """AlphaMattes over the concatenated (object-ordered) pieces, or None
-    when no piece has a matte (the scene is then captured without mattes)."""
-    if all(p[2] is None for p in pieces):
+def _assemble_mattes(instances: MeshInstances, mesh_alpha: List[Optional[tuple]],
+                     mattes: MatteCapture):
+    """AlphaMattes over the flattened triangles (``MeshInstances.flatten``'s
+    order), or None when no instanced mesh has a matte (the scene is then
+    captured without mattes)."""
+    order = instances.order()
+    used = [instances.mesh[i] for i in order]
+    if all(mesh_alpha[m] is None for m in used):
         return None
-    tri_matte = np.concatenate([p[2][0] if p[2] is not None else np.full(len(p[1]), -1, np.int32)
-                                for p in pieces])
-    tri_uv = np.concatenate([p[2][1] if p[2] is not None else np.zeros((len(p[1]), 3, 2), np.float32)
-                             for p in pieces])
+    faces = instances.faces
+    tri_matte = np.concatenate([mesh_alpha[m][0] if mesh_alpha[m] is not None
+                                else np.full(len(faces[m]), -1, np.int32) for m in used])
+    tri_uv = np.concatenate([mesh_alpha[m][1] if mesh_alpha[m] is not None
+                             else np.zeros((len(faces[m]), 3, 2), np.float32) for m in used])
     return mattes.build(tri_matte, tri_uv)

@@ -218,6 +218,74 @@ class Light:
 
 
 @dataclass
+class MeshInstances:
+    """The captured geometry as Blender holds it: each unique evaluated mesh
+    once, in its own space, and per instance the mesh, its placement and its
+    object. ``flatten`` gives the world-space triangle soup ``Scene.triangles``
+    is made of (instance by instance in object-id order, each instance's
+    triangles in its mesh's order).
+
+    A scene with no instancing has one instance per object, of a mesh of its
+    own; an instancer's N instances of one mesh share that mesh.
+    """
+
+    vertices: List[np.ndarray]       # float64[V,3] per mesh, mesh space
+    faces: List[np.ndarray]          # int32[F,3] per mesh: vertex indices
+    mesh: np.ndarray                 # int32[I]: the mesh of each instance
+    world_from_mesh: np.ndarray      # float64[I,4,4]
+    object_id: np.ndarray            # int32[I]: index into Scene.objects
+
+    def __post_init__(self):
+        self.mesh = np.asarray(self.mesh, np.int32).reshape(-1)
+        self.object_id = np.asarray(self.object_id, np.int32).reshape(-1)
+        self.world_from_mesh = np.asarray(self.world_from_mesh, np.float64).reshape(-1, 4, 4)
+        if not (len(self.mesh) == len(self.object_id) == len(self.world_from_mesh)):
+            raise ValueError("instances need one mesh, matrix and object id each")
+        if len(self.vertices) != len(self.faces):
+            raise ValueError("each mesh needs its vertices and its faces")
+
+    @property
+    def count(self) -> int:
+        """Instances."""
+        return len(self.mesh)
+
+    def mesh_triangles(self) -> np.ndarray:
+        """int64[M]: triangles per mesh."""
+        return np.array([len(f) for f in self.faces], np.int64)
+
+    @property
+    def unique_triangles(self) -> int:
+        """Triangles of the meshes instances use, each mesh counted once."""
+        used = np.unique(self.mesh)
+        return int(self.mesh_triangles()[used].sum()) if len(used) else 0
+
+    @property
+    def instanced_triangles(self) -> int:
+        """Triangles of every instance: the size of the flattened soup."""
+        return int(self.mesh_triangles()[self.mesh].sum()) if self.count else 0
+
+    def order(self) -> np.ndarray:
+        """int64[I]: the instances in flattening order (by object id, stable)."""
+        return np.argsort(self.object_id, kind="stable")
+
+    def flatten(self) -> Tuple[np.ndarray, np.ndarray]:
+        """(float32[T,3,3] world-space triangles, int32[T] object ids) of
+        every instance, in ``order``: each mesh's vertices placed in float64,
+        rounded to float32, then gathered into triangles."""
+        order = self.order()
+        tris, ids = [], []
+        for i in order:
+            m = self.world_from_mesh[i]
+            faces = self.faces[self.mesh[i]]
+            world = (self.vertices[self.mesh[i]] @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+            tris.append(world[faces])
+            ids.append(np.full(len(faces), self.object_id[i], np.int32))
+        if not tris:
+            return np.zeros((0, 3, 3), np.float32), np.zeros(0, np.int32)
+        return np.concatenate(tris), np.concatenate(ids)
+
+
+@dataclass
 class Scene:
     """One captured frame: triangle soup plus camera and lights."""
 
@@ -233,6 +301,9 @@ class Scene:
     #: materials whose transparency the capture could not read, treated as
     #: opaque ("material: why"; the plan's notes, ``planner.alpha_notes``)
     alpha_opaque: List[str] = field(default_factory=list)
+    #: how the triangles were placed (``MeshInstances``); None for a scene
+    #: built from triangles alone (every object its own mesh)
+    instances: Optional[MeshInstances] = None
 
     def __post_init__(self):
         tris = np.asarray(self.triangles, np.float32).reshape(-1, 3, 3)
@@ -271,6 +342,14 @@ class Scene:
         lo, hi = self.bounds()
         e = float(np.max(hi - lo))
         return e if e > 0 and np.isfinite(e) else 1.0
+
+    def geometry_counts(self) -> Tuple[int, int, int]:
+        """(instances, unique triangles, instanced triangles): what a
+        two-level ray caster holds against what the flattened soup holds."""
+        if self.instances is None:
+            return len(np.unique(self.tri_object)), len(self.triangles), len(self.triangles)
+        i = self.instances
+        return i.count, i.unique_triangles, i.instanced_triangles
 
     def light(self, name: str) -> Light:
         for lt in self.lights:

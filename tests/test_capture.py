@@ -333,6 +333,39 @@ def test_geometry_nodes_instances(factory_scene):
         assert np.allclose(r, 0.25, atol=1e-4)
 
 
+def test_instances_share_one_mesh(factory_scene):
+    """Instances keep their instancing: the 8 icospheres of an Instance on
+    Points modifier and two collection instances of one cube are read as one
+    mesh each, placed 10 times; the flattened soup is those placements."""
+    ob = _cube(factory_scene, "Scatter")
+    ob.location = (0.0, 0.0, 10.0)
+    ob.modifiers.new("GN", "NODES").node_group = _instance_on_points_tree()
+    src = bpy.data.collections.new("Src")
+    factory_scene.collection.children.link(src)
+    _cube(factory_scene, "A", src)
+    bpy.context.view_layer.layer_collection.children["Src"].exclude = True
+    for k in range(2):
+        inst = bpy.data.objects.new(f"Inst{k}", None)
+        inst.instance_type = "COLLECTION"
+        inst.instance_collection = src
+        inst.location = (0.0, 5.0 * k, 0.0)
+        inst.scale = (1.0 + k, 1.0, 1.0)
+        factory_scene.collection.objects.link(inst)
+    _cube(factory_scene, "Plain").location = (20.0, 0.0, 0.0)
+    for mode in ("RENDER", "VIEWPORT"):
+        captured = capture_scene(mode=mode)
+        ins = captured.instances
+        assert ins.count == 11 and len(ins.faces) == 3, mode
+        assert sorted(len(f) for f in ins.faces) == [12, 12, 20]
+        assert captured.geometry_counts() == (11, 44, 2 * 12 + 8 * 20 + 12)
+        tris, ids = ins.flatten()
+        assert np.array_equal(tris, captured.triangles) and np.array_equal(ids, captured.tri_object)
+        names = [o.name for o in captured.objects]
+        assert sorted(names[i] for i in ins.object_id) == sorted(names)
+        wide = ins.world_from_mesh[ins.object_id == names.index("Inst1/A#0")][0]
+        assert np.allclose(wide[:3, 3], (0, 5, 0)) and np.allclose(np.diag(wide)[:3], (2, 1, 1))
+
+
 def test_ids_deterministic(factory_scene):
     for name in ("Zeta", "alpha", "Beta", "Gamma"):
         _cube(factory_scene, name).location = (len(name), 0, 0)

@@ -173,6 +173,9 @@ def test_plan_and_render_agree(tmp_path, capsys, scene):
     assert main(["plan", blend, "--resolution", res]) == 0             # default: auto
     said = capsys.readouterr().out
     planned = _plan_lights(said)
+    counts = re.search(r"geometry: ([\d,]+) instance\(s\), ([\d,]+) unique / ([\d,]+) instanced triangles", said)
+    instances, unique, placed = (int(g.replace(",", "")) for g in counts.groups())
+    assert instances >= 1 and unique == placed > 0          # nothing instanced in these scenes
     assert main(["render", blend, "--out", str(tmp_path / "o"), "--resolution", res, "--samples", "4",
                  "--no-previews", "--quiet"]) == 0
     stem = os.path.splitext(os.path.basename(blend))[0]
