@@ -26,8 +26,8 @@ shadow (stochastic transparency, Enderton et al. 2010, with an ordered
 rather than random threshold), and binary mattes are tested as by the
 camera.
 
-embreex writes hit distances into the ``dists`` it is given, so every
-query here gets a copy.
+A BVH's ``run`` (``embree4.MeshRays``) writes hit distances into the
+``dists`` it is given, so every query here gets a copy.
 """
 from __future__ import annotations
 
@@ -185,7 +185,7 @@ def _record(hp, hu, hv, tri_index, geo, ray, o0, d, prim, u, v, t, cut, crossing
 
 
 def _run(bvh, o, d, tfar, **kw):
-    """embreex's run() on a copy of ``tfar`` (it writes hit distances into it)."""
+    """The BVH's ``run`` on a copy of ``tfar`` (it writes hit distances into it)."""
     return bvh._scene.run(o, d, dists=np.array(tfar, np.float32, copy=True), **kw)
 
 

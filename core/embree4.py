@@ -19,6 +19,11 @@ Data handed to Embree
   all of that mesh's instances; a hit's ``instPrimID`` and geometry id give
   the instance back (``InstancedScene.instance_of``).
 
+Every ray cast in Penumbra goes through here: ``MeshRays`` is one world-space
+mesh traced in the calling thread behind the batch interface ``raycast``'s
+``TriangleScene`` and ``alpha_rays`` use; ``InstancedScene`` with
+``intersect`` / ``occluded`` is the two-level form, chunked over threads.
+
 Ray layout (``RTCRayHit``, 16-byte aligned): org xyz, tnear, dir xyz, time,
 tfar, mask, id, flags, then the hit: Ng xyz, u, v, primID, geomID,
 instID[1], instPrimID[1]. Hits report Ng in the mesh's space; callers turn
@@ -38,7 +43,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .jit import inner, kernel
+from .jit import HOT, inner, kernel
 from .kernels import each_in_threads
 
 INVALID_ID = 0xFFFFFFFF
@@ -49,6 +54,7 @@ FORMAT_UINT3 = 0x5003
 FORMAT_FLOAT3 = 0x9003
 FORMAT_FLOAT3X4_COLUMN_MAJOR = 0x9234
 BUILD_QUALITY_HIGH = 2
+SCENE_FLAG_ROBUST = 1 << 2
 
 # float32 slots of an RTCRayHit
 RAY_ORG, RAY_TNEAR, RAY_DIR, RAY_TIME, RAY_TFAR = 0, 3, 4, 7, 8
@@ -86,6 +92,7 @@ class _Api:
             "rtcGetDeviceError": (ctypes.c_int, [vp]),
             "rtcNewScene": (vp, [vp]),
             "rtcSetSceneBuildQuality": (None, [vp, ctypes.c_int]),
+            "rtcSetSceneFlags": (None, [vp, ctypes.c_int]),
             "rtcCommitScene": (None, [vp]),
             "rtcReleaseScene": (None, [vp]),
             "rtcNewGeometry": (vp, [vp, ctypes.c_int]),
@@ -121,6 +128,15 @@ def api() -> _Api:
         return _api
 
 
+def _new_scene(a: _Api) -> int:
+    """An empty scene: a high-quality BVH, watertight (robust) triangle
+    tests as embreex's scenes have, so rays through a shared edge hit."""
+    scene = a.NewScene(a.device)
+    a.SetSceneFlags(scene, SCENE_FLAG_ROBUST)
+    a.SetSceneBuildQuality(scene, BUILD_QUALITY_HIGH)
+    return scene
+
+
 def _copy_into(ptr: int, array: np.ndarray) -> None:
     ctypes.memmove(ptr, np.ascontiguousarray(array).ctypes.data, array.nbytes)
 
@@ -142,8 +158,7 @@ class Mesh:
         if not self.count:
             return
         a = api()
-        scene = a.NewScene(a.device)
-        a.SetSceneBuildQuality(scene, BUILD_QUALITY_HIGH)
+        scene = _new_scene(a)
         geom = a.NewGeometry(a.device, GEOMETRY_TRIANGLE)
         _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_VERTEX, 0, FORMAT_FLOAT3, 12, len(vertices)), vertices)
         _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_INDEX, 0, FORMAT_UINT3, 12, len(triangles)), triangles)
@@ -182,8 +197,7 @@ class InstancedScene:
         order = order[np.argsort(mesh_of[order], kind="stable")]
         firsts: List[int] = []
         a = api()
-        scene = a.NewScene(a.device)
-        a.SetSceneBuildQuality(scene, BUILD_QUALITY_HIGH)
+        scene = _new_scene(a)
         start = 0
         attached = 0
         bounds = np.searchsorted(mesh_of[order], np.arange(len(self.meshes) + 1))
@@ -269,11 +283,13 @@ def _load_ray(f, w, org, dirs, tnear, tfar, i):
     w[RAY_FLAGS] = 0
 
 
-@kernel(nogil=True)
+@kernel(nogil=True, opt=HOT)
 def intersect_range(fn, scene, org, dirs, tnear, tfar, first, order, normal_matrix,
                     t_out, inst_out, prim_out, u_out, v_out, ng_out, i0, i1):
     """Closest hits of rays i0..i1: t (inf: none), instance (-1), primID,
-    u, v and the world-space geometric normal (unit, not flipped)."""
+    u, v and the world-space geometric normal (unit, not flipped). A
+    ``scene`` that is one mesh's BVH, with no top level, reports instance 0
+    (``first`` = [0, 1], ``order`` = [0], ``normal_matrix`` the identity)."""
     f, w, addr = _rayhit_buffer()
     for i in range(i0, i1):
         _load_ray(f, w, org, dirs, tnear, tfar, i)
@@ -288,7 +304,7 @@ def intersect_range(fn, scene, org, dirs, tnear, tfar, first, order, normal_matr
             prim_out[i] = -1
             continue
         gi = w[HIT_INST]
-        inst = order[first[gi] + w[HIT_INST_PRIM]]
+        inst = 0 if gi == INVALID_ID else order[first[gi] + w[HIT_INST_PRIM]]
         t_out[i] = f[RAY_TFAR]
         inst_out[i] = inst
         prim_out[i] = w[HIT_PRIM]
@@ -311,7 +327,7 @@ def intersect_range(fn, scene, org, dirs, tnear, tfar, first, order, normal_matr
         ng_out[i, 2] = wz
 
 
-@kernel(nogil=True)
+@kernel(nogil=True, opt=HOT)
 def occluded_range(fn, scene, org, dirs, tnear, tfar, out, i0, i1):
     """out[i] = True where something lies on ray i within (tnear, tfar)."""
     f, w, addr = _rayhit_buffer()
@@ -337,16 +353,17 @@ def _as_rays(org, dirs, tnear, tfar):
     return n, org, dirs, np.ascontiguousarray(tnear), np.ascontiguousarray(tfar)
 
 
+def _no_hits(n: int):
+    """``intersect``'s arrays for n rays, every one a miss."""
+    return (np.full(n, np.inf, np.float32), np.full(n, -1, np.int64), np.full(n, -1, np.int64),
+            np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros((n, 3), np.float32))
+
+
 def intersect(scene: InstancedScene, org, dirs, tnear=None, tfar=None, threads=None):
     """Closest hits of the rays: (t float32 (inf: none), instance int64 (-1),
     prim int64 (-1), u, v float32, world geometric normal float32[N,3])."""
     n, org, dirs, tnear, tfar = _as_rays(org, dirs, tnear, tfar)
-    t = np.full(n, np.inf, np.float32)
-    inst = np.full(n, -1, np.int64)
-    prim = np.full(n, -1, np.int64)
-    u = np.zeros(n, np.float32)
-    v = np.zeros(n, np.float32)
-    ng = np.zeros((n, 3), np.float32)
+    t, inst, prim, u, v, ng = _no_hits(n)
     if scene.handle and n:
         fn = api().intersect1
 
@@ -372,3 +389,50 @@ def occluded(scene: InstancedScene, org, dirs, tnear=None, tfar=None, threads=No
 
 def _workers(threads) -> int:
     return max(1, int(threads or numba.get_num_threads()))
+
+
+class MeshRays:
+    """One triangle mesh (float32[T,3,3], world space) traced in the calling
+    thread with embreex's ``EmbreeScene.run`` contract, which the ray casting
+    in ``raycast`` and ``alpha_rays`` is written against: rays start at
+    t = 0 and end at ``dists`` (default 1e37); ``query="OCCLUDED"`` returns
+    int32 0 (blocked) / -1 (free); ``output=1`` a dict of primID (int32, -1
+    for a miss), u, v, tfar (the hit's t; a miss keeps its tfar; a ``dists``
+    array given is overwritten with these) and geomID. The mesh is one
+    BVH (``Mesh``), traced without a top level."""
+
+    def __init__(self, triangles: np.ndarray):
+        self.mesh = Mesh(None, triangles)
+        self.handle = self.mesh.handle
+        self.first = np.array([0, 1], np.int64)
+        self.order = np.zeros(1, np.int64)
+        self.normal_matrix = np.eye(3)[None]
+
+    def run(self, origins, dirs, dists=None, query="INTERSECT", output=None):
+        n = len(origins)
+        if dists is None or np.isscalar(dists):
+            tfar = np.full(n, 1e37 if dists is None else dists, np.float32)
+        else:
+            tfar = dists
+        org = np.ascontiguousarray(origins, np.float32)
+        d = np.ascontiguousarray(dirs, np.float32)
+        tnear = np.zeros(n, np.float32)
+        a = api()
+        if query == "OCCLUDED":
+            hit = np.zeros(n, bool)
+            if self.handle:
+                occluded_range(a.occluded1, self.handle, org, d, tnear, tfar, hit, 0, n)
+            return np.where(hit, np.int32(0), np.int32(-1))
+        if query != "INTERSECT":
+            raise ValueError(f"unknown ray query {query!r}")
+        t, inst, prim, u, v, ng = _no_hits(n)
+        if self.handle:
+            intersect_range(a.intersect1, self.handle, org, d, tnear, np.ascontiguousarray(tfar, np.float32),
+                            self.first, self.order, self.normal_matrix, t, inst, prim, u, v, ng, 0, n)
+        primID = prim.astype(np.int32)
+        if not output:
+            return primID
+        hit = primID >= 0
+        tfar[hit] = t[hit]
+        return {"primID": primID, "geomID": np.where(hit, np.int32(0), np.int32(-1)),
+                "u": u, "v": v, "tfar": tfar, "Ng": ng}

@@ -1,7 +1,7 @@
 """Small Numba helpers shared by the image-space methods: projecting a world
 point into a packed ``ViewFace``, picking the face that holds it, the
 bounding box of a map's finite depths and of a G-buffer's hits, the prange chunk size, and running
-chunks of work on worker threads (kernels with ``nogil=True``, embreex),
+chunks of work on worker threads (kernels with ``nogil=True``, ray casts),
 cancellable between chunks (``core/cancel.py``), and ``borrowed`` array
 arguments for the inner loops of such kernels."""
 from __future__ import annotations
@@ -38,7 +38,7 @@ def each_in_threads(fn, items, workers: int) -> None:
     """``fn(item)`` for every item, on ``workers`` threads (in turn in this
     thread when there is one worker or one item); the first error is raised.
     ``fn`` must release the GIL for the threads to pay (Numba ``nogil=True``
-    kernels, embreex's ``run()``) and write disjoint outputs. Before each
+    kernels, ``embree4``'s ray casts) and write disjoint outputs. Before each
     item the calling thread's cancel token is checked (``cancel.check``):
     once it is cancelled no further item starts and ``cancel.Cancelled`` is
     raised (the items already running finish first)."""

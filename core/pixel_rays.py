@@ -1,9 +1,9 @@
 """Primary rays through pixel centres, fused: ray generation straight into
-embreex's float32 arrays, and the hits turned into G-buffer / depth-map
+the ray caster's float32 arrays, and the hits turned into G-buffer / depth-map
 pixels in one pass (no float64 temporaries, no boolean gathers). Each kernel
 works on a band of rows ``[row0, row1)`` (its arrays hold that band only) and
 releases the GIL, so ``raycast`` runs bands on several threads, each one
-generating, tracing (embreex releases the GIL too) and finishing its own.
+generating, tracing (the ray caster releases the GIL too) and finishing its own.
 
 The formulas are ``views.camera_rays`` / ``views.face_rays`` and the
 G-buffer's hit post-processing written in NumPy, operation for operation, so

@@ -1,8 +1,8 @@
-"""Embree ray casting (embreex): the camera G-buffer and light-view depth/ID maps.
+"""Embree ray casting: the camera G-buffer and light-view depth/ID maps.
 
-embreex's ``run()`` is vectorized (one call per batch) and releases the GIL,
-so the primary rays of a view are traced in bands on several threads
-(``trace_pixels``).
+A ``TriangleScene`` traces a batch of rays in one call that releases the GIL
+(``embree4.MeshRays.run``), so the primary rays of a view are traced in
+bands on several threads (``trace_pixels``).
 Origins, directions and distances are handed over as float32; Embree's tnear
 is fixed at 0, so callers that shoot from a surface offset the origin
 (``sampling.offset_origin``).
@@ -16,11 +16,11 @@ import numba
 import numpy as np
 
 from .scene import GBuffer, LightView, Scene, ViewFace, Camera
-from . import alpha_rays, pixel_rays, views
+from . import alpha_rays, embree4, pixel_rays, views
 from .sampling import scene_scale
 from .kernels import each_in_threads
 
-BATCH = 1 << 20   # rays per embreex call: bounds the float32 temporaries
+BATCH = 1 << 20   # rays per BVH call: bounds the float32 temporaries
 BAND_RAYS = 1 << 18   # primary rays per band of rows (``trace_pixels``): at most
 BANDS_PER_THREAD = 4  # and at least this many bands per thread
 _SPLIT_LOCK = threading.Lock()   # ``TriangleScene.transmittance`` splits its BVH once
@@ -48,10 +48,7 @@ class TriangleScene:
         self._parts = None
         self._scene = None
         if self.count:
-            from embreex import rtcore_scene as rtcs
-            from embreex.mesh_construction import TriangleMesh
-            self._scene = rtcs.EmbreeScene()
-            self._mesh = TriangleMesh(self._scene, triangles)
+            self._scene = embree4.MeshRays(triangles)
 
     @classmethod
     def from_scene(cls, scene: Scene, mask: np.ndarray) -> "TriangleScene":
@@ -120,7 +117,7 @@ class TriangleScene:
 
     def occluded_f32(self, origins, dirs, tfar) -> np.ndarray:
         """Like ``occluded`` for arrays already float32 and contiguous; returns
-        embreex's raw int32 result (-1 = unblocked)."""
+        the BVH's raw int32 result (-1 = unblocked)."""
         if self._scene is None:
             return np.full(len(origins), -1, np.int32)
         return self._scene.run(origins, dirs, dists=tfar, query="OCCLUDED")
@@ -162,8 +159,8 @@ def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, heigh
     """Trace the rays through every pixel centre of the view ``params``
     (``pixel_rays.pack_rays``) in bands of rows, ``threads`` bands at a time
     (default: Numba's thread count): each band's rays are generated straight
-    into float32, traced by embreex (``bounded``: they stop at the far plane)
-    and handed to ``finish(hits, row0, row1, dirs)`` (hits: embreex's dict of
+    into float32, traced (``bounded``: they stop at the far plane) and handed
+    to ``finish(hits, row0, row1, dirs)`` (hits: ``MeshRays.run``'s dict of
     primID, u, v, tfar, ...; None when the BVH is empty: every ray misses;
     dirs: the band's float32 ray directions).
     Bands hold at most BAND_RAYS rays, and there are at least

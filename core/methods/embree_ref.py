@@ -31,7 +31,7 @@ samples" draws the same ones. Rays start at the G-buffer point moved off its
 surface by ``sampling.offset_origin`` (Wächter & Binder, scaled to the scene
 extent).
 
-Rays are generated, traced (embreex's ``run()``, which releases the GIL)
+Rays are generated, traced (``core/embree4``'s kernels, which release the GIL)
 and reduced in batches of about ``RAYS_PER_BATCH``, one worker thread per
 Numba thread; a pixel's rays depend only on the seed and the pixel, so any
 thread count gives the same bits.
