@@ -619,3 +619,79 @@ def test_capture_from_render_handler_depsgraph(factory_scene):
     # the viewport depsgraph passed explicitly is filtered but not re-evaluated
     viewport = capture_scene(depsgraph=bpy.context.evaluated_depsgraph_get())
     assert len(viewport.triangles) == 12
+
+
+def _scatter_file(path, scale=1.0):
+    """A .blend: 8 icosphere instances (Instance on Points, instance scale
+    ``scale``) above a ground quad, an instancer whose instance is an empty
+    mesh, a sun and a camera looking down."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    ob = _cube(scene, "Scatter")
+    ob.location = (0.0, 0.0, 2.0)
+    tree = _instance_on_points_tree()
+    tree.nodes["Instance on Points"].inputs["Scale"].default_value = (scale, scale, scale)
+    ob.modifiers.new("GN", "NODES").node_group = tree
+    empty_src = bpy.data.objects.new("Nothing", bpy.data.meshes.new("Nothing"))
+    scene.collection.objects.link(empty_src)
+    empty_src.hide_render = True
+    holder = _cube(scene, "EmptyScatter")
+    holder.instance_type = "VERTS"
+    holder.show_instancer_for_render = False
+    empty_src.parent = holder
+    me = bpy.data.meshes.new("Ground")
+    me.from_pydata([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [], [(0, 1, 2, 3)])
+    scene.collection.objects.link(bpy.data.objects.new("Ground", me))
+    _light(scene, "Sun", "SUN", angle=math.radians(5))
+    cam = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    cam.location = (0.0, 0.0, 12.0)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    scene.render.resolution_x = scene.render.resolution_y = 24
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return str(path)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1.0])
+def test_degenerate_instances_render_clean_passes(tmp_path, scale):
+    """Instances of zero scale and an instancer whose mesh is empty: the
+    capture keeps what has a surface, and every pass is finite in [0, 1]."""
+    from penumbra.cli import main
+    from penumbra.core import exr
+    blend = _scatter_file(tmp_path / "scatter.blend", scale)
+    captured = capture_scene()
+    assert captured.instances.count == 9                    # 8 icospheres and the ground
+    assert np.isfinite(captured.triangles).all()
+    out = tmp_path / "out"
+    assert main(["render", blend, "--out", str(out), "--methods", "pcf,embree_irr", "--samples", "4",
+                 "--no-previews", "--quiet"]) == 0
+    layers = exr.read_multilayer(str(out / "scatter.0001.exr"))
+    for name in ("pcf", "embree_irr"):
+        v = layers["Sun"][name]
+        assert np.isfinite(v).all() and v.min() >= 0.0 and v.max() <= 1.0
+    shadowed = (layers["Sun"]["embree_irr"] < 0.5).mean()
+    assert (shadowed > 0.0) == (scale > 0.0)
+
+
+def test_a_scene_too_large_to_flatten_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    """A scatter whose flattened triangles cannot fit in memory: capture
+    refuses it before allocating (the CLI: one line, exit 2), and a
+    MemoryError while flattening says the same."""
+    from penumbra.bridge import capture
+    from penumbra.cli import main
+    from penumbra.core.scene import MeshInstances
+    blend = _scatter_file(tmp_path / "scatter.blend")
+    monkeypatch.setattr(capture, "_physical_memory", lambda: 1000)
+    with pytest.raises(ValueError, match="places 162 triangles .9 instances of 22 unique"):
+        capture_scene()
+    capsys.readouterr()
+    assert main(["plan", blend]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs at least 0 GB" in err[0] and "penumbra: error:" in err[0]
+    monkeypatch.setattr(capture, "_physical_memory", lambda: None)
+
+    def no_memory(self):
+        raise MemoryError()
+    monkeypatch.setattr(MeshInstances, "flatten", no_memory)
+    with pytest.raises(ValueError, match="not enough memory to hold them"):
+        capture_scene()
