@@ -393,11 +393,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         from .core.planner import PlanError
+        from .core.scene import GeometryTooLarge
         args = build_parser().parse_args(argv)
         if not args.command:
             raise UsageError("expected a command: render, plan, bench or farm")
         return {"render": cmd_render, "plan": cmd_plan, "bench": cmd_bench, "farm": cmd_farm}[args.command](args)
-    except (UsageError, PlanError) as exc:
+    except (UsageError, PlanError, GeometryTooLarge) as exc:
         print(f"penumbra: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -517,24 +517,26 @@ def _assemble(scene, depsgraph, resolution, meshes: _Meshes, pieces, infos, ligh
         mesh=np.array([p[1] for p in pieces], np.int32),
         world_from_mesh=np.array([p[2] for p in pieces], np.float64).reshape(-1, 4, 4),
         object_id=np.array([ids[p[0]] for p in pieces], np.int32))
-    _check_flattened_size(instances)
-    try:
-        with np.errstate(invalid="ignore", over="ignore"):   # non-finite placements are dropped below
-            triangles, tri_object = instances.flatten()
-    except MemoryError:
-        raise ValueError(_too_many_triangles(instances, "there is not enough memory to hold them")) from None
-    alpha = _assemble_mattes(instances, meshes.alpha, mattes)
-    dropped = meshes.dropped
-    if len(triangles):              # finite_triangles cannot reshape an empty array
-        if alpha is None:
-            triangles, tri_object, more = finite_triangles(triangles, tri_object)
-        else:                       # the kept triangles' indices filter the mattes too
-            triangles, kept, more = finite_triangles(triangles, np.arange(len(triangles)))
-            tri_object = tri_object[kept]
-            alpha = alpha.subset(kept)
-        dropped += more
-    if dropped:
-        log.warning("capture: dropped %d triangle(s) with non-finite vertices", dropped)
+    mesh_alpha = meshes.alpha
+    alpha = None
+    if not instances.shares_meshes or any(a is not None for a in mesh_alpha):
+        triangles, tri_object = instances.flattened()
+        alpha = _assemble_mattes(instances, mesh_alpha, mattes)
+        dropped = meshes.dropped
+        if len(triangles):              # finite_triangles cannot reshape an empty array
+            if alpha is None:
+                triangles, tri_object, more = finite_triangles(triangles, tri_object)
+            else:                       # the kept triangles' indices filter the mattes too
+                triangles, kept, more = finite_triangles(triangles, np.arange(len(triangles)))
+                tri_object = tri_object[kept]
+                alpha = alpha.subset(kept)
+            dropped += more
+        if dropped:
+            log.warning("capture: dropped %d triangle(s) with non-finite vertices", dropped)
+    else:                               # instanced: flattened when a method asks (Scene.triangles)
+        triangles = tri_object = None
+        if meshes.dropped:
+            log.warning("capture: dropped %d triangle(s) with non-finite vertices", meshes.dropped)
     lights.sort(key=lambda lt: lt.name)
 
     captured = Scene(
@@ -544,36 +546,6 @@ def _assemble(scene, depsgraph, resolution, meshes: _Meshes, pieces, infos, ligh
         frame=int(scene.frame_current), name=blend_stem(scene), alpha=alpha,
         alpha_opaque=list(mattes.opaque), instances=instances)
     return captured
-
-
-#: bytes a frame holds per flattened triangle, at the least (measured on a
-#: scatter of 2,000 trees: ``penumbra plan`` peaks at 2.35 GB for 9.6 M)
-BYTES_PER_FLATTENED_TRIANGLE = 200
-
-
-def _physical_memory() -> Optional[int]:
-    """This machine's memory in bytes (None where the OS does not say)."""
-    try:
-        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (AttributeError, OSError, ValueError):
-        return None
-
-
-def _too_many_triangles(instances: MeshInstances, why: str) -> str:
-    count, unique, placed = instances.count, instances.unique_triangles, instances.instanced_triangles
-    return (f"the scene places {placed:,} triangles ({count:,} instances of {unique:,} unique triangles); "
-            f"Penumbra flattens instances into world-space triangles and {why}")
-
-
-def _check_flattened_size(instances: MeshInstances) -> None:
-    """A clear refusal, before any allocation, of a scene whose flattened
-    triangles cannot fit in this machine's memory."""
-    memory = _physical_memory()
-    need = instances.instanced_triangles * BYTES_PER_FLATTENED_TRIANGLE
-    if memory is not None and need > memory:
-        raise ValueError(_too_many_triangles(
-            instances, f"needs at least {need / 2**30:.0f} GB for them, more than this machine's "
-                       f"{memory / 2**30:.0f} GB"))
 
 
 def _assemble_mattes(instances: MeshInstances, mesh_alpha: List[Optional[tuple]],

@@ -37,7 +37,10 @@ The rules, in order (each decision says which one in its reason):
    reference's measured time is scaled to it by ``COST_MODEL``. A candidate
    predicted slower than the reference there is dropped; when every one is,
    ``auto`` runs the reference itself (rule "reference is fastest"). Without
-   a shape, times are not scaled.
+   a shape, times are not scaled. A scene kept as instances whose flattened
+   triangles would not fit in memory (``SceneShape.instanced_only``) has
+   only the methods that run on instances (``Method.runs_on_instances``:
+   pcf, and embree for the reference) as candidates.
 6. The cheapest candidate with worst error <= budget wins; when none meets
    the budget: with a shape, the reference if its own worst error meets it,
    else the most accurate one (the reference too, with a shape), and the
@@ -101,26 +104,43 @@ class SceneShape:
     pixels: int                  # output pixels
     light_relative: float        # light extent / distance from the light to the casters' centre
     mattes: int = 0              # shadow-casting triangles with an alpha matte
+    #: kept as instances, and flattening them would not fit in memory: only
+    #: the methods that run on instances (``Method.runs_on_instances``) can run
+    instanced_only: bool = False
 
     def describe(self) -> str:
         return (f"{self.triangles:,} triangles" + (f" ({self.mattes:,} alpha-matted)" if self.mattes else "")
+                + (" as instances too large to flatten" if self.instanced_only else "")
                 + f", {self.pixels / 1e6:.2f} Mpx, light {self.light_relative:.2f} of its distance")
 
 
 def scene_shape(scene, light) -> SceneShape:
     """``SceneShape`` of a captured ``core.scene.Scene`` for one of its lights."""
     import numpy as np
-    casts = scene.triangles[scene.tri_casts_shadow]
     W, H = scene.resolution
+    instanced_only = False
+    if scene.is_flattened:
+        casts = scene.triangles[scene.tri_casts_shadow]
+        count = len(casts)
+        box = (casts.reshape(-1, 3).min(0), casts.reshape(-1, 3).max(0)) if count else None
+    else:                               # instances: their boxes, their placed triangles
+        from .scene import BYTES_PER_FLATTENED_TRIANGLE, physical_memory
+        ins = scene.instances
+        memory = physical_memory()
+        instanced_only = memory is not None and ins.instanced_triangles * BYTES_PER_FLATTENED_TRIANGLE > memory
+        flags = np.array([o.casts_shadow for o in scene.objects] or [True], bool)[ins.object_id]
+        count = int(ins.mesh_triangles()[ins.mesh[flags]].sum()) if flags.any() else 0
+        boxes = ins.instance_boxes()[flags]
+        box = (boxes[:, 0].min(0), boxes[:, 1].max(0)) if count else None
     rel = float(light.extent)
-    if light.kind != "sun" and len(casts):
-        c = 0.5 * (casts.reshape(-1, 3).min(0) + casts.reshape(-1, 3).max(0))
+    if light.kind != "sun" and box is not None:
+        c = 0.5 * (box[0] + box[1])
         d = float(np.linalg.norm(np.asarray(light.position, float) - c))
         rel = float(light.extent) / max(d, 1e-30)
     mattes = 0
     if getattr(scene, "alpha", None) is not None:
         mattes = int((scene.alpha.tri_matte[scene.tri_casts_shadow] >= 0).sum())
-    return SceneShape(int(len(casts)), int(W * H), rel, mattes)
+    return SceneShape(count, int(W * H), rel, mattes, instanced_only)
 
 
 #: rule 5: per method, how its time grows with the scene: (pixel exponent,
@@ -314,9 +334,11 @@ def choose(kind: str, size: float, visibility: str = IRRADIANCE, budget: float =
         return AutoChoice(m, f"auto -> {m}: documented fallback, the accuracy table is not available "
                              f"({why_none or 'none given'})", f"{m}: fallback, no accuracy table",
                           "fallback", budget, visibility)
+    from . import methods as registry
     if known is None:
-        from . import methods as registry
         known = registry.pass_ids(external=False)
+    if shape is not None and shape.instanced_only:      # rule 5: only what runs on instances
+        known = [p for p in known if registry.producer_of(p).runs_on_instances]
     matched = [s for s in table.scenes if s.light_kind == kind]
     scope = how = f"{kind}-light scenes"
     if not matched:

@@ -17,7 +17,7 @@ from typing import Callable, Dict, FrozenSet, Iterable, Optional, Set, Tuple
 
 import numpy as np
 
-from . import raycast, views
+from . import embree4, raycast, views
 from .kernels import hit_box
 from .ledger import BuildLedger, _closure
 from .methods.base import (GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, MESH_PIECES, PRECOMPUTE, SHADOW_GEOMETRY,
@@ -92,6 +92,10 @@ class FrameBuffers:
         self._precomputed: Optional[Dict[tuple, object]] = None   # ``share_precomputed``
         self._bounds = scene.bounds()
         self.scale = scene_scale(*self._bounds)
+        #: rays go through the instances (``raycast.InstanceScene``) when the
+        #: scene was captured as instances and is not flattened
+        self.instanced = not scene.is_flattened
+        self._mesh_bvhs = None
 
     @property
     def build_times(self) -> Dict[str, float]:
@@ -131,6 +135,7 @@ class FrameBuffers:
         sub._gbuffer = gbuffer
         sub.ledger.record("gbuffer", NEED_PHASE[GBUFFER], seconds)
         sub._shadow, sub._camera_scene = self._shadow, self._camera_scene
+        sub.instanced, sub._mesh_bvhs = self.instanced, self._mesh_bvhs
         sub._shadow_triangles, sub._matte_casters = self._shadow_triangles, self._matte_casters
         sub._pieces = self._pieces
         sub._views = dict(self._views)
@@ -179,13 +184,14 @@ class FrameBuffers:
         billed 0 s: nothing was built for them in this frame."""
         if (prev.width, prev.height) != (self.width, self.height):
             raise ValueError("buffers of another resolution cannot be reused")
-        if len(prev.scene.triangles) != len(self.scene.triangles) or not np.array_equal(
+        if prev.scene.geometry_counts() != self.scene.geometry_counts() or not np.array_equal(
                 raycast.camera_params(prev.scene.camera, self.width, self.height),
                 raycast.camera_params(self.scene.camera, self.width, self.height)):
             raise ValueError("buffers of another camera or geometry cannot be reused")
         same = unchanged_lights(prev.scene, self.scene)
         self._gbuffer, self._receivers = prev._gbuffer, prev._receivers
         self._shadow, self._camera_scene = prev._shadow, prev._camera_scene
+        self.instanced, self._mesh_bvhs = prev.instanced, prev._mesh_bvhs
         self._shadow_triangles, self._matte_casters = prev._shadow_triangles, prev._matte_casters
         self._pieces = prev._pieces
         self._views = {k: v for k, v in prev._views.items() if k[0] in same}
@@ -289,9 +295,26 @@ class FrameBuffers:
         view's id map holds object ids)."""
         return np.array([o.casts_shadow for o in self.scene.objects], bool)
 
+    def _instance_flag(self, attr: str) -> np.ndarray:
+        """bool per instance: its object's ``attr`` (casts_shadow, visible_camera)."""
+        flags = np.array([getattr(o, attr) for o in self.scene.objects] or [True], bool)
+        return flags[self.scene.instances.object_id]
+
+    def _instance_scene(self, mask: np.ndarray) -> raycast.InstanceScene:
+        """The two-level BVH of the instances ``mask`` selects (the meshes'
+        BVHs built once per frame)."""
+        ins = self.scene.instances
+        if self._mesh_bvhs is None:
+            self._mesh_bvhs = ([embree4.Mesh(v, f) for v, f in zip(ins.vertices, ins.faces)], ins.packed())
+        meshes, geometry = self._mesh_bvhs
+        return raycast.InstanceScene(ins, meshes, np.nonzero(mask)[0], geometry)
+
     @property
     def camera_scene(self) -> raycast.TriangleScene:
         """Embree BVH of the triangles the camera sees (the G-buffer's)."""
+        if self._camera_scene is None and self.instanced:
+            self._camera_scene = self._timed("bvh_camera", "gbuffer", lambda: self._instance_scene(
+                self._instance_flag("visible_camera")))
         if self._camera_scene is None:
             self._camera_scene = self._bvh("bvh_camera", "gbuffer", self.scene.tri_visible_camera,
                                            self._shadow, "bvh_shadow", self.scene.tri_casts_shadow)
@@ -371,9 +394,17 @@ class FrameBuffers:
         is swept towards the sun across the scene, widened by the cone."""
         tris = self.scene.triangles
         casts = self.scene.tri_casts_shadow
+        if len(tris) == 0:
+            return np.zeros(0, bool)
+        boxes = np.stack([tris.min(axis=1), tris.max(axis=1)], axis=1)
+        return self._inside_occluder_box(light, boxes) & casts
+
+    def _inside_occluder_box(self, light: Light, boxes: np.ndarray) -> np.ndarray:
+        """bool per box (lo, hi rows of ``boxes``): it meets the box every
+        shadow ray of a visible receiver stays in (``occluder_mask``)."""
         _, lo, hi = self._receiver_points()
-        if len(tris) == 0 or lo is None:
-            return np.zeros(len(tris), bool)
+        if lo is None:
+            return np.zeros(len(boxes), bool)
         pad = 1e-4 * self.scale
         if light.kind == "sun":
             to_sun = -light.direction
@@ -385,15 +416,21 @@ class FrameBuffers:
             blo, bhi = light.box()
             lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
         lo, hi = lo - pad, hi + pad
-        tlo = tris.min(axis=1)
-        thi = tris.max(axis=1)
-        inside = np.all((thi >= lo) & (tlo <= hi), axis=1)
-        return inside & casts
+        return np.all((boxes[:, 1] >= lo) & (boxes[:, 0] <= hi), axis=1)
 
     def shadow_scene_for(self, light: Light) -> raycast.TriangleScene:
         """The shadow BVH for ``light``: only ``occluder_mask``'s triangles when
         that drops at least CULL_MIN_FRACTION of the casters, else the shared one.
         Either gives the same answer for every shadow ray of a visible receiver."""
+        if light.name not in self._culled and self.instanced:
+            casts = self._instance_flag("casts_shadow")
+            mask = casts & self._inside_occluder_box(light, self.scene.instances.instance_boxes())
+            per = self.scene.instances.mesh_triangles()[self.scene.instances.mesh]
+            self.culling[light.name] = {"casters": int(per[casts].sum()), "kept": int(per[mask].sum())}
+            key = f"bvh_culled:{light.name}"
+            self._culled[light.name] = self._timed(key, "bvh", lambda: self._instance_scene(mask),
+                                                   built_from=("gbuffer",))
+            self._bvh_key[light.name] = key
         if light.name not in self._culled:
             mask = self.occluder_mask(light)
             casts = int(self.scene.tri_casts_shadow.sum())
@@ -425,10 +462,14 @@ class FrameBuffers:
             def build():
                 faces = views.light_view_faces(light, self.receivers(), self.scene.bounds(), ms, eye)
                 e = light.position if eye is None else eye
-                labels = self.scene.tri_object if tri_label is None else tri_label
+                labels = tri_label
+                if labels is None and not isinstance(occ, raycast.InstanceScene):
+                    labels = self.scene.tri_object
                 return raycast.render_light_view(faces, occ, labels, e)
             self.receivers()              # build the G-buffer outside this phase's timer
             occ = self.shadow_scene_for(light)
+            if tri_label is not None and isinstance(occ, raycast.InstanceScene):
+                occ = self.shadow_scene   # labels per triangle: the flattened casters
             self._views[k] = self._timed(name, "light_view", build, total=f"light_view:{light.name}",
                                          built_from=("gbuffer", self._bvh_key[light.name]))
         self._use(name)

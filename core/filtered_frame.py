@@ -23,7 +23,6 @@ filtered by their renderer. The frame gets a coverage (alpha) image.
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import Dict, Optional, Sequence
 
@@ -94,7 +93,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
         traced[f] = True
     union = np.flatnonzero(traced)
     del traced
-    sub_scene = dataclasses.replace(scene, resolution=(SW, SH))
+    sub_scene = scene.at_resolution(SW, SH)
     tg = time.perf_counter()
     sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
                                       packed=True)

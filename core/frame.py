@@ -103,14 +103,14 @@ def _compile(plan: Plan, scene: Scene, overrides, method_overrides, progress) ->
     is timed (``core/warmup.py``); returns the seconds that took."""
     registry = method_registry.producers()
     spent = 0.0
-    mattes = has_mattes(scene)
+    mattes, instanced = has_mattes(scene), not scene.is_flattened
     for lp in plan.lights:
         for prod_id in lp.producers if lp.action != "skip" else ():
             if prod_id in registry:
                 m = registry[prod_id]
                 notify = None if progress is None else (lambda msg: progress(msg, 0.0))
                 spent += ensure_compiled(m, scene.light(lp.name), _params(m, overrides, method_overrides),
-                                         notify, mattes)
+                                         notify, mattes, instanced)
     return spent
 
 

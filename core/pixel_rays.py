@@ -124,10 +124,20 @@ def _gbuffer_hit(p, i, prim, u, v, tri_index, triangles, tri_object, fwd, dirs,
     t = tri_index[prim[i]]
     triangle_id[i] = t
     object_id[i] = tri_object[t]
-    a0, a1, a2 = np.float64(triangles[t, 0, 0]), np.float64(triangles[t, 0, 1]), np.float64(triangles[t, 0, 2])
-    b0, b1, b2 = np.float64(triangles[t, 1, 0]), np.float64(triangles[t, 1, 1]), np.float64(triangles[t, 1, 2])
-    c0, c1, c2 = np.float64(triangles[t, 2, 0]), np.float64(triangles[t, 2, 1]), np.float64(triangles[t, 2, 2])
-    uu, vv = np.float64(u[i]), np.float64(v[i])
+    corner = np.empty((3, 3), np.float64)
+    for c in range(3):
+        for r in range(3):
+            corner[c, r] = np.float64(triangles[t, c, r])
+    _shade_hit(p, i, corner, np.float64(u[i]), np.float64(v[i]), fwd, dirs, position, normal, depth)
+
+
+@inner
+def _shade_hit(p, i, corner, uu, vv, fwd, dirs, position, normal, depth):
+    """G-buffer entry i of a hit at barycentrics (uu, vv) on the triangle
+    ``corner`` (float64[3,3]): position, normal facing the ray, depth."""
+    a0, a1, a2 = corner[0, 0], corner[0, 1], corner[0, 2]
+    b0, b1, b2 = corner[1, 0], corner[1, 1], corner[1, 2]
+    c0, c1, c2 = corner[2, 0], corner[2, 1], corner[2, 2]
     w = 1.0 - uu - vv
     px = w * a0 + uu * b0 + vv * c0
     py = w * a1 + uu * b1 + vv * c1
@@ -186,3 +196,30 @@ def depth_pixels(p, width, height, row0, row1, prim, t, tri_index, tri_object, d
                 axis = 1.0 / math.sqrt(x * x + y * y + 1.0)
             depth[i] = np.float64(t[i]) * axis
             object_id[i] = tri_object[tri_index[prim[i]]]
+
+
+@kernel(nogil=True)
+def gbuffer_instances(p, inst, prim, u, v, geo, fwd, dirs, position, normal, depth, object_id, triangle_id):
+    """``gbuffer_list`` for hits on instances (instance ``inst[i]``, triangle
+    ``prim[i]`` of its mesh): the triangle is placed in float64 by the
+    instance's matrix and rounded to float32, as ``MeshInstances.flatten``
+    places it, then shaded as ``gbuffer_list`` does; its triangle id is its
+    index in the flattened soup. ``geo``: ``InstanceGeometry``."""
+    for i in range(prim.shape[0]):
+        if prim[i] < 0:
+            _gbuffer_miss(i, position, normal, depth, object_id, triangle_id)
+            continue
+        k = inst[i]
+        m = geo.mesh[k]
+        f = geo.face_start[m] + prim[i]
+        corner = np.empty((3, 3), np.float64)
+        for c in range(3):
+            vtx = geo.vertex_start[m] + geo.faces[f, c]
+            x, y, z = geo.vertices[vtx, 0], geo.vertices[vtx, 1], geo.vertices[vtx, 2]
+            for r in range(3):
+                w = geo.world_from_mesh[k, r, 0] * x + geo.world_from_mesh[k, r, 1] * y \
+                    + geo.world_from_mesh[k, r, 2] * z + geo.world_from_mesh[k, r, 3]
+                corner[c, r] = np.float64(np.float32(w))
+        triangle_id[i] = geo.triangle_offset[k] + prim[i]
+        object_id[i] = geo.object_id[k]
+        _shade_hit(p, i, corner, np.float64(u[i]), np.float64(v[i]), fwd, dirs, position, normal, depth)

@@ -196,7 +196,7 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
             lp = LightPlan(lt.name, layer, "skip", "the light's shadow is off (use_shadow): V = 1")
         elif lt.energy <= 0:
             lp = LightPlan(lt.name, layer, "skip", "the light has no energy: V = 1")
-        elif not scene.tri_casts_shadow.any():
+        elif not scene.casts_any_shadow():
             lp = LightPlan(lt.name, layer, "skip", "no object casts shadows: V = 1")
         elif lt.is_zero_size:
             lp = LightPlan(lt.name, layer, "hard", "the light has size zero: hard shadows only, one sample",

@@ -15,7 +15,7 @@ from typing import Optional
 import numba
 import numpy as np
 
-from .scene import GBuffer, LightView, Scene, ViewFace, Camera
+from .scene import Camera, GBuffer, InstanceGeometry, LightView, MeshInstances, Scene, ViewFace
 from . import alpha_rays, embree4, pixel_rays, views
 from .sampling import scene_scale
 from .kernels import each_in_threads
@@ -73,6 +73,17 @@ class TriangleScene:
         mask = casts.copy()
         mask[casts] = has
         return has, TriangleScene.from_scene(scene, mask)
+
+    @property
+    def empty(self) -> bool:
+        """Every ray misses."""
+        return self._scene is None
+
+    def closest(self, org, dirs, tfar=None) -> dict:
+        """Closest hits of a band of float32 rays in this thread
+        (``MeshRays.run``'s dict; ``tfar`` None: unbounded)."""
+        kw = {"dists": tfar} if tfar is not None else {}
+        return self._scene.run(org, dirs, output=1, **kw)
 
     def local_ids(self, tri: np.ndarray) -> np.ndarray:
         """Embree primIDs of the global triangle ids ``tri`` (-1 for -1)."""
@@ -154,6 +165,56 @@ class TriangleScene:
         return tri, t, u, v
 
 
+class InstanceScene:
+    """Embree's two-level BVH over some of a Scene's instances
+    (``MeshInstances``): the meshes' BVHs (``embree4.Mesh``, shared) under a
+    top level over ``selected`` (instance indices). Rays find the instance
+    and the triangle of its mesh; ``geometry`` (``InstanceGeometry``) turns
+    those into G-buffer entries (``pixel_rays.gbuffer_instances``) and
+    object ids, without the flattened soup. No alpha mattes (``alpha``
+    None): a scene with mattes is flattened at capture."""
+
+    alpha = None
+
+    def __init__(self, instances: MeshInstances, meshes, selected: np.ndarray,
+                 geometry: Optional[InstanceGeometry] = None):
+        selected = np.asarray(selected, np.int64)
+        self.selected = selected
+        self.geometry = geometry if geometry is not None else instances.packed()
+        self.count = int(instances.mesh_triangles()[instances.mesh[selected]].sum()) if len(selected) else 0
+        self._top = embree4.InstancedScene(meshes, instances.mesh[selected], instances.world_from_mesh[selected])
+
+    @property
+    def empty(self) -> bool:
+        return not self._top.handle
+
+    def closest(self, org, dirs, tfar=None) -> dict:
+        """Closest hits of float32 rays in this thread: primID (the triangle
+        in its mesh, -1: none), instance (index in the scene's instances),
+        u, v, tfar (a miss keeps its tfar)."""
+        t, inst, prim, u, v, _ = embree4.intersect(self._top, org, dirs, tfar=tfar, threads=1)
+        hit = prim >= 0
+        inst[hit] = self.selected[inst[hit]]
+        tf = np.full(len(org), 1e37, np.float32) if tfar is None else np.array(tfar, np.float32)
+        tf[hit] = t[hit]
+        return {"primID": prim.astype(np.int32), "instance": inst, "u": u, "v": v, "tfar": tf}
+
+    def occluded(self, origins, dirs, tfar) -> np.ndarray:
+        """bool[N]: True where something lies on the ray within (0, tfar)."""
+        return embree4.occluded(self._top, origins, dirs, tfar=tfar, threads=1)
+
+    def transmittance(self, origins, dirs, tfar) -> np.ndarray:
+        """float32[N]: 1 where the ray gets through within (0, tfar), else 0."""
+        return np.where(self.occluded(origins, dirs, tfar), np.float32(0), np.float32(1))
+
+    def object_ids(self, r: dict) -> np.ndarray:
+        """int32 object id of each hit of ``closest``'s result (-1: none)."""
+        ids = np.full(len(r["primID"]), -1, np.int32)
+        hit = r["primID"] >= 0
+        ids[hit] = self.geometry.object_id[r["instance"][hit]]
+        return ids
+
+
 def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, height: int,
                  bounded: bool, finish, threads: Optional[int] = None) -> None:
     """Trace the rays through every pixel centre of the view ``params``
@@ -179,11 +240,10 @@ def trace_pixels(tri_scene: TriangleScene, params: np.ndarray, width: int, heigh
         dirs = np.empty((m, 3), np.float32)
         tfar = np.empty(m, np.float32)
         pixel_rays.make_rays(params, width, height, row0, row1, org, dirs, tfar)
-        if tri_scene._scene is None:
+        if tri_scene.empty:
             finish(None, row0, row1, dirs)
             return
-        kw = {"dists": tfar} if bounded else {}
-        finish(tri_scene._scene.run(org, dirs, output=1, **kw), row0, row1, dirs)
+        finish(tri_scene.closest(org, dirs, tfar if bounded else None), row0, row1, dirs)
 
     each_in_threads(band, bands, workers)
 
@@ -223,21 +283,18 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
     depth = np.empty(n, np.float32)
     obj = np.empty(n, np.int32)
     tri = np.empty(n, np.int32)
-    triangles = np.ascontiguousarray(scene.triangles, np.float32)
-    tri_object = np.ascontiguousarray(scene.tri_object, np.int32)
-    fwd = cam.forward
+    shade = _hit_shader(scene, tri_scene, params, cam.forward)
 
     def finish(r, row0, row1, dirs):
         a, b = row0 * width, row1 * width
         if r is None:
             r = {"primID": np.full(b - a, -1, np.int32), "u": np.zeros(b - a, np.float32),
-                 "v": np.zeros(b - a, np.float32)}
-        pixel_rays.gbuffer_list(params, r["primID"], r["u"], r["v"], tri_scene.tri_index, triangles,
-                                tri_object, fwd, dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
+                 "v": np.zeros(b - a, np.float32), "instance": np.full(b - a, -1, np.int64)}
+        shade(r, dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
 
     trace_pixels(tri_scene, params, width, height, True, finish, threads)
     if tri_scene.alpha is not None:
-        _see_through_mattes(tri_scene, cam, tri_object, pos, nrm, depth, obj, tri)
+        _see_through_mattes(tri_scene, cam, scene.tri_object, pos, nrm, depth, obj, tri)
     return GBuffer(position=pos.reshape(height, width, 3),
                    normal=nrm.reshape(height, width, 3),
                    depth=depth.reshape(height, width),
@@ -268,31 +325,47 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
     depth = np.full(m, np.inf, np.float32)
     obj = np.full(m, -1, np.int32)
     tri = np.full(m, -1, np.int32)
-    triangles = np.ascontiguousarray(scene.triangles, np.float32)
-    tri_object = np.ascontiguousarray(scene.tri_object, np.int32)
-    fwd = cam.forward
+    shade = _hit_shader(scene, tri_scene, params, cam.forward)
 
     def chunk(rng):
         a, b = rng
-        if tri_scene._scene is None:
+        if tri_scene.empty:
             return
         org = np.empty((b - a, 3), np.float32)
         dirs = np.empty((b - a, 3), np.float32)
         tfar = np.empty(b - a, np.float32)
         pixel_rays.make_rays_list(params, width, height, cols[a:b], rows[a:b], org, dirs, tfar)
-        r = tri_scene._scene.run(org, dirs, output=1, dists=tfar)
-        pixel_rays.gbuffer_list(params, r["primID"], r["u"], r["v"],
-                                tri_scene.tri_index, triangles, tri_object, fwd, dirs,
-                                pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
+        shade(tri_scene.closest(org, dirs, tfar), dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
 
     each_in_threads(chunk, [(a, min(m, a + BAND_RAYS)) for a in range(0, m, BAND_RAYS)],
                     max(1, int(threads or numba.get_num_threads())))
     if tri_scene.alpha is not None:          # the camera sees through clear texels
-        _see_through_mattes(tri_scene, cam, tri_object, pos, nrm, depth, obj, tri)
+        _see_through_mattes(tri_scene, cam, scene.tri_object, pos, nrm, depth, obj, tri)
     g = GBuffer(position=pos.reshape(1, m, 3), normal=nrm.reshape(1, m, 3), depth=depth.reshape(1, m),
                 object_id=obj.reshape(1, m), triangle_id=tri.reshape(1, m), hit=(tri >= 0).reshape(1, m),
                 pixel=rows * width + cols)
     return g if packed else unpack_gbuffer(g, width, height)
+
+
+def _hit_shader(scene: Scene, tri_scene, params, fwd):
+    """``shade(hits, dirs, pos, nrm, depth, obj, tri)``: a band's closest
+    hits as G-buffer entries, on the flattened triangles
+    (``pixel_rays.gbuffer_list``) or on the instances
+    (``pixel_rays.gbuffer_instances``)."""
+    if isinstance(tri_scene, InstanceScene):
+        geo = tri_scene.geometry
+
+        def shade(r, dirs, pos, nrm, depth, obj, tri):
+            pixel_rays.gbuffer_instances(params, r["instance"], r["primID"], r["u"], r["v"], geo, fwd, dirs,
+                                         pos, nrm, depth, obj, tri)
+        return shade
+    triangles = np.ascontiguousarray(scene.triangles, np.float32)
+    tri_object = np.ascontiguousarray(scene.tri_object, np.int32)
+
+    def shade(r, dirs, pos, nrm, depth, obj, tri):
+        pixel_rays.gbuffer_list(params, r["primID"], r["u"], r["v"], tri_scene.tri_index, triangles,
+                                tri_object, fwd, dirs, pos, nrm, depth, obj, tri)
+    return shade
 
 
 def unpack_gbuffer(g: GBuffer, width: int, height: int) -> GBuffer:
@@ -366,15 +439,23 @@ def render_face(face: ViewFace, tri_scene: TriangleScene, tri_object: np.ndarray
     Alpha mattes are tested: a ray passes through texels with
     alpha below an ordered-dither cutoff (``alpha_rays.DITHER``), so maps
     hold leaf shapes, not cards, and a surface of alpha a in a share a of
-    the pixels."""
+    the pixels. ``tri_object``: the id of each triangle; None on an
+    ``InstanceScene``, whose ids are its instances' objects."""
     w, h = face.width, face.height
     depth = np.full(h * w, np.inf, np.float32)
     ids = np.full(h * w, -1, np.int32)
     params = face_params(face)
-    tri_object = np.ascontiguousarray(tri_object, np.int32)
+    if tri_object is not None:
+        tri_object = np.ascontiguousarray(tri_object, np.int32)
 
     def finish(r, row0, row1, dirs):
-        if r is not None:
+        if r is not None and isinstance(tri_scene, InstanceScene):
+            a, b = row0 * w, row1 * w
+            ids_of_hits = tri_scene.object_ids(r)
+            each = np.arange(b - a, dtype=np.int32)
+            pixel_rays.depth_pixels(params, w, h, row0, row1, np.where(ids_of_hits >= 0, each, -1), r["tfar"],
+                                    each, ids_of_hits, depth[a:b], ids[a:b])
+        elif r is not None:
             a, b = row0 * w, row1 * w
             if tri_scene.alpha is not None:
                 alpha_rays.pass_through(tri_scene, lambda: _band_rays(params, w, h, row0, row1),

@@ -12,13 +12,18 @@ Conventions
 """
 from __future__ import annotations
 
+import copy
+import logging
 import math
+import os
 from dataclasses import dataclass, field
-from typing import List, Optional, Tuple
+from typing import List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
 from .alpha import AlphaMattes
+
+log = logging.getLogger(__name__)
 
 LIGHT_KINDS = ("area", "sphere", "sun")
 #: ``Light.kind_code``: a kind's index in LIGHT_KINDS, the code Numba kernels branch on
@@ -217,6 +222,38 @@ class Light:
         return self.extent <= 0.0
 
 
+class InstanceGeometry(NamedTuple):
+    """``MeshInstances`` packed for kernels: per instance its mesh, world
+    matrix, object id and first triangle in the flattened soup; the meshes'
+    vertices and faces concatenated, each mesh from its start."""
+    mesh: np.ndarray             # int32[I]
+    world_from_mesh: np.ndarray  # float64[I,4,4]
+    object_id: np.ndarray        # int32[I]
+    triangle_offset: np.ndarray  # int64[I]
+    vertices: np.ndarray         # float64[V,3], every mesh's
+    vertex_start: np.ndarray     # int64[M]
+    faces: np.ndarray            # int32[F,3], every mesh's (indices within its mesh)
+    face_start: np.ndarray       # int64[M]
+
+
+#: bytes a frame holds per flattened triangle, at the least (measured on a
+#: scatter of 2,000 trees: ``penumbra plan`` peaks at 2.35 GB for 9.6 M)
+BYTES_PER_FLATTENED_TRIANGLE = 200
+
+
+class GeometryTooLarge(ValueError):
+    """The scene's flattened triangles cannot fit in memory (one line; the
+    CLI exits 2)."""
+
+
+def physical_memory() -> Optional[int]:
+    """This machine's memory in bytes (None where the OS does not say)."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
 @dataclass
 class MeshInstances:
     """The captured geometry as Blender holds it: each unique evaluated mesh
@@ -264,6 +301,31 @@ class MeshInstances:
         """Triangles of every instance: the size of the flattened soup."""
         return int(self.mesh_triangles()[self.mesh].sum()) if self.count else 0
 
+    @property
+    def shares_meshes(self) -> bool:
+        """Whether some mesh is placed more than once (the scene instances)."""
+        return bool(len(self.mesh)) and len(np.unique(self.mesh)) < len(self.mesh)
+
+    def flattened(self) -> Tuple[np.ndarray, np.ndarray]:
+        """``flatten``, refused in one line (``GeometryTooLarge``) when the
+        soup cannot fit in this machine's memory: before allocating it
+        (``BYTES_PER_FLATTENED_TRIANGLE``) or when the allocation fails."""
+        memory = physical_memory()
+        need = self.instanced_triangles * BYTES_PER_FLATTENED_TRIANGLE
+        if memory is not None and need > memory:
+            raise GeometryTooLarge(self._too_large(
+                f"needs at least {need / 2**30:.0f} GB for them, more than this machine's {memory / 2**30:.0f} GB"))
+        try:
+            with np.errstate(invalid="ignore", over="ignore"):   # non-finite placements: finite_triangles
+                return self.flatten()
+        except MemoryError:
+            raise GeometryTooLarge(self._too_large("there is not enough memory to hold them")) from None
+
+    def _too_large(self, why: str) -> str:
+        return (f"the scene places {self.instanced_triangles:,} triangles ({self.count:,} instances of "
+                f"{self.unique_triangles:,} unique triangles); Penumbra flattens instances into "
+                f"world-space triangles for this and {why}")
+
     def order(self) -> np.ndarray:
         """int64[I]: the instances in flattening order (by object id, stable)."""
         return np.argsort(self.object_id, kind="stable")
@@ -271,26 +333,71 @@ class MeshInstances:
     def flatten(self) -> Tuple[np.ndarray, np.ndarray]:
         """(float32[T,3,3] world-space triangles, int32[T] object ids) of
         every instance, in ``order``: each mesh's vertices placed in float64,
-        rounded to float32, then gathered into triangles."""
+        rounded to float32 (``placed``), then gathered into triangles."""
         order = self.order()
         tris, ids = [], []
         for i in order:
-            m = self.world_from_mesh[i]
             faces = self.faces[self.mesh[i]]
-            world = (self.vertices[self.mesh[i]] @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
-            tris.append(world[faces])
+            tris.append(self.placed(i)[faces])
             ids.append(np.full(len(faces), self.object_id[i], np.int32))
         if not tris:
             return np.zeros((0, 3, 3), np.float32), np.zeros(0, np.int32)
         return np.concatenate(tris), np.concatenate(ids)
+
+    def placed(self, i: int) -> np.ndarray:
+        """float32[V,3]: instance i's mesh vertices in world space."""
+        m = self.world_from_mesh[i]
+        return (self.vertices[self.mesh[i]] @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+
+    def triangle_offsets(self) -> np.ndarray:
+        """int64[I]: the index in ``flatten``'s soup of each instance's first
+        triangle (a hit on instance i, triangle p of its mesh, is soup
+        triangle ``offsets[i] + p``)."""
+        counts = self.mesh_triangles()[self.mesh] if self.count else np.zeros(0, np.int64)
+        order = self.order()
+        starts = np.zeros(self.count, np.int64)
+        starts[order] = np.concatenate([[0], np.cumsum(counts[order])[:-1]]) if self.count else []
+        return starts
+
+    def packed(self) -> InstanceGeometry:
+        """The instances and meshes as one ``InstanceGeometry``."""
+        def starts(arrays):
+            sizes = np.array([len(a) for a in arrays], np.int64)
+            return np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if len(sizes) else sizes
+        verts = np.concatenate(self.vertices) if self.vertices else np.zeros((0, 3))
+        faces = np.concatenate(self.faces) if self.faces else np.zeros((0, 3), np.int32)
+        return InstanceGeometry(
+            np.ascontiguousarray(self.mesh, np.int32), np.ascontiguousarray(self.world_from_mesh, np.float64),
+            np.ascontiguousarray(self.object_id, np.int32), self.triangle_offsets(),
+            np.ascontiguousarray(verts, np.float64), starts(self.vertices),
+            np.ascontiguousarray(faces, np.int32), starts(self.faces))
+
+    def instance_boxes(self) -> np.ndarray:
+        """float64[I,2,3]: each instance's world box (lo, hi), from its mesh's
+        box corners placed by its matrix: it holds every triangle of the
+        instance (it is larger than their own box when rotated)."""
+        boxes = np.zeros((self.count, 2, 3), np.float64)
+        for m, (verts, faces) in enumerate(zip(self.vertices, self.faces)):
+            which = np.nonzero(self.mesh == m)[0]
+            if not len(which) or not len(faces):
+                continue
+            used = verts[np.unique(faces)]
+            lo, hi = used.min(0), used.max(0)
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                for z in (lo[2], hi[2])])
+            xf = self.world_from_mesh[which]
+            world = np.einsum("nij,kj->nki", xf[:, :3, :3], corners) + xf[:, None, :3, 3]
+            boxes[which, 0] = world.min(1)
+            boxes[which, 1] = world.max(1)
+        return boxes
 
 
 @dataclass
 class Scene:
     """One captured frame: triangle soup plus camera and lights."""
 
-    triangles: np.ndarray                  # float32[T,3,3], world space
-    tri_object: np.ndarray                 # int32[T], index into objects
+    triangles: Optional[np.ndarray]        # float32[T,3,3], world space (None: ``instances.flatten()`` on first use)
+    tri_object: Optional[np.ndarray]       # int32[T], index into objects
     objects: List[ObjectInfo]
     camera: Optional[Camera]
     lights: List[Light]
@@ -306,6 +413,11 @@ class Scene:
     instances: Optional[MeshInstances] = None
 
     def __post_init__(self):
+        if self.triangles is None:
+            if self.instances is None or self.alpha is not None or self.tri_object is not None:
+                raise ValueError("a scene without triangles needs its instances (and no mattes)")
+            del self.triangles, self.tri_object       # flattened on first use: __getattr__
+            return
         tris = np.asarray(self.triangles, np.float32).reshape(-1, 3, 3)
         ids = np.asarray(self.tri_object, np.int32).reshape(-1)
         if len(ids) != len(tris):
@@ -315,12 +427,46 @@ class Scene:
         if self.alpha is not None and len(self.alpha.tri_matte) != len(tris):
             raise ValueError("alpha mattes must have one entry per triangle")
 
+    def __getattr__(self, name: str):
+        # a scene captured as instances flattens its triangles when first asked for them
+        if name in ("triangles", "tri_object") and self.__dict__.get("instances") is not None:
+            tris, ids = self.__dict__["instances"].flattened()
+            tris, ids, dropped = finite_triangles(tris, ids) if len(tris) else (tris, ids, 0)
+            if dropped:
+                log.warning("dropped %d triangle(s) with non-finite vertices", dropped)
+            self.__dict__["triangles"] = np.ascontiguousarray(tris)
+            self.__dict__["tri_object"] = np.ascontiguousarray(ids)
+            return self.__dict__[name]
+        raise AttributeError(name)
+
+    @property
+    def is_flattened(self) -> bool:
+        """Whether the world-space triangle soup exists (a scene built from
+        triangles, or one whose instances were flattened on demand)."""
+        return "triangles" in self.__dict__
+
+    def at_resolution(self, width: int, height: int) -> "Scene":
+        """The same scene rendered at ``width`` x ``height`` (shares every
+        array; does not flatten instances)."""
+        other = copy.copy(self)
+        other.resolution = (int(width), int(height))
+        return other
+
     # -- derived masks -------------------------------------------------
     def _object_flag(self, attr: str) -> np.ndarray:
         flags = np.array([getattr(o, attr) for o in self.objects] or [True], bool)
         if len(self.tri_object) == 0:
             return np.zeros(0, bool)
         return flags[self.tri_object]
+
+    def casts_any_shadow(self) -> bool:
+        """Whether some triangle casts shadows (on the instances while a
+        scene captured as instances is not flattened)."""
+        if self.is_flattened:
+            return bool(self.tri_casts_shadow.any())
+        flags = np.array([o.casts_shadow for o in self.objects] or [True], bool)
+        ins = self.instances
+        return bool(ins.count) and bool((flags[ins.object_id] & (ins.mesh_triangles()[ins.mesh] > 0)).any())
 
     @property
     def tri_casts_shadow(self) -> np.ndarray:
@@ -331,7 +477,15 @@ class Scene:
         return self._object_flag("visible_camera")
 
     def bounds(self) -> Tuple[np.ndarray, np.ndarray]:
-        """Axis-aligned bounds of all triangles (finite ones)."""
+        """Axis-aligned bounds of all triangles (finite ones); of the
+        instances' boxes (``MeshInstances.instance_boxes``) while a scene
+        captured as instances is not flattened."""
+        if not self.is_flattened:
+            boxes = self.instances.instance_boxes()
+            ok = np.isfinite(boxes).all(axis=(1, 2))
+            if not ok.any():
+                return np.zeros(3), np.zeros(3)
+            return boxes[ok, 0].min(0), boxes[ok, 1].max(0)
         if len(self.triangles) == 0:
             return np.zeros(3), np.zeros(3)
         v = self.triangles.reshape(-1, 3).astype(np.float64)

@@ -33,7 +33,7 @@ import numpy as np
 
 from .alpha import LINEAR, REPEAT, AlphaMattes
 from .compile_ahead import waited_s
-from .scene import Camera, Light, ObjectInfo, Scene
+from .scene import Camera, Light, MeshInstances, ObjectInfo, Scene
 from .views import look_rotation
 
 #: side of the warm-up scene's camera view and light maps, pixels
@@ -55,12 +55,14 @@ class CompileNotice(str):
         return s
 
 
-def warmup_scene(light: Light, mattes: bool = False) -> Scene:
+def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False) -> Scene:
     """A tiny scene lit by a copy of ``light``: the light at height ``D`` shining
     down on a ground quad, an occluder quad halfway, the camera at the light
     looking down (so every pixel sees a receiver the light reaches). With
     ``mattes`` the occluder carries a 2x2 alpha matte (clear, opaque and
-    partial texels: ``core/alpha.py``), so the matte kernels run."""
+    partial texels: ``core/alpha.py``), so the matte kernels run. With
+    ``instanced`` the two quads are instances of one quad mesh, not
+    flattened (``MeshInstances``), so the kernels of rays on instances run."""
     D = max(4.0 * light.extent, 1.0) if light.kind != "sun" else 1.0
     m = np.eye(4)
     m[:3, :3] = look_rotation(np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]))
@@ -83,6 +85,13 @@ def warmup_scene(light: Light, mattes: bool = False) -> Scene:
                             np.array([0.0, 1.0, 0.5, 1.0], np.float32), np.array([0], np.int64),
                             np.array([2], np.int32), np.array([2], np.int32), np.array([LINEAR], np.int8),
                             np.array([REPEAT], np.int8), ["warm-up"])
+    if instanced and not mattes:
+        unit = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64)
+        place = [np.diag([g, g, 1.0, 1.0]), np.diag([o, o, 1.0, 1.0])]
+        place[1][2, 3] = 0.5 * D
+        ins = MeshInstances(vertices=[unit], faces=[np.array([[0, 1, 2], [0, 2, 3]], np.int32)],
+                            mesh=[0, 0], object_id=[0, 1], world_from_mesh=place)
+        return Scene(None, None, objs, cam, [lt], (WARMUP_SIZE, WARMUP_SIZE), name="warm-up", instances=ins)
     return Scene(tris, np.array([0, 0, 1, 1], np.int32), objs, cam, [lt],
                  (WARMUP_SIZE, WARMUP_SIZE), name="warm-up", alpha=alpha)
 
@@ -92,9 +101,9 @@ def has_mattes(scene: Scene) -> bool:
     return scene.alpha is not None and bool(np.any(scene.alpha.tri_matte >= 0))
 
 
-def _key(method, light: Light, params, mattes: bool = False) -> Tuple:
+def _key(method, light: Light, params, mattes: bool = False, instanced: bool = False) -> Tuple:
     from .methods.base import params_dict
-    return (method.id, light.kind, light.shape, light.is_spot, light.is_zero_size, bool(mattes),
+    return (method.id, light.kind, light.shape, light.is_spot, light.is_zero_size, bool(mattes), bool(instanced),
             json.dumps(params_dict(params), sort_keys=True, default=str))
 
 
@@ -166,8 +175,8 @@ def _write_marker(method_id: str, names: List[str]) -> None:
 
 
 # --------------------------------------------------------------------------
-def ensure_compiled(method, light: Light, params,
-                    notify: Optional[Callable[[str], None]] = None, mattes: bool = False) -> float:
+def ensure_compiled(method, light: Light, params, notify: Optional[Callable[[str], None]] = None,
+                    mattes: bool = False, instanced: bool = False) -> float:
     """Compile (or load from the cache) every kernel ``method.run`` calls for
     ``light`` with ``params``, once per process; returns the seconds Numba
     spent compiling (its ``numba:compile`` events: 0.0 when every kernel came
@@ -175,8 +184,9 @@ def ensure_compiled(method, light: Light, params,
     and the tiny run are in no figure but the frame's total).
     ``notify(CompileNotice)`` is called first when the kernels are not in the
     on-disk cache. ``mattes``: warm on a scene with an alpha matte (for a
-    scene that has one, ``has_mattes``)."""
-    key = _key(method, light, params, mattes)
+    scene that has one, ``has_mattes``); ``instanced``: on instances (for a
+    scene that is not flattened)."""
+    key = _key(method, light, params, mattes, instanced)
     if key in _warm:
         return 0.0
     with _lock:
@@ -187,7 +197,7 @@ def ensure_compiled(method, light: Light, params,
         from numba.core.event import install_timer
         from .buffers import FrameBuffers
         before = _overload_counts()
-        scene = warmup_scene(light, mattes)
+        scene = warmup_scene(light, mattes, instanced)
         spent: List[float] = [-waited_s()]     # + the time spent waiting for helpers' kernels
         with install_timer("numba:compile", spent.append):
             buffers = FrameBuffers(scene, WARMUP_SIZE, WARMUP_SIZE, WARMUP_SIZE)
@@ -236,16 +246,16 @@ def ensure_buffers_compiled(scene: Scene, notify: Optional[Callable[[str], None]
     returns the seconds Numba spent compiling."""
     from .buffers import FrameBuffers
     from .planner import plan_frame
-    mattes = has_mattes(scene)
+    mattes, instanced = has_mattes(scene), not scene.is_flattened
     kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
     spent = 0.0
     for kind, light in kinds:
         def work(light=light):
-            ws = warmup_scene(light, mattes)
+            ws = warmup_scene(light, mattes, instanced)
             fb = FrameBuffers(ws, WARMUP_SIZE, WARMUP_SIZE, WARMUP_SIZE)
             plan_frame(ws, ["embree"], None, None, fb)
             fb.light_view(ws.lights[0])
-        spent += _warm_once(("buffers", kind, mattes), "buffers", notify, work)
+        spent += _warm_once(("buffers", kind, mattes, instanced), "buffers", notify, work)
     return spent
 
 
@@ -261,7 +271,7 @@ def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable
     mattes, before the real frame is timed; returns the seconds Numba spent
     compiling. ``render_filtered``: ``filtered_frame.render_filtered``
     (handed in: that module imports this one)."""
-    mattes = has_mattes(scene)
+    mattes, instanced = has_mattes(scene), not scene.is_flattened
     kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
     spec = json.dumps(pixel_filter.to_json(), sort_keys=True, default=str)
     passes = sorted(set(passes))
@@ -270,7 +280,7 @@ def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable
     spent = 0.0
     for kind, light in kinds:
         def work(light=light):
-            render_filtered(warmup_scene(light, mattes), passes, None, pixel_filter,
+            render_filtered(warmup_scene(light, mattes, instanced), passes, None, pixel_filter,
                             overrides={"samples": 4, "seed": 0}, progress=progress)
-        spent += _warm_once(("filter", kind, mattes, spec, tuple(passes)), "pixel_filter", notify, work)
+        spent += _warm_once(("filter", kind, mattes, instanced, spec, tuple(passes)), "pixel_filter", notify, work)
     return spent

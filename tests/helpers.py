@@ -195,3 +195,19 @@ def placement(scale, angle_z: float, offset) -> np.ndarray:
     m[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ np.diag(scale)
     m[:3, 3] = offset
     return m
+
+
+def leaf_cluster(rng, n: int, spread: float, centre, half: float):
+    """``n`` square leaves of side 2 ``half`` at random orientations, their
+    centres normal around ``centre`` with deviation ``spread``: (vertices
+    float64[4n,3], faces int32[2n,3])."""
+    c = rng.normal(size=(n, 3)) * spread + np.asarray(centre, float)
+    a = rng.normal(size=(n, 3))
+    a /= np.linalg.norm(a, axis=1)[:, None]
+    b = np.cross(a, rng.normal(size=(n, 3)))
+    b /= np.linalg.norm(b, axis=1)[:, None]
+    verts = np.concatenate([c - half * a - half * b, c + half * a - half * b, c + half * a + half * b,
+                            c - half * a + half * b])
+    k = np.arange(n)
+    faces = np.concatenate([np.stack([k, k + n, k + 2 * n], 1), np.stack([k, k + 2 * n, k + 3 * n], 1)])
+    return verts, faces.astype(np.int32)

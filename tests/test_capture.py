@@ -4,6 +4,7 @@ These tests build small scenes with bpy and check that the captured
 ``penumbra.core.scene.Scene`` holds exactly what Blender would render.
 """
 import math
+import os
 
 import bpy
 import bmesh
@@ -674,24 +675,28 @@ def test_degenerate_instances_render_clean_passes(tmp_path, scale):
 
 
 def test_a_scene_too_large_to_flatten_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
-    """A scatter whose flattened triangles cannot fit in memory: capture
-    refuses it before allocating (the CLI: one line, exit 2), and a
-    MemoryError while flattening says the same."""
-    from penumbra.bridge import capture
+    """A scatter whose flattened triangles cannot fit in memory: the capture
+    keeps it as instances, and flattening it (penumbra_casting's blockers
+    are world-space triangles) is refused before allocating (the CLI: one
+    line, exit 2); a MemoryError while flattening says the same."""
     from penumbra.cli import main
-    from penumbra.core.scene import MeshInstances
+    from penumbra.core import scene as core_scene
+    from penumbra.core.scene import GeometryTooLarge, MeshInstances
     blend = _scatter_file(tmp_path / "scatter.blend")
-    monkeypatch.setattr(capture, "_physical_memory", lambda: 1000)
-    with pytest.raises(ValueError, match="places 162 triangles .9 instances of 22 unique"):
-        capture_scene()
+    monkeypatch.setattr(core_scene, "physical_memory", lambda: 1000)
+    captured = capture_scene()
+    assert not captured.is_flattened
+    with pytest.raises(GeometryTooLarge, match="places 162 triangles .9 instances of 22 unique"):
+        captured.triangles
     capsys.readouterr()
-    assert main(["plan", blend]) == 2
+    assert main(["render", blend, "--out", str(tmp_path / "o"), "--methods", "penumbra_casting", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "needs at least 0 GB" in err[0] and "penumbra: error:" in err[0]
-    monkeypatch.setattr(capture, "_physical_memory", lambda: None)
+    assert not (tmp_path / "o").exists() or not os.listdir(tmp_path / "o")
+    monkeypatch.setattr(core_scene, "physical_memory", lambda: None)
 
     def no_memory(self):
         raise MemoryError()
     monkeypatch.setattr(MeshInstances, "flatten", no_memory)
-    with pytest.raises(ValueError, match="not enough memory to hold them"):
-        capture_scene()
+    with pytest.raises(GeometryTooLarge, match="not enough memory to hold them"):
+        capture_scene().triangles

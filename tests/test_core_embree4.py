@@ -3,7 +3,7 @@ ships, against closed forms and against embreex on the flattened triangles."""
 import numpy as np
 import pytest
 
-from helpers import placement
+from helpers import leaf_cluster, placement
 from penumbra.core import embree4
 
 QUAD = np.array([[[-1, -1, 0], [1, -1, 0], [1, 1, 0]],
@@ -69,6 +69,7 @@ def test_degenerate_input_misses_cleanly():
     assert none.handle == 0
     assert embree4.intersect(none, org, dirs)[1].tolist() == [-1]
 
+
 def test_agrees_with_embreex_on_the_flattened_scatter():
     """A scatter of 300 instances of a 400-leaf mesh: closest hits and
     occlusion agree with embreex tracing the same triangles flattened into
@@ -77,13 +78,8 @@ def test_agrees_with_embreex_on_the_flattened_scatter():
     from embreex.mesh_construction import TriangleMesh
 
     rng = np.random.default_rng(3)
-    c = rng.normal(size=(400, 3)) * 0.6 + [0, 0, 2]
-    a = rng.normal(size=(400, 3))
-    a /= np.linalg.norm(a, axis=1)[:, None]
-    b = np.cross(a, rng.normal(size=(400, 3)))
-    b /= np.linalg.norm(b, axis=1)[:, None]
-    p = [c - 0.1 * a - 0.1 * b, c + 0.1 * a - 0.1 * b, c + 0.1 * a + 0.1 * b, c - 0.1 * a + 0.1 * b]
-    leaves = np.concatenate([np.stack([p[0], p[1], p[2]], 1), np.stack([p[0], p[2], p[3]], 1)]).astype(np.float32)
+    verts, faces = leaf_cluster(rng, 400, 0.6, (0, 0, 2), 0.1)
+    leaves = verts[faces].astype(np.float32)
     n = 300
     xf = np.stack([placement((s, s, s), ang, (x, y, 0)) for s, ang, x, y in
                    zip(0.7 + 0.6 * rng.random(n), 6.3 * rng.random(n), *(rng.random((2, n)) * 30 - 15))])

@@ -56,6 +56,10 @@ class Method:
     #: sub-pixel receivers as a list); False: it needs an image, and runs on
     #: the supersampled view with only the sub-pixel receivers set
     packed: bool = False
+    #: traces a scene kept as instances without flattening it (its buffers
+    #: come from Embree's two-level BVH: the G-buffer, light views from the
+    #: light's centre, shadow rays); False: it needs world-space triangles
+    runs_on_instances: bool = False
     #: the Preview's settings of this method, under a light's own knobs (which
     #: win); None: too slow for the Preview, which runs ``pcf`` instead
     preview_params: Optional[Mapping[str, object]] = None

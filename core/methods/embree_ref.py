@@ -251,6 +251,7 @@ class EmbreeReference(Method):
     passes = {"embree": AVERAGE, "embree_irr": IRRADIANCE}
     needs = frozenset({GBUFFER, SHADOW_GEOMETRY})
     packed = True                # shades each receiver of a packed G-buffer on its own
+    runs_on_instances = True     # a G-buffer and shadow rays
     Params = EmbreeParams
     physical = True
 

@@ -125,6 +125,7 @@ class PercentageCloserFiltering(Method):
     passes = {"pcf": IRRADIANCE}
     needs = frozenset({GBUFFER, LIGHT_VIEW})
     packed = True                # shades each receiver of a packed G-buffer on its own
+    runs_on_instances = True     # a G-buffer and one light view
     #: the Preview: a quarter of the light-sized region's samples, V at one pixel in each 2 x 2
     #: block shared by the block's pixels on its surface, no pixel footprint in the region
     preview_params = {"BlockerSamples": 8, "PenumbraSamples": 16, "pixel_step": 2, "step_fill": "copy",
