@@ -165,10 +165,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated rows of the start-up table: method ids and 'all' (the seven in one "
                         "run; default: every row)")
     b.add_argument("--part", choices=("all", "skeleton", "startup", "methods", "scaling", "study", "filter",
-                                      "cycles"),
+                                      "cycles", "instancing"),
                    default="all", help="pipeline phases (with buffers, Preview and start-up), the start-up table "
                    "alone, per-method tables, triangle-count scaling, the accuracy-versus-time study, filtered "
-                   "passes, or penumbra render against Cycles' shadow pair")
+                   "passes, penumbra render against Cycles' shadow pair, or an instanced scatter at production "
+                   "scale (plan, render and Cycles: time and peak memory)")
     add_farm_parser(sub)
     return p
 

@@ -7,6 +7,8 @@ the extension; ``blender_manifest.toml`` excludes ``/bench/``).
 - :mod:`.study`: accuracy versus time and the planner's table (``--part study``),
 - :mod:`.pixel_filter`: the cost and error of filtered passes (``--part filter``),
 - :mod:`.vs_cycles`: ``penumbra render`` against Cycles' shadow pair at 1080p (``--part cycles``),
+- :mod:`.instancing`: an instanced scatter at production scale, plan / render / Cycles' pair, time and
+  peak memory (``--part instancing``),
 - :mod:`.harness`: what they share (sample scenes, machine, median of warm runs).
 
 Medians of ``--repeats`` warm runs; thread counts stated. Results go to
@@ -23,7 +25,8 @@ from .phases import (BUFFER_COLUMNS, STARTUP_COLUMNS, bench_buffers, bench_previ
 
 
 def run_bench(args) -> int:
-    """The ``bench`` command: ``args.part`` (all, skeleton, startup, methods, scaling, study, filter, cycles),
+    """The ``bench`` command: ``args.part`` (all, skeleton, startup, methods, scaling, study, filter, cycles,
+    instancing),
     ``args.out``, ``args.repeats``, ``args.quick``."""
     repeats = max(1, args.repeats)
     print(f"machine: {json.dumps(machine())}")
@@ -67,4 +70,8 @@ def run_bench(args) -> int:
         from .vs_cycles import SCENES as CYCLES_SCENES, bench_vs_cycles
         print("penumbra render against Cycles' shadow pair")
         print(bench_vs_cycles(args.out, repeats, args.quick, getattr(args, "study_scenes", None) or CYCLES_SCENES))
+    if args.part in ("all", "instancing"):
+        from .instancing import bench_instancing
+        print("an instanced scatter at production scale: plan, render and Cycles' pair, time and peak memory")
+        print(bench_instancing(args.out, args.quick))
     return 0

@@ -18,6 +18,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TESTS = os.path.join(ROOT, "tests")
 
 
+def cache_dir(*parts: str) -> str:
+    """``<cache>/penumbra/<parts...>``: ``$XDG_CACHE_HOME`` or ``~/.cache``
+    (what the benchmark builds or renders once and keeps between runs)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "penumbra", *parts)
+
+
 def load_sample(name: str, resolution):
     """``sample_blends/<name>.blend`` captured at ``resolution`` (W, H), as the
     tests capture it (cached per name and resolution)."""

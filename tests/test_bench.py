@@ -124,3 +124,65 @@ def test_bench_startup_methods_bad_name_exits_2_with_one_line(capsys):
     assert main(["bench", "--part", "startup", "--startup-methods", "pcf,nosuch", "--out", "/nonexistent"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad --startup-methods" in err[0] and "penumbra_casting" in err[0]
+
+
+# --------------------------------------------------------------------------
+# --part instancing: the guarded children and the table
+def test_instancing_child_over_the_memory_limit_is_killed_and_recorded():
+    from penumbra.bench import instancing
+    t = __import__("time").perf_counter()
+    run = instancing.run_guarded([sys.executable, "-c", "import time; b = b'x' * 400_000_000; time.sleep(60)"],
+                                 "render", timeout_s=60, memory_limit=150e6)
+    assert run.failure == "out of memory (> 0.15 GB) during render"
+    assert run.returncode == -9 and 150e6 < run.peak_bytes < 1e9
+    assert __import__("time").perf_counter() - t < 30
+    row = {"scene": "scatter", "light": "sun", "instances": 100000, "geometry": list(instancing.expected_geometry(100000)),
+           "geometry_measured": False, "render": instancing._step(run)}
+    md = instancing.table([row], {"cpu": "Test CPU", "cores": 2, "date": "2026-01-01"})
+    (line,) = [ln for ln in md.splitlines() if ln.startswith("| scatter")]
+    assert "| failed: out of memory (> 0.15 GB) during render |" in line
+    assert "4,824 / 482,200,002* |" in line
+    assert "* counted from make_scatter.py's geometry" in md
+
+
+def test_instancing_child_timeout_and_exit_status_are_one_line_failures():
+    from penumbra.bench import instancing
+    run = instancing.run_guarded([sys.executable, "-c", "import time; time.sleep(60)"], "plan", timeout_s=1.0)
+    assert run.failure == "timed out (> 1 s) during plan" and run.seconds < 20
+    run = instancing.run_guarded([sys.executable, "-c", "import sys; print('x', file=sys.stderr); "
+                                  "sys.exit('no camera in scene')"], "plan")
+    assert run.failure == "exit 1 during plan: no camera in scene" and run.returncode == 1
+    run = instancing.run_guarded([sys.executable, "-c", "print('geometry: 2,001 instance(s), 4,824 unique / "
+                                  "9,644,002 instanced triangles')"], "plan")
+    assert run.ok and instancing.parse_geometry(run.stdout) == (2001, 4824, 9644002)
+    assert instancing.expected_geometry(2000) == (2001, 4824, 9644002)
+
+
+def test_instancing_results_table_and_json(tmp_path):
+    from penumbra.bench import instancing
+    ok = {"status": "ok", "seconds": 46.9, "peak_gb": 4.86}
+    sidecar = {"plan": {"lights": [{"auto": {"method": "embree_irr"}}]}, "compile_s": 1.18, "total_time_s": 40.4,
+               "lights": [{"name": "AreaLight", "layer": "AreaLight", "methods": {"embree_irr": {
+                   "time_s": {"gbuffer": 5.18, "bvh": 4.02, "trace": 10.04, "total": 19.3}}}}]}
+    row = {"scene": "scatter", "light": "area", "instances": 2000, "geometry": [2001, 4824, 9644002],
+           "geometry_measured": True, "plan": {"status": "ok", "seconds": 11.1, "peak_gb": 2.64},
+           "render": dict(ok, **instancing.sidecar_summary(sidecar)),
+           "cycles": {"samples": 64, "status": "ok", "seconds": 35.0, "peak_gb": 0.41, "render_shadowed": 15.29,
+                      "render_unshadowed": 13.8},
+           "accuracy": {"status": "ok", "rmse_pass": 0.01234, "rmse_cycles64": 0.04567}}
+    small = dict(row, light="sun", instances=200, accuracy=None,
+                 cycles={"samples": 64, "status": "failed: timed out (> 1200 s) during Cycles' pair",
+                         "seconds": 1200, "peak_gb": 1.0})
+    md = instancing.write_results([row, small], str(tmp_path), mach={"cpu": "Test CPU", "cores": 2,
+                                                                        "date": "2026-01-01"})
+    lines = md.splitlines()
+    assert lines[0].startswith("| scene | light | instances | unique / instanced triangles | plan s |")
+    assert lines[2].startswith("| scatter | sun | 200 |")                     # sun before area
+    assert "| failed: timed out (> 1200 s) during Cycles' pair | - |" in lines[2]
+    assert lines[3] == ("| scatter | area | 2,000 | 4,824 / 9,644,002 | 11.1 | 2.64 | 46.9 | 4.86 | embree_irr | "
+                        "gbuffer 5.18, bvh 4.02, trace 10.04, compile 1.18 | 15.3 + 13.8 | 0.41 | 0.0123 / 0.0457 |")
+    assert lines[-1] == "Test CPU, 2 cores, 2026-01-01"
+    assert row["render"]["pass"] == "embree_irr" and row["render"]["layer"] == "AreaLight"
+    assert (tmp_path / "instancing.md").read_text() == md
+    saved = json.loads((tmp_path / "instancing.json").read_text())
+    assert saved["machine"]["cpu"] == "Test CPU" and [r["instances"] for r in saved["rows"]] == [2000, 200]
