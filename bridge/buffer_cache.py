@@ -122,13 +122,25 @@ def _key(scene, captured) -> tuple:
     from ..core import raycast
     W, H = captured.resolution
     cam = raycast.camera_params(captured.camera, W, H).tobytes()
-    return (scene.name, int(captured.frame), (int(W), int(H)), cam, len(captured.triangles))
+    return (scene.name, int(captured.frame), (int(W), int(H)), cam, captured.geometry_counts(),
+            captured.is_flattened)
 
 
 def _same_geometry(a, b) -> bool:
+    """The two captures hold the same geometry and flags: compared as
+    instances (meshes, placements, objects) while neither is flattened, so
+    a scatter is never flattened to be compared, else triangle by triangle."""
+    if (a.alpha is None) != (b.alpha is None):
+        return False
+    if not a.is_flattened and not b.is_flattened:
+        ia, ib = a.instances, b.instances
+        flags = [[(o.casts_shadow, o.visible_camera) for o in s.objects] for s in (a, b)]
+        return (flags[0] == flags[1] and len(ia.faces) == len(ib.faces)
+                and all(np.array_equal(x, y) for x, y in zip(ia.vertices + ia.faces, ib.vertices + ib.faces))
+                and all(np.array_equal(getattr(ia, n), getattr(ib, n))
+                        for n in ("mesh", "world_from_mesh", "object_id")))
     return all(np.array_equal(getattr(a, n), getattr(b, n))
-               for n in ("triangles", "tri_object", "tri_casts_shadow", "tri_visible_camera")) \
-        and (a.alpha is None) == (b.alpha is None)
+               for n in ("triangles", "tri_object", "tri_casts_shadow", "tri_visible_camera"))
 
 
 def ticket(scene, captured) -> Optional[Ticket]:

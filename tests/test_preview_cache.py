@@ -195,3 +195,28 @@ def test_the_preview_is_at_pixel_centres_and_compute_is_filtered(scene):
     assert "subpixel" in res.lights[0].record["pcf"]["time_s"]
     job = prepare_frame(scene, FrameRequest.from_scene_settings(resolution=RES, preview=True, references=(), pixel_filter="box:1"))
     assert job.run().result().pixel_filter["type"] == "box"
+
+
+def test_a_scatter_is_compared_as_instances_and_never_flattened(tmp_path):
+    """On an Instance on Points scatter the Preview's change check compares
+    meshes and placements: a second Preview reuses the buffers, moving one
+    point rebuilds them, and neither capture is flattened."""
+    from test_capture import _scatter_file
+    penumbra.register()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=_scatter_file(tmp_path / "scatter.blend"))
+        sc = bpy.context.scene
+        for lt in bpy.data.lights:
+            lt.penumbra.method = "pcf"
+        buffer_cache.invalidate()
+        job, v, t = _preview(sc)
+        assert not job.captured.is_flattened and t["gbuffer"] > 0.0
+        job2, v2, t2 = _preview(sc)
+        assert job2.reused and t2["gbuffer"] == 0.0 and not job2.captured.is_flattened
+        np.testing.assert_array_equal(v, v2)
+        bpy.data.objects["Scatter"].data.vertices[0].co.x += 0.5
+        bpy.context.view_layer.update()
+        job3, _, t3 = _preview(sc)
+        assert not job3.reused and t3["gbuffer"] > 0.0 and not job3.captured.is_flattened
+    finally:
+        penumbra.unregister()
