@@ -188,9 +188,8 @@ class InstancedScene:
     def __init__(self, meshes: Sequence[Mesh], mesh_of: np.ndarray, world_from_mesh: np.ndarray):
         mesh_of = np.asarray(mesh_of, np.int64)
         xf = np.asarray(world_from_mesh, np.float64).reshape(-1, 4, 4)
-        self.meshes = list(meshes)
+        self.meshes = list(meshes)       # the top level instances their BVHs
         self.handle = 0
-        self.count = len(mesh_of)
         det = np.linalg.det(xf[:, :3, :3]) if len(xf) else np.zeros(0)
         placed = np.isfinite(xf).all(axis=(1, 2)) & (np.abs(det) > 0)
         order = np.nonzero(placed)[0]
