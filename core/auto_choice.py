@@ -128,8 +128,8 @@ def scene_shape(scene, light) -> SceneShape:
         ins = scene.instances
         memory = physical_memory()
         instanced_only = memory is not None and ins.instanced_triangles * BYTES_PER_FLATTENED_TRIANGLE > memory
-        flags = np.array([o.casts_shadow for o in scene.objects] or [True], bool)[ins.object_id]
-        count = int(ins.mesh_triangles()[ins.mesh[flags]].sum()) if flags.any() else 0
+        flags = scene.instance_flag("casts_shadow")
+        count = int(ins.instance_triangles()[flags].sum())
         boxes = ins.instance_boxes()[flags]
         box = (boxes[:, 0].min(0), boxes[:, 1].max(0)) if count else None
     rel = float(light.extent)

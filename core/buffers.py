@@ -295,11 +295,6 @@ class FrameBuffers:
         view's id map holds object ids)."""
         return np.array([o.casts_shadow for o in self.scene.objects], bool)
 
-    def _instance_flag(self, attr: str) -> np.ndarray:
-        """bool per instance: its object's ``attr`` (casts_shadow, visible_camera)."""
-        flags = np.array([getattr(o, attr) for o in self.scene.objects] or [True], bool)
-        return flags[self.scene.instances.object_id]
-
     def _instance_scene(self, mask: np.ndarray) -> raycast.InstanceScene:
         """The two-level BVH of the instances ``mask`` selects (the meshes'
         BVHs built once per frame)."""
@@ -314,7 +309,7 @@ class FrameBuffers:
         """Embree BVH of the triangles the camera sees (the G-buffer's)."""
         if self._camera_scene is None and self.instanced:
             self._camera_scene = self._timed("bvh_camera", "gbuffer", lambda: self._instance_scene(
-                self._instance_flag("visible_camera")))
+                self.scene.instance_flag("visible_camera")))
         if self._camera_scene is None:
             self._camera_scene = self._bvh("bvh_camera", "gbuffer", self.scene.tri_visible_camera,
                                            self._shadow, "bvh_shadow", self.scene.tri_casts_shadow)
@@ -423,9 +418,9 @@ class FrameBuffers:
         that drops at least CULL_MIN_FRACTION of the casters, else the shared one.
         Either gives the same answer for every shadow ray of a visible receiver."""
         if light.name not in self._culled and self.instanced:
-            casts = self._instance_flag("casts_shadow")
+            casts = self.scene.instance_flag("casts_shadow")
             mask = casts & self._inside_occluder_box(light, self.scene.instances.instance_boxes())
-            per = self.scene.instances.mesh_triangles()[self.scene.instances.mesh]
+            per = self.scene.instances.instance_triangles()
             self.culling[light.name] = {"casters": int(per[casts].sum()), "kept": int(per[mask].sum())}
             key = f"bvh_culled:{light.name}"
             self._culled[light.name] = self._timed(key, "bvh", lambda: self._instance_scene(mask),

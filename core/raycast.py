@@ -181,7 +181,7 @@ class InstanceScene:
         selected = np.asarray(selected, np.int64)
         self.selected = selected
         self.geometry = geometry if geometry is not None else instances.packed()
-        self.count = int(instances.mesh_triangles()[instances.mesh[selected]].sum()) if len(selected) else 0
+        self.count = int(instances.instance_triangles()[selected].sum())
         self._top = embree4.InstancedScene(meshes, instances.mesh[selected], instances.world_from_mesh[selected])
 
     @property

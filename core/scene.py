@@ -290,6 +290,10 @@ class MeshInstances:
         """int64[M]: triangles per mesh."""
         return np.array([len(f) for f in self.faces], np.int64)
 
+    def instance_triangles(self) -> np.ndarray:
+        """int64[I]: triangles per instance (its mesh's)."""
+        return self.mesh_triangles()[self.mesh] if self.count else np.zeros(0, np.int64)
+
     @property
     def unique_triangles(self) -> int:
         """Triangles of the meshes instances use, each mesh counted once."""
@@ -299,7 +303,7 @@ class MeshInstances:
     @property
     def instanced_triangles(self) -> int:
         """Triangles of every instance: the size of the flattened soup."""
-        return int(self.mesh_triangles()[self.mesh].sum()) if self.count else 0
+        return int(self.instance_triangles().sum())
 
     @property
     def shares_meshes(self) -> bool:
@@ -353,7 +357,7 @@ class MeshInstances:
         """int64[I]: the index in ``flatten``'s soup of each instance's first
         triangle (a hit on instance i, triangle p of its mesh, is soup
         triangle ``offsets[i] + p``)."""
-        counts = self.mesh_triangles()[self.mesh] if self.count else np.zeros(0, np.int64)
+        counts = self.instance_triangles()
         order = self.order()
         starts = np.zeros(self.count, np.int64)
         starts[order] = np.concatenate([[0], np.cumsum(counts[order])[:-1]]) if self.count else []
@@ -453,20 +457,27 @@ class Scene:
         return other
 
     # -- derived masks -------------------------------------------------
+    def _object_flags(self, attr: str) -> np.ndarray:
+        """bool per object id: its ``attr`` (casts_shadow, visible_camera)."""
+        return np.array([getattr(o, attr) for o in self.objects] or [True], bool)
+
     def _object_flag(self, attr: str) -> np.ndarray:
-        flags = np.array([getattr(o, attr) for o in self.objects] or [True], bool)
         if len(self.tri_object) == 0:
             return np.zeros(0, bool)
-        return flags[self.tri_object]
+        return self._object_flags(attr)[self.tri_object]
+
+    def instance_flag(self, attr: str) -> np.ndarray:
+        """bool per instance (``instances``): its object's ``attr``
+        (casts_shadow, visible_camera)."""
+        return self._object_flags(attr)[self.instances.object_id]
 
     def casts_any_shadow(self) -> bool:
         """Whether some triangle casts shadows (on the instances while a
         scene captured as instances is not flattened)."""
         if self.is_flattened:
             return bool(self.tri_casts_shadow.any())
-        flags = np.array([o.casts_shadow for o in self.objects] or [True], bool)
         ins = self.instances
-        return bool(ins.count) and bool((flags[ins.object_id] & (ins.mesh_triangles()[ins.mesh] > 0)).any())
+        return bool(ins.count) and bool((self.instance_flag("casts_shadow") & (ins.instance_triangles() > 0)).any())
 
     @property
     def tri_casts_shadow(self) -> np.ndarray:
