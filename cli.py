@@ -370,6 +370,7 @@ def cmd_plan(args) -> int:
     G-buffer at the plan's resolution (``--resolution``, default the
     scene's; ``core.planner.plan_frame``)."""
     from .core.buffers import FrameBuffers
+    from .core.camera_samples import effects_line
     from .core.planner import plan_frame, resolve_passes
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     path = _check_blend(args.scene)
@@ -382,6 +383,9 @@ def cmd_plan(args) -> int:
                                   FrameBuffers(scene, *scene.resolution), step.overrides["visibility"])
         print(plan.describe())
     print(f"pixel filter: {job.pixel_filter.describe()}")
+    effects = effects_line(scene.camera, sampled=not job.pixel_filter.is_none)
+    if effects:
+        print(effects)
     return 0
 
 

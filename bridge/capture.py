@@ -350,7 +350,31 @@ def _capture_camera(scene, depsgraph) -> Optional[Camera]:
         sensor_fit=str(data.sensor_fit), ortho_scale=float(data.ortho_scale),
         shift_x=float(data.shift_x), shift_y=float(data.shift_y),
         clip_start=float(data.clip_start), clip_end=float(data.clip_end),
-        pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y))
+        pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y),
+        **_thin_lens(data, kind, world))
+
+
+def _thin_lens(data, kind: str, world: np.ndarray) -> dict:
+    """The camera's depth of field as Cycles syncs it (``blender/camera.cpp``):
+    lens radius lens / 1000 / (2 f-stop) (orthographic: 1 / (2 f-stop)),
+    fewer than 3 blades a disk, the focus object's distance along the view
+    axis (its bone's, with a subtarget); no DoF: a pinhole (``{}``)."""
+    dof = getattr(data, "dof", None)
+    if dof is None or not dof.use_dof:
+        return {}
+    fstop = max(float(dof.aperture_fstop), 1e-5)
+    radius = 1.0 / (2.0 * fstop) if kind == "ORTHO" else float(data.lens) * 1e-3 / (2.0 * fstop)
+    focus = float(dof.focus_distance)
+    target = dof.focus_object
+    if target is not None:
+        at = _matrix(target.matrix_world)
+        bone = target.pose.bones.get(dof.focus_subtarget) if target.pose and dof.focus_subtarget else None
+        if bone is not None:
+            at = at @ _matrix(bone.matrix)
+        focus = abs(float(np.dot(world[:3, 2], world[:3, 3] - at[:3, 3])))
+    return dict(aperture_radius=radius, focus_distance=max(focus, 1e-5),
+                aperture_blades=int(dof.aperture_blades) if int(dof.aperture_blades) >= 3 else 0,
+                aperture_rotation=float(dof.aperture_rotation), aperture_ratio=float(dof.aperture_ratio))
 
 
 def core_light(name: str, light, matrix_world) -> Light:

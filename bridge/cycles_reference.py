@@ -314,7 +314,7 @@ def _configure(ch: _Changes, scene, view_layer, resolution, samples, seed, out_b
     ch.set(r, "resolution_y", int(H))
     ch.set(r, "resolution_percentage", 100)
     for attr, value in (("use_border", False), ("use_crop_to_border", False),
-                        ("use_motion_blur", False), ("use_compositing", False),
+                        ("use_compositing", False),
                         ("use_sequencer", False), ("use_freestyle", False),
                         ("film_transparent", False), ("use_file_extension", True),
                         ("use_overwrite", True), ("use_placeholder", False),
@@ -344,9 +344,6 @@ def _configure(ch: _Changes, scene, view_layer, resolution, samples, seed, out_b
                         ("caustics_reflective", False), ("caustics_refractive", False)):
         ch.set_if(c, attr, value)
     ch.set(scene, "world", None)            # the world would light the scene too
-    cam = scene.camera
-    if cam is not None and getattr(cam.data, "dof", None) is not None:
-        ch.set(cam.data.dof, "use_dof", False)   # Penumbra's camera is a pinhole
     ss = getattr(scene, "penumbra", None)
     if ss is not None:                      # Penumbra's own render handlers stay out of it
         ch.set_if(ss, "render_passes", False)
@@ -354,7 +351,6 @@ def _configure(ch: _Changes, scene, view_layer, resolution, samples, seed, out_b
     ch.set(view_layer, "material_override", material)
     ch.set(view_layer, "use_pass_diffuse_direct", True)
     ch.set_if(view_layer, "samples", 0)
-    ch.set_if(view_layer, "use_motion_blur", False)
 
 
 def _render_once(scene, view_layer, folder: str) -> Tuple[np.ndarray, float]:

@@ -28,8 +28,8 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
+from . import camera_samples, raycast
 from . import methods as method_registry
-from . import raycast
 from .buffers import FrameBuffers
 from .frame import REFERENCE_FOR, FrameResult, render_frame
 from .methods.base import IRRADIANCE
@@ -81,10 +81,11 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     # each unit's footprints (the geometry's and its passes' V); the coverage's are those
     # of the pixels beside a change of hit, which every unit refines on the full grid (the
     # geometry's own when there is no unit)
-    masks = [_refined(flt, g, [lr.computed[q] for q in method_registry.producers()[prod].passes], taps.size > 0)
-             for lr, prod, pids in units]
+    everywhere = scene.camera.has_depth_of_field     # every footprint sees through the lens
+    masks = [_refined(flt, g, [lr.computed[q] for q in method_registry.producers()[prod].passes], taps.size > 0,
+                      everywhere) for lr, prod, pids in units]
     if not units:
-        masks = [_refined(flt, g, [], taps.size > 0)]
+        masks = [_refined(flt, g, [], taps.size > 0, everywhere)]
     flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
             for refine, full in masks]
     samples = [(f // SW, f % SW) for f in flat]
@@ -95,8 +96,11 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     del traced
     sub_scene = scene.at_resolution(SW, SH)
     tg = time.perf_counter()
+    lens = (camera_samples.lens_points(scene.camera, union, SW, s, _seed(options))
+            if scene.camera.has_depth_of_field else None)
     sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
-                                      packed=True)
+                                      packed=True, lens=lens)
+    del lens
     tg = time.perf_counter() - tg
     setup_s = time.perf_counter() - t0 - tg       # refine masks, footprints, union
     overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
@@ -139,8 +143,14 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     first_hit = sub_g.hit[0] if len(samples) == 1 else _take(sub_g, np.searchsorted(union, flat[0])).hit
     base.coverage = coverage(flt, edges, g.hit, rows, cols, first_hit)
     base.pixel_filter = flt.to_json()
+    base.camera_effects = camera_samples.describe_effects(scene.camera, sampled=everywhere and taps.size > 0)
     base.total_s += time.perf_counter() - t0
     return base
+
+
+def _seed(options) -> int:
+    """The frame's seed (``--seed``; 0 unset): the lens samples'."""
+    return int(((options.get("overrides") or {}).get("seed")) or 0)
 
 
 def _warmup_passes(passes: Sequence[str]) -> list:
@@ -153,15 +163,16 @@ def _warmup_passes(passes: Sequence[str]) -> list:
     return own if own and "auto" not in passes else ["embree", "embree_irr"]
 
 
-def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool):
+def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: bool = False):
     """(refine, full) bool[H, W] of ``refine_mask`` for the pixel-centre
     passes ``values`` (none: the geometry alone); nothing refined when the
     filter is narrower than the sub-sample spacing; everything (full grid)
-    for ``threshold`` < 0 (the full supersampled pass: bench, tests)."""
+    for ``threshold`` < 0 (the full supersampled pass: bench, tests) or
+    ``everywhere`` (a thin lens: no pixel centre stands for its footprint)."""
     H, W = g.shape
     refine = np.zeros((H, W), bool)
     full = np.zeros((H, W), bool)
-    if any_taps and flt.threshold < 0:
+    if any_taps and (flt.threshold < 0 or everywhere):
         refine[:] = True
         full[:] = True
     elif any_taps:

@@ -13,6 +13,7 @@ import numpy as np
 
 from . import methods as method_registry
 from .buffers import FrameBuffers
+from .camera_samples import describe_effects
 from .frame_cache import FrameCache
 from .compile_ahead import frame_keys, prefetch
 from .methods.base import AVERAGE, IRRADIANCE, VISIBILITIES, params_dict
@@ -50,6 +51,7 @@ class FrameResult:
     coverage: Optional[np.ndarray] = None   # float32[H,W] alpha of a filtered frame (None: pixel centres)
     cache: Optional[FrameCache] = field(default=None, repr=False, compare=False)  # for a later ``previous``
     visibility: str = IRRADIANCE            # the frame's definition of V (each pass's: its record)
+    camera_effects: Optional[dict] = None   # ``camera_samples.describe_effects``: None for a pinhole
 
     def to_json(self) -> dict:
         return {
@@ -62,6 +64,7 @@ class FrameResult:
             "compile_s": round(self.compile_s, 6),
             "visibility": self.visibility,
             **({"pixel_filter": self.pixel_filter} if self.pixel_filter is not None else {}),
+            **({"camera_effects": self.camera_effects} if self.camera_effects is not None else {}),
             "lights": [{"name": lr.name, "layer": lr.layer, "methods": lr.record} for lr in self.lights],
         }
 
@@ -232,4 +235,4 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         progress("done", 1.0)
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
                        time.perf_counter() - t0, compile_s, cache=cache if keep else None,
-                       visibility=visibility)
+                       visibility=visibility, camera_effects=describe_effects(scene.camera, sampled=False))

@@ -107,6 +107,41 @@ def pixel_ray_batch(p, width, height, row0, row1, cols, rows, org, dirs, tfar):
             _put_ray(p, cols[i], rows[i], width, height, i, org, dirs, tfar)
 
 
+@kernel(nogil=True)
+def lens_ray_batch(p, width, height, cols, rows, lens, focus, org, dirs, tfar):
+    """``make_rays_list`` through a thin lens (``camera_samples``): ray i
+    starts at camera-local lens point (lens[i, 0], lens[i, 1], 0) and passes
+    through the point where pixel (cols[i], rows[i])'s pinhole ray meets the
+    plane ``focus`` along the view axis, as Cycles' camera does; it starts
+    where Cycles clips it (the pinhole ray's near-plane scale along it) and
+    ends at the far plane's."""
+    for i in range(cols.shape[0]):
+        x, y = _local_xy(p, cols[i], rows[i], width, height)
+        lx, ly = lens[i, 0], lens[i, 1]
+        if p[ORTHO] == 1.0:
+            ax, ay, az = -lx, -ly, -focus           # towards the in-focus point of the pinhole ray
+            n = math.sqrt(ax * ax + ay * ay + az * az)
+            ax, ay, az = ax / n, ay / n, az / n
+            s0 = p[NEAR] / -az
+            length = p[FAR] - p[NEAR]
+            ox, oy, oz = x + lx + ax * s0, y + ly + ay * s0, az * s0
+        else:
+            ax, ay, az = x * focus - lx, y * focus - ly, -focus
+            n = math.sqrt(ax * ax + ay * ay + az * az)
+            ax, ay, az = ax / n, ay / n, az / n
+            scale = math.sqrt(x * x + y * y + 1.0)  # Cycles: near and far along the pinhole ray
+            s0 = p[NEAR] * scale
+            length = (p[FAR] - p[NEAR]) * scale
+            ox, oy, oz = lx + ax * s0, ly + ay * s0, az * s0
+        org[i, 0] = ox * p[0] + oy * p[1] + oz * p[2] + p[EYE]
+        org[i, 1] = ox * p[3] + oy * p[4] + oz * p[5] + p[EYE + 1]
+        org[i, 2] = ox * p[6] + oy * p[7] + oz * p[8] + p[EYE + 2]
+        dirs[i, 0] = ax * p[0] + ay * p[1] + az * p[2]
+        dirs[i, 1] = ax * p[3] + ay * p[4] + az * p[5]
+        dirs[i, 2] = ax * p[6] + ay * p[7] + az * p[8]
+        tfar[i] = length
+
+
 @kernel(inline="always")
 def _gbuffer_miss(i, position, normal, depth, object_id, triangle_id):
     """An empty G-buffer entry i (nothing hit)."""

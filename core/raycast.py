@@ -305,14 +305,16 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
 
 def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, rows: np.ndarray,
                       tri_scene: Optional[TriangleScene] = None, threads: Optional[int] = None,
-                      packed: bool = False) -> GBuffer:
+                      packed: bool = False, lens: Optional[np.ndarray] = None) -> GBuffer:
     """The camera G-buffer of a ``width`` x ``height`` view at the listed
     pixels (cols[i], rows[i]) only (``pixel_filter``'s sub-pixel samples are
     the pixel centres of a supersampled view); every other pixel is empty
     (hit False). Each listed pixel gets the same bits ``camera_gbuffer``
     gives it (``pixel_rays.gbuffer_list``). ``packed``: only the listed
     pixels, as a packed G-buffer (shape (1, N), ``GBuffer.pixel``; dense:
-    ``unpack_gbuffer``)."""
+    ``unpack_gbuffer``). ``lens`` (float64[N, 2], ``camera_samples.lens_points``):
+    pixel i's ray starts at that camera-local lens point and passes through
+    the plane in focus (``pixel_rays.lens_ray_batch``)."""
     cam: Camera = scene.camera
     if tri_scene is None:
         tri_scene = TriangleScene.from_scene(scene, scene.tri_visible_camera)
@@ -326,6 +328,7 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
     obj = np.full(m, -1, np.int32)
     tri = np.full(m, -1, np.int32)
     shade = _hit_shader(scene, tri_scene, params, cam.forward)
+    origins = None if lens is None or tri_scene.alpha is None else np.zeros((m, 3), np.float64)
 
     def chunk(rng):
         a, b = rng
@@ -334,13 +337,19 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
         org = np.empty((b - a, 3), np.float32)
         dirs = np.empty((b - a, 3), np.float32)
         tfar = np.empty(b - a, np.float32)
-        pixel_rays.make_rays_list(params, width, height, cols[a:b], rows[a:b], org, dirs, tfar)
+        if lens is None:
+            pixel_rays.make_rays_list(params, width, height, cols[a:b], rows[a:b], org, dirs, tfar)
+        else:
+            pixel_rays.lens_ray_batch(params, width, height, cols[a:b], rows[a:b], lens[a:b],
+                                      float(cam.focus_distance), org, dirs, tfar)
+            if origins is not None:
+                origins[a:b] = org
         shade(tri_scene.closest(org, dirs, tfar), dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
 
     each_in_threads(chunk, [(a, min(m, a + BAND_RAYS)) for a in range(0, m, BAND_RAYS)],
                     max(1, int(threads or numba.get_num_threads())))
     if tri_scene.alpha is not None:          # the camera sees through clear texels
-        _see_through_mattes(tri_scene, cam, scene.tri_object, pos, nrm, depth, obj, tri)
+        _see_through_mattes(tri_scene, cam, scene.tri_object, pos, nrm, depth, obj, tri, origins)
     g = GBuffer(position=pos.reshape(1, m, 3), normal=nrm.reshape(1, m, 3), depth=depth.reshape(1, m),
                 object_id=obj.reshape(1, m), triangle_id=tri.reshape(1, m), hit=(tri >= 0).reshape(1, m),
                 pixel=rows * width + cols)
@@ -384,12 +393,14 @@ def unpack_gbuffer(g: GBuffer, width: int, height: int) -> GBuffer:
                    triangle_id=g_tri.reshape(height, width), hit=(g_tri >= 0).reshape(height, width))
 
 
-def _see_through_mattes(tri_scene: TriangleScene, cam: Camera, tri_object, pos, nrm, depth, obj, tri) -> None:
+def _see_through_mattes(tri_scene: TriangleScene, cam: Camera, tri_object, pos, nrm, depth, obj, tri,
+                        origins: Optional[np.ndarray] = None) -> None:
     """Post-step of ``camera_gbuffer``: pixels whose surface is a
     matte clear there (alpha below ``alpha_rays.ALPHA_CUTOFF``) are re-traced
     from just past it along the same ray (from the eye through the point;
-    orthographic: along the view axis) to the far clip plane, and get the
-    surface they stop at (``alpha_rays.pass_through``)."""
+    orthographic: along the view axis; ``origins[i]``, the ray's start, when
+    given: through a lens) to the far clip plane, and get the surface they
+    stop at (``alpha_rays.pass_through``)."""
     geo = tri_scene.alpha
     pix = np.flatnonzero(tri >= 0)
     pix = pix[geo.mattes.tri_matte[tri[pix]] >= 0]
@@ -403,7 +414,11 @@ def _see_through_mattes(tri_scene: TriangleScene, cam: Camera, tri_object, pos, 
     eye, fwd = cam.position, cam.forward
 
     def rays():
-        if cam.kind == "ORTHO":
+        if origins is not None:
+            d = P - origins[pix]
+            d = d / np.linalg.norm(d, axis=1)[:, None]
+            tfar = (cam.clip_end - depth[pix].astype(np.float64)) / np.maximum(d @ fwd, 1e-12)
+        elif cam.kind == "ORTHO":
             d = np.broadcast_to(fwd, P.shape)
             tfar = cam.clip_end - depth[pix].astype(np.float64)
         else:

@@ -62,6 +62,16 @@ class Camera:
     clip_end: float = 1000.0
     pixel_aspect_x: float = 1.0
     pixel_aspect_y: float = 1.0
+    # depth of field, as Cycles' thin lens (``core/camera_samples.py``); 0: a pinhole
+    aperture_radius: float = 0.0           # lens radius in scene units (Cycles' aperturesize)
+    focus_distance: float = 10.0           # distance of the plane in focus along the view axis
+    aperture_blades: int = 0               # polygonal aperture with this many sides (< 3: a disk)
+    aperture_rotation: float = 0.0         # the polygon's rotation, radians
+    aperture_ratio: float = 1.0            # anamorphic squeeze: the lens x axis divided by it
+
+    @property
+    def has_depth_of_field(self) -> bool:
+        return self.aperture_radius > 0.0
 
     @property
     def position(self) -> np.ndarray:

@@ -55,14 +55,15 @@ class CompileNotice(str):
         return s
 
 
-def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False) -> Scene:
+def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False, lens: bool = False) -> Scene:
     """A tiny scene lit by a copy of ``light``: the light at height ``D`` shining
     down on a ground quad, an occluder quad halfway, the camera at the light
     looking down (so every pixel sees a receiver the light reaches). With
     ``mattes`` the occluder carries a 2x2 alpha matte (clear, opaque and
     partial texels: ``core/alpha.py``), so the matte kernels run. With
     ``instanced`` the two quads are instances of one quad mesh, not
-    flattened (``MeshInstances``), so the kernels of rays on instances run."""
+    flattened (``MeshInstances``), so the kernels of rays on instances run.
+    With ``lens`` the camera has depth of field (``camera_samples``)."""
     D = max(4.0 * light.extent, 1.0) if light.kind != "sun" else 1.0
     m = np.eye(4)
     m[:3, :3] = look_rotation(np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]))
@@ -76,7 +77,8 @@ def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False) ->
     tris = np.array(quad(g, 0.0) + quad(o, 0.5 * D), np.float32)
     cam_m = m.copy()
     cam_m[2, 3] = 0.9 * D
-    cam = Camera(cam_m, kind="PERSP", lens=20.0, clip_start=1e-3 * D, clip_end=10.0 * D)
+    cam = Camera(cam_m, kind="PERSP", lens=20.0, clip_start=1e-3 * D, clip_end=10.0 * D,
+                 **(dict(aperture_radius=0.02 * D, focus_distance=0.5 * D) if lens else {}))
     objs = [ObjectInfo("ground", 0), ObjectInfo("occluder", 1)]
     alpha = None
     if mattes:
@@ -272,6 +274,7 @@ def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable
     compiling. ``render_filtered``: ``filtered_frame.render_filtered``
     (handed in: that module imports this one)."""
     mattes, instanced = has_mattes(scene), not scene.is_flattened
+    lens = scene.camera is not None and scene.camera.has_depth_of_field
     kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
     spec = json.dumps(pixel_filter.to_json(), sort_keys=True, default=str)
     passes = sorted(set(passes))
@@ -280,7 +283,8 @@ def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable
     spent = 0.0
     for kind, light in kinds:
         def work(light=light):
-            render_filtered(warmup_scene(light, mattes, instanced), passes, None, pixel_filter,
+            render_filtered(warmup_scene(light, mattes, instanced, lens), passes, None, pixel_filter,
                             overrides={"samples": 4, "seed": 0}, progress=progress)
-        spent += _warm_once(("filter", kind, mattes, instanced, spec, tuple(passes)), "pixel_filter", notify, work)
+        spent += _warm_once(("filter", kind, mattes, instanced, lens, spec, tuple(passes)), "pixel_filter", notify,
+                            work)
     return spent

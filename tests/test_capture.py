@@ -592,6 +592,32 @@ def test_camera_scale_removed(factory_scene):
     assert np.allclose(cam.position, (1, 2, 3))
 
 
+@pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
+def test_depth_of_field_is_cycles_thin_lens(factory_scene, kind):
+    cam_ob = _camera(factory_scene, type=kind, lens=85.0)
+    cam_ob.location = (0, -4, 1)
+    cam_ob.rotation_euler = (math.radians(80), 0, 0)
+    assert capture_scene().camera.aperture_radius == 0.0          # DoF off: a pinhole
+    dof = cam_ob.data.dof
+    dof.use_dof, dof.aperture_fstop, dof.focus_distance = True, 1.4, 3.5
+    dof.aperture_blades, dof.aperture_rotation, dof.aperture_ratio = 6, 0.25, 1.5
+    cam = capture_scene().camera
+    radius = 1.0 / (2 * 1.4) if kind == "ORTHO" else 85.0e-3 / (2 * 1.4)
+    assert cam.aperture_radius == pytest.approx(radius)
+    assert cam.focus_distance == pytest.approx(3.5)
+    assert (cam.aperture_blades, cam.aperture_rotation, cam.aperture_ratio) == (6, pytest.approx(0.25), 1.5)
+    dof.aperture_blades = 2                                         # fewer than 3 blades: Cycles' disk
+    target = bpy.data.objects.new("Target", None)
+    factory_scene.collection.objects.link(target)
+    target.location = (0.7, 2.0, 0.3)                               # 6 m ahead along the view axis, off it
+    dof.focus_object = target
+    cam = capture_scene().camera
+    axis = np.array(cam_ob.matrix_world.to_3x3().col[2])
+    expect = abs(float(np.dot(axis, np.array(cam_ob.location) - np.array(target.location))))
+    assert cam.aperture_blades == 0 and cam.focus_distance == pytest.approx(expect, rel=1e-6)
+    assert expect != pytest.approx(3.5)
+
+
 # --------------------------------------------------------------------------
 # during a render
 def test_capture_from_render_handler_depsgraph(factory_scene):

@@ -1,0 +1,163 @@
+"""Where on the lens each sub-pixel sample's camera ray starts: depth of field
+as Cycles' thin lens.
+
+A camera with ``Camera.aperture_radius`` > 0 is a thin lens
+(``intern/cycles/kernel/camera/camera.h``: ``camera_sample_aperture``,
+``camera_sample_perspective``, ``camera_sample_orthographic``). A camera
+sample with lens coordinates (u, v) in [0, 1)^2 starts at the lens point
+
+    L = aperture_radius * bokeh(u, v)            (camera-local x, y; z = 0)
+
+    bokeh   the unit disk (Shirley-Chiu concentric map), or with
+            ``aperture_blades`` >= 3 the regular polygon of that many corners
+            on the unit circle turned by ``aperture_rotation`` (Cycles'
+            ``regular_polygon_sample``); x then divided by ``aperture_ratio``
+
+and looks through the point where its pinhole ray meets the plane in focus,
+``focus_distance`` along the view axis (``pixel_rays.lens_ray_batch``).
+Blender's settings map as Cycles' sync does (``bridge/capture.py``):
+aperture_radius = lens (mm) / 1000 / (2 f-stop), for an orthographic camera
+1 / (2 f-stop); the focus object's distance along the view axis.
+
+Sampling (``lens_points``). A filtered pass traces G x G sub-pixel samples
+per pixel footprint (``pixel_filter``). The G x G samples of one pixel take
+the G x G strata of the lens square, one each, in an order that a hashed
+permutation (Kensler, "Correlated Multi-Jittered Sampling", 2013) draws per
+pixel, jittered within the stratum: pixel position and lens position are
+stratified jointly, and neither follows the other from pixel to pixel.
+
+Parameters: ``seed`` (0) decorrelates frames; a sub-sample's lens point
+depends only on the seed and its place in the supersampled view, not on
+which list or batch holds it.
+
+Departures from Cycles: Cycles draws (u, v) from its Sobol-Burley sequence
+per render sample; here one stratified lens sample per sub-pixel sample.
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import numpy as np
+
+from .jit import inner, kernel
+from .sampling import concentric_disk, rand01
+from .scene import Camera
+
+LENS_SALT = 0x6C656E73          # keeps the lens' hash streams apart from the light samples'
+
+
+@inner(forceinline=True)
+def _permute(i, n, p):
+    """Kensler's hashed permutation: the image of i under a permutation of
+    0 .. n-1 chosen by the 32-bit key p (cycle walking over the next power
+    of two)."""
+    w = np.uint32(n - 1)
+    w |= w >> np.uint32(1)
+    w |= w >> np.uint32(2)
+    w |= w >> np.uint32(4)
+    w |= w >> np.uint32(8)
+    w |= w >> np.uint32(16)
+    x = np.uint32(i)
+    p = np.uint32(p)
+    m = np.uint32(0xFFFFFFFF)
+    while True:
+        x ^= p
+        x = (x * np.uint32(0xE170893D)) & m
+        x ^= p >> np.uint32(16)
+        x ^= (x & w) >> np.uint32(4)
+        x ^= p >> np.uint32(8)
+        x = (x * np.uint32(0x0929EB3F)) & m
+        x ^= p >> np.uint32(23)
+        x ^= (x & w) >> np.uint32(1)
+        x = (x * (np.uint32(1) | (p >> np.uint32(27)))) & m
+        x = (x * np.uint32(0x6935FA69)) & m
+        x ^= (x & w) >> np.uint32(11)
+        x = (x * np.uint32(0x74DCB303)) & m
+        x ^= (x & w) >> np.uint32(2)
+        x = (x * np.uint32(0x9E501CC3)) & m
+        x ^= (x & w) >> np.uint32(2)
+        x = (x * np.uint32(0xC860A3DF)) & m
+        x &= w
+        x ^= x >> np.uint32(5)
+        if x < np.uint32(n):
+            break
+    return (np.int64(x) + np.int64(p)) % n
+
+
+@inner(forceinline=True)
+def aperture_point(u, v, blades, rotation, inv_ratio):
+    """Cycles' ``camera_sample_aperture``: (u, v) in [0, 1)^2 -> a point of
+    the unit disk (``blades`` < 3) or of the regular ``blades``-gon turned by
+    ``rotation``, its x scaled by ``inv_ratio``."""
+    if blades < 3:
+        x, y = concentric_disk(u, v)
+    else:
+        corner = math.floor(u * blades)
+        u = u * blades - corner
+        u = math.sqrt(u)
+        v = v * u
+        u = 1.0 - u
+        angle = math.pi / blades
+        px, py = (u + v) * math.cos(angle), (u - v) * math.sin(angle)
+        rot = rotation + corner * 2.0 * angle
+        cr, sr = math.cos(rot), math.sin(rot)
+        x, y = cr * px - sr * py, sr * px + cr * py
+    return x * inv_ratio, y
+
+
+@kernel(nogil=True)
+def _lens_points(flat, sub_width, grid, seed, radius, blades, rotation, inv_ratio, out):
+    """``lens_points``' kernel."""
+    n = grid * grid
+    for i in range(flat.shape[0]):
+        f = flat[i]
+        row, col = f // sub_width, f % sub_width
+        pixel = (row // grid) * (sub_width // grid) + col // grid
+        k = (row % grid) * grid + col % grid
+        lo = np.uint32(rand01(seed, pixel, np.int64(LENS_SALT), np.int64(2)) * 16777216.0)
+        hi = np.uint32(rand01(seed, pixel, np.int64(LENS_SALT), np.int64(3)) * 256.0)
+        s = _permute(k, n, lo | (hi << np.uint32(24)))
+        u = ((s % grid) + rand01(seed, pixel, np.int64(LENS_SALT + 1 + k), np.int64(0))) / grid
+        v = ((s // grid) + rand01(seed, pixel, np.int64(LENS_SALT + 1 + k), np.int64(1))) / grid
+        x, y = aperture_point(u, v, blades, rotation, inv_ratio)
+        out[i, 0] = radius * x
+        out[i, 1] = radius * y
+
+
+def lens_points(cam: Camera, flat: np.ndarray, sub_width: int, grid: int, seed: int = 0) -> np.ndarray:
+    """float64[N, 2]: the camera-local lens point (x, y) of each sub-sample
+    ``flat[i]`` (row-major index in the ``grid``-times supersampled view,
+    ``sub_width`` wide): the thin lens' stratified, per-pixel permuted
+    samples (module docstring). A pinhole camera: all zeros."""
+    flat = np.ascontiguousarray(flat, np.int64)
+    out = np.zeros((len(flat), 2), np.float64)
+    if cam.has_depth_of_field and len(flat):
+        _lens_points(flat, int(sub_width), int(grid), int(seed), float(cam.aperture_radius),
+                     int(cam.aperture_blades), float(cam.aperture_rotation),
+                     1.0 / max(float(cam.aperture_ratio), 1e-6), out)
+    return out
+
+
+def describe_effects(cam: Camera, sampled: bool) -> Optional[dict]:
+    """The camera's effects as the frame's JSON records them (None: a
+    pinhole): the thin lens' parameters and whether the passes sample them
+    (a filtered frame: every method's sub-pixel receivers lie on their own
+    lens rays; pixel centres: a pinhole, the effect ignored)."""
+    if not cam.has_depth_of_field:
+        return None
+    return {"depth_of_field": {"aperture_radius": float(cam.aperture_radius),
+                               "focus_distance": float(cam.focus_distance),
+                               "blades": int(cam.aperture_blades), "rotation": float(cam.aperture_rotation),
+                               "ratio": float(cam.aperture_ratio)},
+            "sampled": "per sub-pixel receiver" if sampled else "no: pixel centres (a pinhole)"}
+
+
+def effects_line(cam: Camera, sampled: bool) -> Optional[str]:
+    """One line for ``penumbra plan``: the camera's effects and how the
+    passes take them (None: a pinhole camera)."""
+    if not cam.has_depth_of_field:
+        return None
+    how = ("every method's sub-pixel receivers on their own lens rays, every pixel refined"
+           if sampled else "ignored: pixel centres through a pinhole (--pixel-filter none)")
+    return (f"camera: depth of field, lens radius {cam.aperture_radius:.4g}, focus {cam.focus_distance:.4g}: {how}")
