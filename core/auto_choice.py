@@ -37,10 +37,15 @@ The rules, in order (each decision says which one in its reason):
    reference's measured time is scaled to it by ``COST_MODEL``. A candidate
    predicted slower than the reference there is dropped; when every one is,
    ``auto`` runs the reference itself (rule "reference is fastest"). Without
-   a shape, times are not scaled. A scene kept as instances whose flattened
-   triangles would not fit in memory (``SceneShape.instanced_only``) has
-   only the methods that run on instances (``Method.runs_on_instances``:
-   pcf, and embree for the reference) as candidates.
+   a shape, times are not scaled. On a scene kept as instances the
+   triangles are the instanced ones (every placed triangle) for the methods
+   that run on instances (``Method.runs_on_instances``: pcf, and embree for
+   the reference: a two-level BVH's depth grows with the log of instances
+   times triangles per mesh), and for the others the triangles they expand
+   (``SceneShape.expanded``: those of the instances that can shadow a
+   visible receiver, when known). When what those would expand cannot fit
+   in memory (``SceneShape.instanced_only``), only the methods that run on
+   instances are candidates.
 6. The cheapest candidate with worst error <= budget wins; when none meets
    the budget: with a shape, the reference if its own worst error meets it,
    else the most accurate one (the reference too, with a shape), and the
@@ -104,21 +109,45 @@ class SceneShape:
     pixels: int                  # output pixels
     light_relative: float        # light extent / distance from the light to the casters' centre
     mattes: int = 0              # shadow-casting triangles with an alpha matte
-    #: kept as instances, and flattening them would not fit in memory: only
-    #: the methods that run on instances (``Method.runs_on_instances``) can run
+    #: kept as instances, and what the methods that need world-space
+    #: triangles expand would not fit in memory: only the methods that run on
+    #: instances (``Method.runs_on_instances``) can run
     instanced_only: bool = False
+    #: instances of a scene kept as instances (0: a flattened scene)
+    instances: int = 0
+    #: kept as instances: the shadow-casting triangles a method that needs
+    #: world-space triangles expands (None: all of ``triangles``)
+    expanded: Optional[int] = None
+
+    def triangles_for(self, mid: str) -> int:
+        """The triangles method ``mid``'s time grows with: ``expanded`` for
+        a method that needs world-space triangles, else ``triangles``."""
+        if self.expanded is None or not self.instances:
+            return self.triangles
+        from . import methods as registry
+        try:
+            on_instances = registry.producer_of(mid).runs_on_instances
+        except KeyError:
+            return self.triangles
+        return self.triangles if on_instances else self.expanded
 
     def describe(self) -> str:
-        return (f"{self.triangles:,} triangles" + (f" ({self.mattes:,} alpha-matted)" if self.mattes else "")
-                + (" as instances too large to flatten" if self.instanced_only else "")
+        placed = f" as {self.instances:,} instances" if self.instances else ""
+        if self.expanded is not None and self.instances:
+            placed += f" ({self.expanded:,} expanded for world-space triangles)"
+        return (f"{self.triangles:,} triangles{placed}"
+                + (f" ({self.mattes:,} alpha-matted)" if self.mattes else "")
+                + (" too large to flatten" if self.instanced_only else "")
                 + f", {self.pixels / 1e6:.2f} Mpx, light {self.light_relative:.2f} of its distance")
 
 
-def scene_shape(scene, light) -> SceneShape:
-    """``SceneShape`` of a captured ``core.scene.Scene`` for one of its lights."""
+def scene_shape(scene, light, expanded: Optional[int] = None) -> SceneShape:
+    """``SceneShape`` of a captured ``core.scene.Scene`` for one of its
+    lights; ``expanded``: on a scene kept as instances, the shadow-casting
+    triangles the methods that need world-space triangles expand (None: all)."""
     import numpy as np
     W, H = scene.resolution
-    instanced_only = False
+    instanced_only, instances = False, 0
     if scene.is_flattened:
         casts = scene.triangles[scene.tri_casts_shadow]
         count = len(casts)
@@ -127,7 +156,9 @@ def scene_shape(scene, light) -> SceneShape:
         from .scene import BYTES_PER_FLATTENED_TRIANGLE, physical_memory
         ins = scene.instances
         memory = physical_memory()
-        instanced_only = memory is not None and ins.instanced_triangles * BYTES_PER_FLATTENED_TRIANGLE > memory
+        expand = ins.instanced_triangles if expanded is None else expanded
+        instanced_only = memory is not None and expand * BYTES_PER_FLATTENED_TRIANGLE > memory
+        instances = ins.count
         flags = scene.instance_flag("casts_shadow")
         count = int(ins.instance_triangles()[flags].sum())
         boxes = ins.instance_boxes()[flags]
@@ -140,7 +171,8 @@ def scene_shape(scene, light) -> SceneShape:
     mattes = 0
     if getattr(scene, "alpha", None) is not None:
         mattes = int((scene.alpha.tri_matte[scene.tri_casts_shadow] >= 0).sum())
-    return SceneShape(count, int(W * H), rel, mattes, instanced_only)
+    return SceneShape(count, int(W * H), rel, mattes, instanced_only, instances,
+                      expanded if instances else None)
 
 
 #: rule 5: per method, how its time grows with the scene: (pixel exponent,
@@ -184,9 +216,10 @@ def predicted_seconds(mid: str, row: dict, measured: MeasuredScene, shape: Optio
         return t
     a, tri, c = COST_MODEL.get(mid, _DEFAULT_COST)
     t *= (max(1, shape.pixels) / max(1, measured.pixels)) ** a
-    ratio = max(1, shape.triangles) / max(1, measured.triangles)
+    triangles = shape.triangles_for(mid)
+    ratio = max(1, triangles) / max(1, measured.triangles)
     if tri == "log":
-        t *= math.log(max(2, shape.triangles)) / math.log(max(2, measured.triangles))
+        t *= math.log(max(2, triangles)) / math.log(max(2, measured.triangles))
     elif isinstance(tri, tuple):
         t *= ratio ** (tri[0] if ratio > 1 else tri[1])
     else:
@@ -412,8 +445,10 @@ def choose(kind: str, size: float, visibility: str = IRRADIANCE, budget: float =
 
 
 def choose_for_light(light, visibility: str = IRRADIANCE, budget: float = DEFAULT_BUDGET,
-                     table=PACKAGED, known: Optional[Sequence[str]] = None, scene=None) -> AutoChoice:
+                     table=PACKAGED, known: Optional[Sequence[str]] = None, scene=None,
+                     expanded: Optional[int] = None) -> AutoChoice:
     """``choose`` for a captured ``core.scene.Light`` (of ``scene``, whose
-    shape then scales the measured times: rule 5)."""
-    shape = scene_shape(scene, light) if scene is not None else None
+    shape then scales the measured times: rule 5; ``expanded``:
+    ``scene_shape``'s)."""
+    shape = scene_shape(scene, light, expanded) if scene is not None else None
     return choose(light.kind, light.extent, visibility, budget, table, known, shape)

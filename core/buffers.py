@@ -23,7 +23,8 @@ from .ledger import BuildLedger, _closure
 from .methods.base import (GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, MESH_PIECES, PRECOMPUTE, SHADOW_GEOMETRY,
                            SHADOW_TRIANGLES, params_dict)
 from .methods.surfaces import mesh_pieces
-from .scene import GBuffer, Light, LightView, Scene
+from .scene import (ExpandedInstances, GBuffer, Light, LightView, Scene, expand_instances, expandable,
+                    expansion_counts)
 from .sampling import scene_scale
 
 # at most this many receiver points are used to fit light frusta
@@ -38,7 +39,7 @@ NEED_BUILDERS: Dict[str, Tuple[str, ...]] = {
     SHADOW_TRIANGLES: ("shadow_triangles", "matte_casters"),
     LIGHT_VIEW: ("light_view", "object_casts_shadow"),
     LIGHT_SAMPLE_VIEWS: ("sample_view",),
-    MESH_PIECES: ("mesh_pieces", "piece_casts_shadow"),
+    MESH_PIECES: ("mesh_pieces", "piece_casts_shadow", "triangle_pieces"),
     PRECOMPUTE: ("precomputed",),
 }
 #: need -> the needs its buffers are built from (a light view is rendered on a
@@ -58,6 +59,9 @@ NEED_PHASE: Dict[str, str] = {
     LIGHT_SAMPLE_VIEWS: "bvh",      # sample views are the method's own work, on the shared BVH
     MESH_PIECES: "mesh_pieces",
 }
+#: the phase a scene kept as instances is billed for expanding the instances
+#: the world-space triangle buffers are made of (``FrameBuffers.expansion``)
+EXPAND_PHASE = "expand_instances"
 #: the frame's inputs (not buffers): every method sees them
 FRAME_INPUTS = ("width", "height", "map_size_for", "scale", "bounds")
 
@@ -76,7 +80,7 @@ class FrameBuffers:
         self.height = int(height)
         self.map_size_given = int(map_size) if map_size else None
         self._map_base = (self.width, self.height)     # the view the default map sizes follow
-        self.ledger = BuildLedger(dict.fromkeys(NEED_PHASE.values()))
+        self.ledger = BuildLedger(dict.fromkeys([*NEED_PHASE.values(), EXPAND_PHASE]))
         self._gbuffer: Optional[GBuffer] = None
         self._receivers: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
         self._reach: Dict[str, np.ndarray] = {}   # light -> metrics.reach_mask on the G-buffer
@@ -86,6 +90,8 @@ class FrameBuffers:
         self._matte_casters: Optional[tuple] = None
         self._pieces: Optional[Tuple[np.ndarray, np.ndarray]] = None
         self._views: Dict[Tuple[str, int, str], LightView] = {}   # (light, map size, key)
+        self._labelled: Set[Tuple[str, int, str]] = set()          # views labelled per triangle
+        self._expansion: Optional[ExpandedInstances] = None
         self._culled: Dict[str, raycast.TriangleScene] = {}
         self._bvh_key: Dict[str, str] = {}        # light -> key of the BVH its shadow rays use
         self.culling: Dict[str, Dict[str, int]] = {}
@@ -137,8 +143,8 @@ class FrameBuffers:
         sub._shadow, sub._camera_scene = self._shadow, self._camera_scene
         sub.instanced, sub._mesh_bvhs = self.instanced, self._mesh_bvhs
         sub._shadow_triangles, sub._matte_casters = self._shadow_triangles, self._matte_casters
-        sub._pieces = self._pieces
-        sub._views = dict(self._views)
+        sub._pieces, sub._expansion = self._pieces, self._expansion
+        sub._views, sub._labelled = dict(self._views), set(self._labelled)
         sub._precomputed = self._precomputed
         pts, lo, hi = self._receiver_points()
         P = gbuffer.position[gbuffer.hit]
@@ -148,7 +154,16 @@ class FrameBuffers:
             if np.array_equal(slo, lo) and np.array_equal(shi, hi):
                 sub._culled, sub._bvh_key = dict(self._culled), dict(self._bvh_key)
                 sub.culling = dict(self.culling)
+            elif self.instanced:          # more instances can shadow the grown box: expanded anew
+                sub._drop_expansion()
         return sub
+
+    def _drop_expansion(self) -> None:
+        """Forget the expanded instances and what was made of them (the
+        world-space triangle buffers, the views labelled per triangle)."""
+        self._expansion = self._shadow = self._shadow_triangles = self._pieces = None
+        self._views = {k: v for k, v in self._views.items() if k not in self._labelled}
+        self._labelled = set()
 
     def share_precomputed(self) -> None:
         """From now on ``precomputed`` keeps what it builds, for this frame's
@@ -193,13 +208,17 @@ class FrameBuffers:
         self._shadow, self._camera_scene = prev._shadow, prev._camera_scene
         self.instanced, self._mesh_bvhs = prev.instanced, prev._mesh_bvhs
         self._shadow_triangles, self._matte_casters = prev._shadow_triangles, prev._matte_casters
-        self._pieces = prev._pieces
+        self._pieces, self._expansion = prev._pieces, prev._expansion
         self._views = {k: v for k, v in prev._views.items() if k[0] in same}
+        self._labelled = {k for k in prev._labelled if k in self._views}
         self._culled = {n: b for n, b in prev._culled.items() if n in same}
         self._bvh_key = {n: k for n, k in prev._bvh_key.items() if n in same}
         self.culling = {n: c for n, c in prev.culling.items() if n in same}
         self._reach = {n: m for n, m in prev._reach.items() if n in same}
-        kept = {"bvh_shadow", "bvh_camera", "gbuffer", "shadow_triangles", "matte_casters", "mesh_pieces"}
+        if self.instanced and len(same) < len(self.scene.lights):   # the expansion covers every light
+            self._drop_expansion()
+        kept = {"bvh_shadow", "bvh_camera", "gbuffer", "shadow_triangles", "matte_casters", "mesh_pieces",
+                "expand_instances"}
         kept |= {f"bvh_culled:{n}" for n in same} | {f"light_view:{n}:{ms}:{k}" for n, ms, k in self._views}
         self.ledger.carry(prev.ledger, kept)
 
@@ -226,6 +245,52 @@ class FrameBuffers:
         return self.ledger.billed(used, (NEED_PHASE[n] for n in _with_sources(needs) if n in NEED_PHASE))
 
     # -- geometry ---------------------------------------------------------
+    def _expand_mask(self) -> np.ndarray:
+        """bool per instance: those that can shadow a visible receiver of
+        some light of the scene (one that casts shadows, has energy and
+        reaches a visible receiver): the box of the instance meets the box
+        every such shadow ray stays in (``_inside_occluder_box``). The
+        instances holding the visible receivers are among them."""
+        boxes = self.scene.instances.instance_boxes()
+        keep = np.zeros(len(boxes), bool)
+        for light in self.scene.lights:
+            if light.casts_shadow and light.energy > 0 and self.reach(light).any():
+                keep |= self._inside_occluder_box(light, boxes)
+        return keep
+
+    @property
+    def expansion(self) -> Optional[ExpandedInstances]:
+        """On a scene kept as instances: the instances that can shadow a
+        visible receiver (``_expand_mask``), flattened once per frame; None
+        on a flattened scene (nothing is expanded)."""
+        if not self.instanced:
+            return None
+        if self._expansion is None:
+            self.receivers()              # build the G-buffer outside this phase's timer
+            self._expansion = self._timed(
+                "expand_instances", EXPAND_PHASE,
+                lambda: expand_instances(self.scene, self._expand_mask()), built_from=("gbuffer",))
+        self._use("expand_instances")
+        return self._expansion
+
+    def expansion_counts(self) -> Optional[dict]:
+        """``ExpandedInstances.counts`` of the frame's expansion, found from
+        the instances' boxes without expanding them (the plan's words);
+        None on a flattened scene."""
+        if not self.instanced:
+            return None
+        if self._expansion is not None:
+            return self._expansion.counts()
+        return expansion_counts(self.scene, expandable(self.scene.instances, self._expand_mask()))
+
+    def _soup(self) -> Tuple[Scene, Tuple[str, ...]]:
+        """(the scene whose world-space triangles the triangle buffers are
+        made of, the builds it comes from): the scene itself, or on a scene
+        kept as instances the flattened ``expansion``."""
+        if not self.instanced:
+            return self.scene, ()
+        return self.expansion.scene, ("expand_instances",)
+
     def _bvh(self, key, phase, mask, other, other_key, other_mask) -> raycast.TriangleScene:
         """The Embree BVH of the triangles ``mask`` selects, timed as ``key``:
         the other BVH (``other``, built as ``other_key`` from ``other_mask``)
@@ -236,7 +301,12 @@ class FrameBuffers:
 
     @property
     def shadow_scene(self) -> raycast.TriangleScene:
-        """Embree BVH of the triangles that cast shadows (SHADOW_GEOMETRY)."""
+        """Embree BVH of the triangles that cast shadows (SHADOW_GEOMETRY);
+        on a scene kept as instances, of the ``expansion``'s."""
+        if self._shadow is None and self.instanced:
+            soup, source = self._soup()
+            self._shadow = self._timed("bvh_shadow", "bvh", lambda: raycast.TriangleScene.from_scene(
+                soup, soup.tri_casts_shadow), built_from=source)
         if self._shadow is None:
             self._shadow = self._bvh("bvh_shadow", "bvh", self.scene.tri_casts_shadow,
                                      self._camera_scene, "bvh_camera", self.scene.tri_visible_camera)
@@ -246,12 +316,16 @@ class FrameBuffers:
     @property
     def shadow_triangles(self) -> Tuple[np.ndarray, np.ndarray]:
         """(float32[T,3,3], int32[T]): the shadow-casting triangles and their
-        object ids, as captured (SHADOW_TRIANGLES: no BVH is built)."""
+        object ids, as captured (SHADOW_TRIANGLES: no BVH is built); on a
+        scene kept as instances, the ``expansion``'s: every triangle that can
+        shadow a visible receiver."""
         if self._shadow_triangles is None:
+            soup, source = self._soup()
+
             def select():
-                mask = self.scene.tri_casts_shadow
-                return self.scene.triangles[mask], self.scene.tri_object[mask]
-            self._shadow_triangles = self._timed("shadow_triangles", "shadow_triangles", select)
+                mask = soup.tri_casts_shadow
+                return soup.triangles[mask], soup.tri_object[mask]
+            self._shadow_triangles = self._timed("shadow_triangles", "shadow_triangles", select, built_from=source)
         self._use("shadow_triangles")
         return self._shadow_triangles
 
@@ -268,20 +342,33 @@ class FrameBuffers:
 
     def _mesh_pieces(self) -> Tuple[np.ndarray, np.ndarray]:
         if self._pieces is None:
+            soup, source = self._soup()
+
             def build():
-                labels = mesh_pieces(self.scene)
+                labels = mesh_pieces(soup)
                 casts = np.zeros(len(labels), bool)
-                casts[labels] = self.scene.tri_casts_shadow
+                casts[labels] = soup.tri_casts_shadow
                 return labels, casts
-            self._pieces = self._timed("mesh_pieces", "mesh_pieces", build)
+            self._pieces = self._timed("mesh_pieces", "mesh_pieces", build, built_from=source)
         self._use("mesh_pieces")
         return self._pieces
 
     @property
     def mesh_pieces(self) -> np.ndarray:
         """int32 per triangle: its connected mesh piece, a surface label finer
-        than the object id (``methods.surfaces.mesh_pieces``; MESH_PIECES)."""
+        than the object id (``methods.surfaces.mesh_pieces``; MESH_PIECES).
+        On a scene kept as instances, per triangle of the ``expansion``: a
+        G-buffer's triangle ids go through ``triangle_pieces``."""
         return self._mesh_pieces()[0]
+
+    def triangle_pieces(self, tri: np.ndarray) -> np.ndarray:
+        """int32 like ``tri`` (triangle ids of the G-buffer, -1: none): the
+        mesh piece of each (``mesh_pieces``), -1 for none (or for a triangle
+        of an instance not expanded)."""
+        labels = self._mesh_pieces()[0]
+        if self.instanced:
+            tri = self.expansion.local_ids(tri)
+        return np.ascontiguousarray(np.where(tri >= 0, labels[np.maximum(tri, 0)], -1), np.int32)
 
     @property
     def piece_casts_shadow(self) -> np.ndarray:
@@ -463,10 +550,13 @@ class FrameBuffers:
                 return raycast.render_light_view(faces, occ, labels, e)
             self.receivers()              # build the G-buffer outside this phase's timer
             occ = self.shadow_scene_for(light)
+            bvh = self._bvh_key[light.name]
             if tri_label is not None and isinstance(occ, raycast.InstanceScene):
-                occ = self.shadow_scene   # labels per triangle: the flattened casters
+                occ, bvh = self.shadow_scene, "bvh_shadow"   # labels per triangle: the expanded casters
+            if tri_label is not None:
+                self._labelled.add(k)
             self._views[k] = self._timed(name, "light_view", build, total=f"light_view:{light.name}",
-                                         built_from=("gbuffer", self._bvh_key[light.name]))
+                                         built_from=("gbuffer", bvh))
         self._use(name)
         return self._views[k]
 
@@ -474,10 +564,11 @@ class FrameBuffers:
         """Depth + object-id maps through ``faces`` from ``eye``, a point on
         the light (LIGHT_SAMPLE_VIEWS), rendered on the shared shadow BVH.
         ``tri_label`` (int32 per triangle) replaces the object ids in the id
-        map (e.g. mesh components). Not kept: each method picks its own
+        map (e.g. mesh components; on a scene kept as instances, per
+        triangle of the ``expansion``). Not kept: each method picks its own
         samples and faces, and times the rendering as its own phase. Build
         ``shadow_scene`` first when calling this from several threads."""
-        labels = self.scene.tri_object if tri_label is None else tri_label
+        labels = self._soup()[0].tri_object if tri_label is None else tri_label
         return raycast.render_light_view(faces, self.shadow_scene, labels, eye)
 
 

@@ -12,7 +12,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence
 import numpy as np
 
 from . import methods as method_registry
-from .buffers import FrameBuffers
+from .buffers import EXPAND_PHASE, FrameBuffers
 from .camera_samples import describe_effects
 from .frame_cache import FrameCache
 from .compile_ahead import frame_keys, prefetch
@@ -223,6 +223,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
                 rec["computed_with"] = [q for q in m.passes if q != pid]
             if res.stats:
                 rec["stats"] = res.stats
+            if m is not None and EXPAND_PHASE in phases:   # it read instances expanded into triangles
+                rec["expanded"] = buffers.expansion_counts()
             if m is not None and m.id in reused:
                 rec["reused"] = True
             lr.record[pid] = rec

@@ -50,6 +50,9 @@ class LightPlan:
     decisions: List[str] = field(default_factory=list)   # further choices, with reasons
     passes: List[str] = field(default_factory=list)      # this light's pass ids (``auto`` resolved)
     auto: Optional[dict] = None                          # AutoChoice.to_json() when ``auto`` was asked
+    #: on a scene kept as instances, when a producer needs world-space
+    #: triangles: what the frame expands (``FrameBuffers.expansion_counts``)
+    expanded: Optional[dict] = None
 
 
 @dataclass
@@ -59,8 +62,9 @@ class Plan:
     notes: List[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
-        return {"passes": list(self.passes), "lights": [asdict(lp) for lp in self.lights],
-                "notes": list(self.notes)}
+        lights = [{k: v for k, v in asdict(lp).items() if k != "expanded" or v is not None}
+                  for lp in self.lights]
+        return {"passes": list(self.passes), "lights": lights, "notes": list(self.notes)}
 
     def describe(self) -> str:
         lines = [f"passes: {', '.join(self.passes)}"]
@@ -152,29 +156,33 @@ def alpha_notes(scene: Scene) -> List[str]:
 
 
 def auto_choice_for(scene: Scene, light: Light, error_budget: Optional[float] = None,
-                    visibility: str = auto_choice.IRRADIANCE, auto_table=auto_choice.PACKAGED):
+                    visibility: str = auto_choice.IRRADIANCE, auto_table=auto_choice.PACKAGED,
+                    expanded: Optional[int] = None):
     """``auto``'s decision (``core.auto_choice.AutoChoice``) for ``light`` of
-    the captured ``scene``, whose shape (shadow-casting triangles, pixels,
-    light size) scales the measured times (``auto_choice`` rule 5): the one
-    resolver of the command line, ``plan``, Compute Passes, the Preview and
-    the render handler. ``error_budget``: RMSE (default
-    ``auto_choice.DEFAULT_BUDGET``); a bad one is a PlanError."""
+    the captured ``scene``, whose shape (shadow-casting triangles, instances,
+    pixels, light size) scales the measured times (``auto_choice`` rule 5):
+    the one resolver of the command line, ``plan``, Compute Passes, the
+    Preview and the render handler. ``error_budget``: RMSE (default
+    ``auto_choice.DEFAULT_BUDGET``); a bad one is a PlanError. ``expanded``:
+    on a scene kept as instances, the shadow-casting triangles a method that
+    needs world-space triangles would expand (None: all of them)."""
     budget = auto_choice.DEFAULT_BUDGET if error_budget is None else float(error_budget)
     try:
-        return auto_choice.choose_for_light(light, visibility, budget, auto_table, scene=scene)
+        return auto_choice.choose_for_light(light, visibility, budget, auto_table, scene=scene,
+                                            expanded=expanded)
     except ValueError as exc:                # bad budget / definition
         raise PlanError(str(exc))
 
 
 def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequence[str]] = None,
               error_budget: Optional[float] = None, visibility: str = auto_choice.IRRADIANCE,
-              auto_table=auto_choice.PACKAGED) -> Plan:
+              auto_table=auto_choice.PACKAGED, expanded: Optional[int] = None) -> Plan:
     """Per light: skip, hard or compute, with the reason; the light's passes
     and the producers and buffers they need. ``auto`` among ``passes`` is
     resolved per light (``core/auto_choice.py``) under ``error_budget``
     (RMSE; default ``auto_choice.DEFAULT_BUDGET``) for the ``visibility``
     definition, from ``auto_table`` (the packaged table by default; a path,
-    an AutoTable, or None for none)."""
+    an AutoTable, or None for none); ``expanded``: ``auto_choice_for``'s."""
     notes = []
     lights = list(scene.lights)
     if light_names:
@@ -188,7 +196,7 @@ def make_plan(scene: Scene, passes: Sequence[str], light_names: Optional[Sequenc
         choice = None
         mine = list(passes)
         if AUTO in passes:
-            choice = auto_choice_for(scene, lt, error_budget, visibility, auto_table)
+            choice = auto_choice_for(scene, lt, error_budget, visibility, auto_table, expanded)
             mine = list(dict.fromkeys(choice.method if p == AUTO else p for p in passes))
         producers = producers_for(mine)
         buffers = buffers_for(producers)
@@ -240,9 +248,40 @@ def plan_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequen
     of the camera G-buffer of ``buffers`` (a ``core.buffers.FrameBuffers``,
     built only when some light is not skipped already; ``FrameBuffers.reach``).
     Returns (plan, reach)."""
-    plan = make_plan(scene, passes, light_names, error_budget=error_budget, visibility=visibility)
+    counts = None
+    if buffers is not None and buffers.instanced and scene.casts_any_shadow() and any(
+            lt.casts_shadow and lt.energy > 0 for lt in scene.lights):
+        counts = buffers.expansion_counts()
+    plan = make_plan(scene, passes, light_names, error_budget=error_budget, visibility=visibility,
+                     expanded=None if counts is None else counts["shadow_triangles"])
     reach: Dict[str, np.ndarray] = {}
     if buffers is not None and any(lp.action != "skip" for lp in plan.lights):
         reach = {lp.name: buffers.reach(scene.light(lp.name)) for lp in plan.lights if lp.action != "skip"}
         refine_with_receivers(plan, scene, reach)
+    if counts is not None:
+        record_expansion(plan, counts)
     return plan, reach
+
+
+def expands_instances(producer: str) -> bool:
+    """Whether ``producer`` needs world-space triangles: on a scene kept as
+    instances it reads the frame's expanded instances (not
+    ``Method.runs_on_instances``; external producers never do)."""
+    registry = method_registry.producers()
+    return producer in registry and not registry[producer].runs_on_instances
+
+
+def record_expansion(plan: Plan, counts: dict) -> None:
+    """Put what the frame expands (``FrameBuffers.expansion_counts``) in the
+    plan of each light that is computed by a producer needing world-space
+    triangles."""
+    for lp in plan.lights:
+        users = [p for p in lp.producers if expands_instances(p)]
+        if lp.action == "skip" or not users:
+            continue
+        lp.expanded = dict(counts)
+        lp.decisions.append(
+            f"{', '.join(users)} expand{'s' if len(users) == 1 else ''} {counts['instances']:,} of "
+            f"{counts['of_instances']:,} instances into world-space triangles ({counts['triangles']:,} of "
+            f"{counts['of_triangles']:,}): those whose box meets the region between the visible receivers "
+            f"and a light that can shadow them")

@@ -344,11 +344,15 @@ class MeshInstances:
         """int64[I]: the instances in flattening order (by object id, stable)."""
         return np.argsort(self.object_id, kind="stable")
 
-    def flatten(self) -> Tuple[np.ndarray, np.ndarray]:
+    def flatten(self, selected: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
         """(float32[T,3,3] world-space triangles, int32[T] object ids) of
-        every instance, in ``order``: each mesh's vertices placed in float64,
-        rounded to float32 (``placed``), then gathered into triangles."""
+        every instance (or of the ``selected`` ones, bool per instance), in
+        ``order``: each mesh's vertices placed in float64, rounded to float32
+        (``placed``), then gathered into triangles. A selected instance's
+        triangles are bit for bit those of the whole soup."""
         order = self.order()
+        if selected is not None:
+            order = order[np.asarray(selected, bool)[order]]
         tris, ids = [], []
         for i in order:
             faces = self.faces[self.mesh[i]]
@@ -404,6 +408,75 @@ class MeshInstances:
             boxes[which, 0] = world.min(1)
             boxes[which, 1] = world.max(1)
         return boxes
+
+
+@dataclass
+class ExpandedInstances:
+    """Some instances of a scene kept as instances, flattened: ``scene`` is
+    a flattened Scene (same objects, camera, lights) of their triangles, in
+    the whole soup's order restricted to them (``MeshInstances.flatten``).
+    ``local_ids`` maps the whole soup's triangle ids (a G-buffer's) to this
+    soup's."""
+
+    scene: "Scene"
+    selected: np.ndarray         # bool[I]: the instances expanded
+    soup_start: np.ndarray       # int64[I]: each instance's first triangle in the whole soup
+    start: np.ndarray            # int64[I]: its first triangle here, -1 when not expanded
+    instance_count: int          # instances of the scene
+    soup_triangles: int          # triangles of the whole soup
+    soup_order: np.ndarray       # int64: the instances with triangles, by ``soup_start``
+    expanded: dict               # ``expansion_counts`` of ``selected``
+
+    def counts(self) -> dict:
+        """What was expanded, against the whole scene (``expansion_counts``)."""
+        return dict(self.expanded)
+
+    def local_ids(self, soup_ids: np.ndarray) -> np.ndarray:
+        """int64 like ``soup_ids``: each triangle id of the whole soup (-1:
+        none) as an id of this soup, -1 where its instance was not expanded."""
+        t = np.asarray(soup_ids, np.int64)
+        if not len(self.soup_order):
+            return np.full(t.shape, -1, np.int64)
+        at = np.searchsorted(self.soup_start[self.soup_order], t, side="right") - 1
+        k = self.soup_order[np.maximum(at, 0)]
+        ok = (t >= 0) & (t < self.soup_triangles) & (self.start[k] >= 0)
+        return np.where(ok, self.start[k] + t - self.soup_start[k], -1)
+
+
+def expandable(instances: MeshInstances, selected: np.ndarray) -> np.ndarray:
+    """bool per instance: ``selected`` less the instances whose box is not
+    finite (the whole soup drops their triangles too)."""
+    return np.asarray(selected, bool) & np.isfinite(instances.instance_boxes()).all(axis=(1, 2))
+
+
+def expansion_counts(scene: "Scene", selected: np.ndarray) -> dict:
+    """What expanding the ``selected`` instances of ``scene`` (bool per
+    instance, ``expandable``) gives, against the whole scene: ``instances``
+    of ``of_instances``, ``triangles`` of ``of_triangles``, and
+    ``shadow_triangles`` (those of instances whose object casts shadows)."""
+    per = scene.instances.instance_triangles()
+    casts = scene.instance_flag("casts_shadow")
+    return {"instances": int(selected.sum()), "of_instances": int(len(per)),
+            "triangles": int(per[selected].sum()), "of_triangles": int(per.sum()),
+            "shadow_triangles": int(per[selected & casts].sum())}
+
+
+def expand_instances(scene: "Scene", selected: np.ndarray) -> ExpandedInstances:
+    """The ``selected`` instances (bool per instance) of ``scene`` (kept as
+    instances) as an ``ExpandedInstances`` (``expandable`` ones only)."""
+    ins = scene.instances
+    selected = expandable(ins, selected)
+    with np.errstate(invalid="ignore", over="ignore"):
+        tris, ids = ins.flatten(selected)
+    per = ins.instance_triangles()
+    counts = np.where(selected, per, 0)
+    order = ins.order()
+    start = np.full(ins.count, -1, np.int64)
+    start[order] = np.concatenate([[0], np.cumsum(counts[order])[:-1]]) if ins.count else []
+    start[~selected] = -1
+    flat = Scene(tris, ids, scene.objects, scene.camera, scene.lights, scene.resolution, scene.frame, scene.name)
+    return ExpandedInstances(flat, selected, ins.triangle_offsets(), start, ins.count, int(per.sum()),
+                             order[per[order] > 0], expansion_counts(scene, selected))
 
 
 @dataclass

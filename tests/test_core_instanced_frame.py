@@ -54,7 +54,8 @@ def test_passes_on_instances_match_the_flattened_scene_without_flattening():
     """embree_irr and pcf (shadow rays, a light view) on the instances equal
     the flattened scene's passes up to float32 rounding of the leaves, and
     the scene is never flattened; a method that needs the triangles
-    (penumbra_casting) flattens it on demand."""
+    (penumbra_casting) expands the instances that can shadow a visible
+    receiver (here every one) and leaves the scene as instances."""
     lazy, flat = _grove()
     opts = {"overrides": {"samples": 64}}
     for passes in (["embree_irr"], ["pcf"]):
@@ -63,8 +64,9 @@ def test_passes_on_instances_match_the_flattened_scene_without_flattening():
         assert a.min() < 0.5                                   # the grove shadows the ground
         assert np.mean(np.abs(a - b)) < 2e-3 and np.mean(np.abs(a - b) > 0.05) < 5e-3, passes
     assert not lazy.is_flattened
-    r = render_frame(lazy, ["penumbra_casting"], overrides={"samples": 64}).lights[0].passes["penumbra_casting"]
-    assert lazy.is_flattened and np.isfinite(r).all()
+    light = render_frame(lazy, ["penumbra_casting"], overrides={"samples": 64}).lights[0]
+    assert not lazy.is_flattened and np.isfinite(light.passes["penumbra_casting"]).all()
+    assert light.record["penumbra_casting"]["expanded"]["instances"] == 13
 
 
 def test_instances_that_cast_no_shadow_are_left_out_of_the_shadow_rays():

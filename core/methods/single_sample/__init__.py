@@ -173,8 +173,7 @@ def single_sample_visibility(buffers, light, params: SingleSampleParams, hard_on
             pid = np.ascontiguousarray(g.object_id.reshape(-1), np.int32)
             casts = buffers.object_casts_shadow
         else:             # the receiver's mesh piece; a piece casts iff its object does
-            tri = g.triangle_id.reshape(-1)
-            pid = np.ascontiguousarray(np.where(tri >= 0, labels[np.maximum(tri, 0)], -1), np.int32)
+            pid = buffers.triangle_pieces(g.triangle_id.reshape(-1))
             casts = buffers.piece_casts_shadow
         nobj = max(len(casts), int(pid.max(initial=-1)) + 1, 1)
         in_map = np.zeros(nobj, np.bool_)
