@@ -165,11 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated rows of the start-up table: method ids and 'all' (the seven in one "
                         "run; default: every row)")
     b.add_argument("--part", choices=("all", "skeleton", "startup", "methods", "scaling", "study", "filter",
-                                      "cycles", "instancing"),
+                                      "cycles", "instancing", "camera_effects"),
                    default="all", help="pipeline phases (with buffers, Preview and start-up), the start-up table "
                    "alone, per-method tables, triangle-count scaling, the accuracy-versus-time study, filtered "
-                   "passes, penumbra render against Cycles' shadow pair, or an instanced scatter at production "
-                   "scale (plan, render and Cycles: time and peak memory)")
+                   "passes, penumbra render against Cycles' shadow pair, an instanced scatter at production "
+                   "scale (plan, render and Cycles: time and peak memory), or motion blur and depth of field "
+                   "against Cycles' pair with the effect on")
     add_farm_parser(sub)
     return p
 
@@ -383,7 +384,7 @@ def cmd_plan(args) -> int:
                                   FrameBuffers(scene, *scene.resolution), step.overrides["visibility"])
         print(plan.describe())
     print(f"pixel filter: {job.pixel_filter.describe()}")
-    effects = effects_line(scene.camera, sampled=not job.pixel_filter.is_none)
+    effects = effects_line(scene, sampled=not job.pixel_filter.is_none)
     if effects:
         print(effects)
     return 0

@@ -9,6 +9,8 @@ the extension; ``blender_manifest.toml`` excludes ``/bench/``).
 - :mod:`.vs_cycles`: ``penumbra render`` against Cycles' shadow pair at 1080p (``--part cycles``),
 - :mod:`.instancing`: an instanced scatter at production scale, plan / render / Cycles' pair, time and
   peak memory (``--part instancing``),
+- :mod:`.camera_effects`: motion blur and depth of field against Cycles' pair with the effect on
+  (``--part camera_effects``),
 - :mod:`.harness`: what they share (sample scenes, machine, median of warm runs).
 
 Medians of ``--repeats`` warm runs; thread counts stated. Results go to
@@ -26,7 +28,7 @@ from .phases import (BUFFER_COLUMNS, STARTUP_COLUMNS, bench_buffers, bench_previ
 
 def run_bench(args) -> int:
     """The ``bench`` command: ``args.part`` (all, skeleton, startup, methods, scaling, study, filter, cycles,
-    instancing),
+    instancing, camera_effects),
     ``args.out``, ``args.repeats``, ``args.quick``."""
     repeats = max(1, args.repeats)
     print(f"machine: {json.dumps(machine())}")
@@ -74,4 +76,8 @@ def run_bench(args) -> int:
         from .instancing import bench_instancing
         print("an instanced scatter at production scale: plan, render and Cycles' pair, time and peak memory")
         print(bench_instancing(args.out, args.quick))
+    if args.part in ("all", "camera_effects"):
+        from .camera_effects import bench_camera_effects
+        print("motion blur and depth of field against Cycles' pair with the effect on")
+        print(bench_camera_effects(args.out, repeats, args.quick))
     return 0

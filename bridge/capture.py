@@ -31,6 +31,7 @@ render depsgraph as its second argument) pass that depsgraph in.
 from __future__ import annotations
 
 import logging
+import math
 import os
 from typing import Dict, List, Optional, Tuple
 
@@ -38,6 +39,7 @@ import numpy as np
 
 import bpy
 
+from ..core.motion import ShutterMotion, frame_offsets
 from ..core.scene import Camera, Light, MeshInstances, ObjectInfo, Scene, finite_triangles
 from .mattes import MatteCapture
 
@@ -48,6 +50,7 @@ MESH_TYPES = frozenset({"MESH", "CURVE", "SURFACE", "FONT", "META"})
 #: bl_idname of the private render engine used for ``mode="RENDER"``.
 CAPTURE_ENGINE_ID = "PENUMBRA_CAPTURE"
 MODES = ("AUTO", "RENDER", "VIEWPORT")
+MAX_MOTION_LEVEL = 4          # Cycles' motion_steps read up to this: at most 17 time steps
 
 # persistent_id entries past the instance's depth are padded with INT_MAX.
 _PID_PAD = 2147483647
@@ -66,6 +69,10 @@ def capture_scene(scene=None, depsgraph=None, frame=None, resolution=None, *,
     mode decides whether render-visibility filtering is applied.
     ``frame``: ``scene.frame_set(frame)`` first (do not pass it with a
     depsgraph that belongs to a running render).
+    With the render's motion blur on, ``Scene.motion`` holds what moves over
+    the shutter (``_shutter_motion``: the depsgraph evaluated at each step's
+    subframe, the frame set back after); a depsgraph handed in is read at
+    its own frame only (a still frame).
     ``resolution``: ``(width, height)`` to use instead of the scene's render
     resolution (resolution_x/y * resolution_percentage / 100, as Blender
     rounds it).
@@ -98,7 +105,11 @@ def capture_scene(scene=None, depsgraph=None, frame=None, resolution=None, *,
     else:
         dg = view_layer.depsgraph
         dg.update()
-    return _capture_from_depsgraph(dg, scene, resolution)
+
+    def set_time(frame, subframe):
+        scene.frame_set(frame, subframe=subframe)
+        dg.update()
+    return _capture_from_depsgraph(dg, scene, resolution, set_time)
 
 
 def render_resolution(scene) -> Tuple[int, int]:
@@ -176,7 +187,8 @@ class PENUMBRA_RE_capture(bpy.types.RenderEngine):
         if job is None or "result" in job or "error" in job:
             return
         try:
-            job["result"] = _capture_from_depsgraph(depsgraph, job["scene"], job["resolution"])
+            job["result"] = _capture_from_depsgraph(depsgraph, job["scene"], job["resolution"],
+                                                    lambda frame, subframe: self.frame_set(frame, subframe))
         except BaseException as exc:    # re-raised by the caller
             job["error"] = exc
 
@@ -441,7 +453,10 @@ def light_object(captured_name: str):
 
 # --------------------------------------------------------------------------
 # the capture proper
-def _capture_from_depsgraph(depsgraph, scene, resolution) -> Scene:
+def _capture_from_depsgraph(depsgraph, scene, resolution, set_time=None) -> Scene:
+    """The Scene in ``depsgraph``; with motion blur on and ``set_time``
+    (``(frame, subframe)`` -> the depsgraph evaluated then) its motion over
+    the shutter too (``_shutter_motion``)."""
     filter_render = depsgraph.mode != "RENDER"
     visible = _render_visible_objects(depsgraph.view_layer) if filter_render else None
 
@@ -453,7 +468,81 @@ def _capture_from_depsgraph(depsgraph, scene, resolution) -> Scene:
 
     for inst in depsgraph.object_instances:
         _capture_instance(inst, filter_render, visible, meshes, pieces, infos, lights, mattes)
-    return _assemble(scene, depsgraph, resolution, meshes, pieces, infos, lights, mattes)
+    captured = _assemble(scene, depsgraph, resolution, meshes, pieces, infos, lights, mattes)
+    captured.motion = _shutter_motion(scene, depsgraph, pieces, captured, set_time)
+    return captured
+
+
+def _shutter_motion(scene, depsgraph, pieces, captured: Scene, set_time) -> Optional[ShutterMotion]:
+    """What moves over the shutter when the scene renders with motion blur,
+    as Cycles syncs it (``core/motion.py``): the depsgraph evaluated at each
+    step's frame and subframe (``set_time``; the frame is set back after),
+    reading only the placements of the captured objects and the camera (an
+    object with Cycles' motion blur off stands still). None: no motion blur,
+    no ``set_time``, or nothing moves."""
+    r = scene.render
+    if set_time is None or not r.use_motion_blur:
+        return None
+    frame_of = {}                    # object id -> (name, its placement at the frame)
+    ids = {o.name: o.id for o in captured.objects}
+    for name, _mesh, m in pieces:
+        frame_of.setdefault(ids[name], (name, m))
+    order = sorted(frame_of)
+    row = {frame_of[i][0]: j for j, i in enumerate(order)}
+    obs = [ob for ob in scene.objects if ob.type in MESH_TYPES]
+    level = max([_cycles(ob, "motion_steps", 1) for ob in obs] + [1])
+    steps = (2 << (min(int(level), MAX_MOTION_LEVEL) - 1)) + 1
+    offsets = frame_offsets(steps, float(r.motion_blur_shutter), str(r.motion_blur_position))
+    at = np.broadcast_to(np.array([frame_of[i][1] for i in order]).reshape(-1, 4, 4),
+                         (steps, len(order), 4, 4)).copy()
+    cam = captured.camera
+    cams = np.broadcast_to(cam.world_from_camera, (steps, 4, 4)).copy() if cam is not None else None
+    frame, sub = int(scene.frame_current), float(scene.frame_subframe)
+    try:
+        for k, off in enumerate(offsets):
+            if off == 0.0:
+                continue
+            t = frame + sub + float(off)
+            set_time(int(math.floor(t)), float(t - math.floor(t)))
+            for inst in depsgraph.object_instances:
+                ob = inst.object
+                if ob.type not in MESH_TYPES or not inst.show_self:
+                    continue
+                j = row.get(_instance_name(inst))
+                if j is not None and _moves(inst):
+                    at[k, j] = _matrix(inst.matrix_world)
+            if cams is not None and _cycles(scene.camera, "use_motion_blur", True):
+                cams[k] = _capture_camera(scene, depsgraph).world_from_camera
+    finally:
+        set_time(frame, sub)
+    still = np.array([frame_of[i][1] for i in order]).reshape(-1, 4, 4)
+    with np.errstate(all="ignore"):          # a zero-scale placement: pinv keeps it finite
+        delta = np.einsum("kmij,mjl->kmil", at, np.linalg.pinv(still)) if len(order) else at
+    delta[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
+    moving = np.isfinite(delta).all(axis=(0, 2, 3)) & (np.abs(delta - np.eye(4)).max(axis=(0, 2, 3)) > 1e-7)
+    cam_delta = None
+    if cams is not None:
+        cam_delta = cams @ np.linalg.inv(cam.world_from_camera)
+        if np.abs(cam_delta - np.eye(4)).max() <= 1e-7:
+            cam_delta = None
+    if not moving.any() and cam_delta is None:
+        return None
+    return ShutterMotion(np.array(order, np.int32)[moving], delta[:, moving], cam_delta,
+                         float(r.motion_blur_shutter), str(r.motion_blur_position))
+
+
+def _cycles(ob, attr: str, default):
+    """Object ``ob``'s Cycles setting ``attr`` (``default`` without Cycles)."""
+    settings = getattr(ob, "cycles", None)
+    return getattr(settings, attr, default) if settings is not None else default
+
+
+def _moves(inst) -> bool:
+    """Cycles blurs this instance's motion: its object's motion blur is on,
+    and its instancer's too."""
+    if not _cycles(inst.object, "use_motion_blur", True):
+        return False
+    return inst.parent is None or bool(_cycles(inst.parent, "use_motion_blur", True))
 
 
 class _Meshes:

@@ -20,7 +20,8 @@ the default, or ``average``), the table, and the scene at hand
 The rules, in order (each decision says which one in its reason):
 
 1. A light of size zero casts a hard shadow, the same in both definitions:
-   ``pcf``, whose size-zero path is the plain shadow-map test.
+   ``pcf``, whose size-zero path is the plain shadow-map test (unless
+   something moves over the shutter: its shadow is no longer hard).
 2. No readable table: the documented fallback ``FALLBACK`` (``pcf``).
 3. Scene matching: the table's scenes lit by the same kind of light (area,
    sphere, sun); when none is, every measured scene. With the scene at hand,
@@ -45,7 +46,10 @@ The rules, in order (each decision says which one in its reason):
    (``SceneShape.expanded``: those of the instances that can shadow a
    visible receiver, when known). When what those would expand cannot fit
    in memory (``SceneShape.instanced_only``), only the methods that run on
-   instances are candidates.
+   instances are candidates. When something moves over the shutter
+   (``SceneShape.moving``), ``auto`` runs the reference, the one method that
+   finds occluders at each receiver's time (``Method.shutter_time``; rule
+   "moving").
 6. The cheapest candidate with worst error <= budget wins; when none meets
    the budget: with a shape, the reference if its own worst error meets it,
    else the most accurate one (the reference too, with a shape), and the
@@ -118,6 +122,8 @@ class SceneShape:
     #: kept as instances: the shadow-casting triangles a method that needs
     #: world-space triangles expands (None: all of ``triangles``)
     expanded: Optional[int] = None
+    #: objects or the camera move over the shutter (``Scene.motion``)
+    moving: bool = False
 
     def triangles_for(self, mid: str) -> int:
         """The triangles method ``mid``'s time grows with: ``expanded`` for
@@ -138,6 +144,7 @@ class SceneShape:
         return (f"{self.triangles:,} triangles{placed}"
                 + (f" ({self.mattes:,} alpha-matted)" if self.mattes else "")
                 + (" too large to flatten" if self.instanced_only else "")
+                + (", moving over the shutter" if self.moving else "")
                 + f", {self.pixels / 1e6:.2f} Mpx, light {self.light_relative:.2f} of its distance")
 
 
@@ -171,8 +178,9 @@ def scene_shape(scene, light, expanded: Optional[int] = None) -> SceneShape:
     mattes = 0
     if getattr(scene, "alpha", None) is not None:
         mattes = int((scene.alpha.tri_matte[scene.tri_casts_shadow] >= 0).sum())
+    motion = getattr(scene, "motion", None)
     return SceneShape(count, int(W * H), rel, mattes, instanced_only, instances,
-                      expanded if instances else None)
+                      expanded if instances else None, motion is not None and motion.moves)
 
 
 #: rule 5: per method, how its time grows with the scene: (pixel exponent,
@@ -244,6 +252,7 @@ class AutoChoice:
     reason: str
     short: str
     rule: str                    # "hard" | "fallback" | "meets budget" | "most accurate" | "reference is fastest"
+                                 # | "moving"
     budget: float
     visibility: str = AVERAGE
     rmse: Optional[float] = None         # worst measured error (``budget_error``) over the matched scenes
@@ -347,7 +356,7 @@ def choose(kind: str, size: float, visibility: str = IRRADIANCE, budget: float =
     budget = float(budget)
     if not (math.isfinite(budget) and budget > 0):
         raise ValueError(f"auto: the error budget must be a number > 0, not {budget!r}")
-    if not size > 0:
+    if not size > 0 and not (shape is not None and shape.moving):
         m = HARD[visibility]
         how = ("one depth comparison per pixel, no filtering" if m == "pcf"
                else "one shadow ray per pixel")
@@ -372,6 +381,11 @@ def choose(kind: str, size: float, visibility: str = IRRADIANCE, budget: float =
         known = registry.pass_ids(external=False)
     if shape is not None and shape.instanced_only:      # rule 5: only what runs on instances
         known = [p for p in known if registry.producer_of(p).runs_on_instances]
+    if shape is not None and shape.moving:              # rule 5: only what takes each receiver's time
+        ref = REFERENCES[0] if visibility == AVERAGE else REFERENCES[1]
+        return AutoChoice(ref, f"auto -> {ref}: objects or the camera move over the shutter, and only the "
+                               f"reference finds the occluders where they are at each receiver's time",
+                          f"{ref}: motion blur", "moving", budget, visibility)
     matched = [s for s in table.scenes if s.light_kind == kind]
     scope = how = f"{kind}-light scenes"
     if not matched:

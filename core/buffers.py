@@ -389,7 +389,7 @@ class FrameBuffers:
         if self._mesh_bvhs is None:
             self._mesh_bvhs = ([embree4.Mesh(v, f) for v, f in zip(ins.vertices, ins.faces)], ins.packed())
         meshes, geometry = self._mesh_bvhs
-        return raycast.InstanceScene(ins, meshes, np.nonzero(mask)[0], geometry)
+        return raycast.InstanceScene(ins, meshes, np.nonzero(mask)[0], geometry, self.scene.motion)
 
     @property
     def camera_scene(self) -> raycast.TriangleScene:
@@ -479,7 +479,15 @@ class FrameBuffers:
         if len(tris) == 0:
             return np.zeros(0, bool)
         boxes = np.stack([tris.min(axis=1), tris.max(axis=1)], axis=1)
-        return self._inside_occluder_box(light, boxes) & casts
+        return (self._inside_occluder_box(light, boxes) | self._moving(self.scene.tri_object)) & casts
+
+    def _moving(self, object_id: np.ndarray) -> np.ndarray:
+        """bool per entry of ``object_id``: its object moves over the shutter
+        (box culling, which sees the frame's placement, keeps it)."""
+        motion = self.scene.motion
+        if motion is None or not len(motion.objects):
+            return np.zeros(len(object_id), bool)
+        return motion.slot_of(object_id) >= 0
 
     def _inside_occluder_box(self, light: Light, boxes: np.ndarray) -> np.ndarray:
         """bool per box (lo, hi rows of ``boxes``): it meets the box every
@@ -506,7 +514,8 @@ class FrameBuffers:
         Either gives the same answer for every shadow ray of a visible receiver."""
         if light.name not in self._culled and self.instanced:
             casts = self.scene.instance_flag("casts_shadow")
-            mask = casts & self._inside_occluder_box(light, self.scene.instances.instance_boxes())
+            mask = casts & (self._inside_occluder_box(light, self.scene.instances.instance_boxes())
+                            | self._moving(self.scene.instances.object_id))
             per = self.scene.instances.instance_triangles()
             self.culling[light.name] = {"casters": int(per[casts].sum()), "kept": int(per[mask].sum())}
             key = f"bvh_culled:{light.name}"

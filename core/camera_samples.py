@@ -1,5 +1,6 @@
-"""Where on the lens each sub-pixel sample's camera ray starts: depth of field
-as Cycles' thin lens.
+"""A sub-pixel sample's camera dimensions beyond its place in the pixel:
+where on the lens its ray starts (depth of field, Cycles' thin lens) and
+when in the shutter it is taken (motion blur, ``core/motion.py``).
 
 A camera with ``Camera.aperture_radius`` > 0 is a thin lens
 (``intern/cycles/kernel/camera/camera.h``: ``camera_sample_aperture``,
@@ -26,12 +27,18 @@ permutation (Kensler, "Correlated Multi-Jittered Sampling", 2013) draws per
 pixel, jittered within the stratum: pixel position and lens position are
 stratified jointly, and neither follows the other from pixel to pixel.
 
-Parameters: ``seed`` (0) decorrelates frames; a sub-sample's lens point
-depends only on the seed and its place in the supersampled view, not on
+Shutter times (``shutter_times``): the G x G samples of a pixel take the
+G^2 strata of the shutter [0, 1], one each, in a second per-pixel hashed
+order (independent of the lens'), jittered: pixel position, lens point,
+time and light sample are drawn jointly.
+
+Parameters: ``seed`` (0) decorrelates frames; a sub-sample's lens point and
+time depend only on the seed and its place in the supersampled view, not on
 which list or batch holds it.
 
-Departures from Cycles: Cycles draws (u, v) from its Sobol-Burley sequence
-per render sample; here one stratified lens sample per sub-pixel sample.
+Departures from Cycles: Cycles draws (u, v) and the time from its
+Sobol-Burley sequence per render sample; here one stratified lens sample
+and time per sub-pixel sample.
 """
 from __future__ import annotations
 
@@ -45,6 +52,7 @@ from .sampling import concentric_disk, rand01
 from .scene import Camera
 
 LENS_SALT = 0x6C656E73          # keeps the lens' hash streams apart from the light samples'
+TIME_SALT = 0x74696D65          # ... and the shutter's apart from both
 
 
 @inner(forceinline=True)
@@ -86,6 +94,23 @@ def _permute(i, n, p):
 
 
 @inner(forceinline=True)
+def _pixel_and_index(f, sub_width, grid):
+    """Sub-sample ``f`` (row-major in the ``grid``-times supersampled view,
+    ``sub_width`` wide): its pixel's flat index and its index k < grid^2
+    within the pixel."""
+    row, col = f // sub_width, f % sub_width
+    return (row // grid) * (sub_width // grid) + col // grid, (row % grid) * grid + col % grid
+
+
+@inner(forceinline=True)
+def _stratum_order(seed, pixel, k, n, salt):
+    """Sample k's stratum of n in pixel ``pixel``'s own hashed order."""
+    lo = np.uint32(rand01(seed, pixel, np.int64(salt), np.int64(2)) * 16777216.0)
+    hi = np.uint32(rand01(seed, pixel, np.int64(salt), np.int64(3)) * 256.0)
+    return _permute(k, n, lo | (hi << np.uint32(24)))
+
+
+@inner(forceinline=True)
 def aperture_point(u, v, blades, rotation, inv_ratio):
     """Cycles' ``camera_sample_aperture``: (u, v) in [0, 1)^2 -> a point of
     the unit disk (``blades`` < 3) or of the regular ``blades``-gon turned by
@@ -111,18 +136,34 @@ def _lens_points(flat, sub_width, grid, seed, radius, blades, rotation, inv_rati
     """``lens_points``' kernel."""
     n = grid * grid
     for i in range(flat.shape[0]):
-        f = flat[i]
-        row, col = f // sub_width, f % sub_width
-        pixel = (row // grid) * (sub_width // grid) + col // grid
-        k = (row % grid) * grid + col % grid
-        lo = np.uint32(rand01(seed, pixel, np.int64(LENS_SALT), np.int64(2)) * 16777216.0)
-        hi = np.uint32(rand01(seed, pixel, np.int64(LENS_SALT), np.int64(3)) * 256.0)
-        s = _permute(k, n, lo | (hi << np.uint32(24)))
+        pixel, k = _pixel_and_index(flat[i], sub_width, grid)
+        s = _stratum_order(seed, pixel, k, n, LENS_SALT)
         u = ((s % grid) + rand01(seed, pixel, np.int64(LENS_SALT + 1 + k), np.int64(0))) / grid
         v = ((s // grid) + rand01(seed, pixel, np.int64(LENS_SALT + 1 + k), np.int64(1))) / grid
         x, y = aperture_point(u, v, blades, rotation, inv_ratio)
         out[i, 0] = radius * x
         out[i, 1] = radius * y
+
+
+@kernel(nogil=True)
+def _shutter_times(flat, sub_width, grid, seed, out):
+    """``shutter_times``' kernel."""
+    n = grid * grid
+    for i in range(flat.shape[0]):
+        pixel, k = _pixel_and_index(flat[i], sub_width, grid)
+        s = _stratum_order(seed, pixel, k, n, TIME_SALT)
+        out[i] = (s + rand01(seed, pixel, np.int64(TIME_SALT + 1 + k), np.int64(0))) / n
+
+
+def shutter_times(flat: np.ndarray, sub_width: int, grid: int, seed: int = 0) -> np.ndarray:
+    """float32[N]: the shutter time in [0, 1) of each sub-sample ``flat[i]``
+    (as ``lens_points`` takes them): a pixel's G^2 samples on the G^2
+    strata of the shutter, in a per-pixel hashed order, jittered."""
+    flat = np.ascontiguousarray(flat, np.int64)
+    out = np.zeros(len(flat), np.float64)
+    if len(flat):
+        _shutter_times(flat, int(sub_width), int(grid), int(seed), out)
+    return out.astype(np.float32)
 
 
 def lens_points(cam: Camera, flat: np.ndarray, sub_width: int, grid: int, seed: int = 0) -> np.ndarray:
@@ -139,25 +180,44 @@ def lens_points(cam: Camera, flat: np.ndarray, sub_width: int, grid: int, seed: 
     return out
 
 
-def describe_effects(cam: Camera, sampled: bool) -> Optional[dict]:
-    """The camera's effects as the frame's JSON records them (None: a
-    pinhole): the thin lens' parameters and whether the passes sample them
+def describe_effects(scene, sampled: bool) -> Optional[dict]:
+    """The camera's effects as the frame's JSON records them (None: a still
+    frame through a pinhole): the thin lens' parameters, the shutter's
+    motion (``ShutterMotion.to_json``), and whether the passes sample them
     (a filtered frame: every method's sub-pixel receivers lie on their own
-    lens rays; pixel centres: a pinhole, the effect ignored)."""
-    if not cam.has_depth_of_field:
+    lens rays at their own times; pixel centres: a pinhole at the frame)."""
+    cam, motion = scene.camera, scene.motion
+    moves = motion is not None and motion.moves
+    if not cam.has_depth_of_field and not moves:
         return None
-    return {"depth_of_field": {"aperture_radius": float(cam.aperture_radius),
-                               "focus_distance": float(cam.focus_distance),
-                               "blades": int(cam.aperture_blades), "rotation": float(cam.aperture_rotation),
-                               "ratio": float(cam.aperture_ratio)},
-            "sampled": "per sub-pixel receiver" if sampled else "no: pixel centres (a pinhole)"}
+    out = {}
+    if cam.has_depth_of_field:
+        out["depth_of_field"] = {"aperture_radius": float(cam.aperture_radius),
+                                 "focus_distance": float(cam.focus_distance),
+                                 "blades": int(cam.aperture_blades), "rotation": float(cam.aperture_rotation),
+                                 "ratio": float(cam.aperture_ratio)}
+    if moves:
+        out["motion_blur"] = motion.to_json()
+    out["sampled"] = "per sub-pixel receiver" if sampled else "no: pixel centres (a pinhole at the frame)"
+    return out
 
 
-def effects_line(cam: Camera, sampled: bool) -> Optional[str]:
+def effects_line(scene, sampled: bool) -> Optional[str]:
     """One line for ``penumbra plan``: the camera's effects and how the
-    passes take them (None: a pinhole camera)."""
-    if not cam.has_depth_of_field:
+    passes take them (None: a still frame through a pinhole)."""
+    cam, motion = scene.camera, scene.motion
+    parts = []
+    if cam.has_depth_of_field:
+        parts.append(f"depth of field, lens radius {cam.aperture_radius:.4g}, focus {cam.focus_distance:.4g}")
+    if motion is not None and motion.moves:
+        what = [f"{len(motion.objects)} moving object(s)"] + (["the camera"] if motion.camera is not None else [])
+        parts.append(f"motion blur over {motion.shutter:g} frame(s) ({' and '.join(what)}, {motion.steps} steps)")
+    if not parts:
         return None
-    how = ("every method's sub-pixel receivers on their own lens rays, every pixel refined"
-           if sampled else "ignored: pixel centres through a pinhole (--pixel-filter none)")
-    return (f"camera: depth of field, lens radius {cam.aperture_radius:.4g}, focus {cam.focus_distance:.4g}: {how}")
+    from . import methods as registry
+    timed = ", ".join(sorted(p for p in registry.pass_ids(external=False)
+                             if getattr(registry.producer_of(p), "shutter_time", False)))
+    how = (f"every pixel refined, each sub-pixel receiver on its own lens ray and shutter time; occluders "
+           f"at the receiver's time for {timed}, at the frame for the other methods"
+           if sampled else "ignored: pixel centres through a pinhole at the frame (--pixel-filter none)")
+    return f"camera: {'; '.join(parts)}: {how}"

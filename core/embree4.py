@@ -17,7 +17,10 @@ Data handed to Embree
 * instances: per instance a mesh index and a 4x4 world-from-mesh matrix
   (``InstancedScene``): one Embree instance-array geometry per mesh, holding
   all of that mesh's instances; a hit's ``instPrimID`` and geometry id give
-  the instance back (``InstancedScene.instance_of``).
+  the instance back (``InstancedScene.instance_of``);
+* moving instances: K 4x4 matrices each, evenly over the shutter (t in
+  [0, 1]); each is an instance geometry of its own with K time steps, which
+  Embree blends linearly at a ray's time (``motion``; rays carry a time).
 
 Every ray cast in Penumbra goes through here: ``MeshRays`` is one world-space
 mesh traced in the calling thread behind the batch interface ``raycast``'s
@@ -48,6 +51,7 @@ from .kernels import each_in_threads
 
 INVALID_ID = 0xFFFFFFFF
 GEOMETRY_TRIANGLE = 0
+GEOMETRY_INSTANCE = 121
 GEOMETRY_INSTANCE_ARRAY = 122
 BUFFER_INDEX, BUFFER_VERTEX, BUFFER_TRANSFORM = 0, 1, 23
 FORMAT_UINT3 = 0x5003
@@ -98,6 +102,8 @@ class _Api:
             "rtcNewGeometry": (vp, [vp, ctypes.c_int]),
             "rtcSetNewGeometryBuffer": (vp, [vp, ctypes.c_int, u32, ctypes.c_int, sz, sz]),
             "rtcSetGeometryInstancedScene": (None, [vp, vp]),
+            "rtcSetGeometryTimeStepCount": (None, [vp, u32]),
+            "rtcSetGeometryTransform": (None, [vp, u32, ctypes.c_int, vp]),
             "rtcCommitGeometry": (None, [vp]),
             "rtcAttachGeometry": (u32, [vp, vp]),
             "rtcReleaseGeometry": (None, [vp]),
@@ -182,17 +188,26 @@ class InstancedScene:
     or not finite (they cover no area) are left out; with nothing left every
     ray misses. A hit's instance is ``order[first[geomID] + instPrimID]``.
 
+    ``motion`` (moving instance ids int[m], their matrices float64[K, m, 4, 4]
+    at K >= 2 times evenly over the shutter; ``world_from_mesh`` still gives
+    their normal matrix): those instances move, each an instance geometry
+    with K time steps; rays then carry a time in [0, 1].
+
     ``intersect`` and ``occluded`` trace float32 rays in chunks on Numba's
     thread count (the kernels release the GIL)."""
 
-    def __init__(self, meshes: Sequence[Mesh], mesh_of: np.ndarray, world_from_mesh: np.ndarray):
+    def __init__(self, meshes: Sequence[Mesh], mesh_of: np.ndarray, world_from_mesh: np.ndarray,
+                 motion: Optional[tuple] = None):
         mesh_of = np.asarray(mesh_of, np.int64)
         xf = np.asarray(world_from_mesh, np.float64).reshape(-1, 4, 4)
         self.meshes = list(meshes)       # the top level instances their BVHs
         self.handle = 0
         det = np.linalg.det(xf[:, :3, :3]) if len(xf) else np.zeros(0)
         placed = np.isfinite(xf).all(axis=(1, 2)) & (np.abs(det) > 0)
-        order = np.nonzero(placed)[0]
+        moving = np.zeros(len(xf), bool)
+        if motion is not None:
+            moving[np.asarray(motion[0], np.int64)] = True
+        order = np.nonzero(placed & ~moving)[0]
         order = order[np.argsort(mesh_of[order], kind="stable")]
         firsts: List[int] = []
         a = api()
@@ -211,15 +226,27 @@ class InstancedScene:
             cols = np.ascontiguousarray(np.transpose(xf[ids, :3, :4], (0, 2, 1)), np.float32)
             _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_TRANSFORM, 0, FORMAT_FLOAT3X4_COLUMN_MAJOR,
                                               48, len(ids)), cols)
-            a.CommitGeometry(geom)
-            gid = a.AttachGeometry(scene, geom)
-            a.ReleaseGeometry(geom)
-            if gid != attached:
-                raise EmbreeLibraryError("unexpected geometry id")
+            _attach(a, scene, geom, attached)
             firsts.append(start)
             keep.append(ids)
             start += len(ids)
             attached += 1
+        if motion is not None:
+            for j, i in enumerate(np.asarray(motion[0], np.int64)):
+                steps = np.asarray(motion[1], np.float64)[:, j]
+                if not np.isfinite(steps).all() or not self.meshes[mesh_of[i]].handle:
+                    continue
+                geom = a.NewGeometry(a.device, GEOMETRY_INSTANCE)
+                a.SetGeometryInstancedScene(geom, self.meshes[mesh_of[i]].handle)
+                a.SetGeometryTimeStepCount(geom, len(steps))
+                for k, m in enumerate(steps):
+                    cols = np.ascontiguousarray(m[:3, :4].T, np.float32)
+                    a.SetGeometryTransform(geom, k, FORMAT_FLOAT3X4_COLUMN_MAJOR, cols.ctypes.data)
+                _attach(a, scene, geom, attached)
+                firsts.append(start)
+                keep.append(np.array([i], np.int64))
+                start += 1
+                attached += 1
         if not attached:
             a.ReleaseScene(scene)
             scene = 0
@@ -237,6 +264,16 @@ class InstancedScene:
         if self.handle and _api is not None:
             _api.ReleaseScene(self.handle)
             self.handle = 0
+
+
+def _attach(a: _Api, scene: int, geom: int, expect: int) -> None:
+    """Commit ``geom`` and attach it to ``scene`` as geometry id ``expect``
+    (the scene keeps it; the caller's reference is released)."""
+    a.CommitGeometry(geom)
+    gid = a.AttachGeometry(scene, geom)
+    a.ReleaseGeometry(geom)
+    if gid != expect:
+        raise EmbreeLibraryError("unexpected geometry id")
 
 
 @intrinsic
@@ -269,13 +306,14 @@ def _rayhit_buffer():
 
 
 @inner(inline="always")
-def _load_ray(f, w, org, dirs, tnear, tfar, i):
-    """Ray i into the RTCRay at the start of ``f`` (float32) / ``w`` (uint32)."""
+def _load_ray(f, w, org, dirs, tnear, tfar, time, i):
+    """Ray i into the RTCRay at the start of ``f`` (float32) / ``w`` (uint32);
+    its time ``time[i]`` (``time`` empty: 0, a still scene's)."""
     for k in range(3):
         f[RAY_ORG + k] = org[i, k]
         f[RAY_DIR + k] = dirs[i, k]
     f[RAY_TNEAR] = tnear[i]
-    f[RAY_TIME] = 0.0
+    f[RAY_TIME] = time[i] if time.shape[0] else 0.0
     f[RAY_TFAR] = tfar[i]
     w[RAY_MASK] = INVALID_ID
     w[RAY_ID] = 0
@@ -283,15 +321,16 @@ def _load_ray(f, w, org, dirs, tnear, tfar, i):
 
 
 @kernel(nogil=True, opt=HOT)
-def intersect_range(fn, scene, org, dirs, tnear, tfar, first, order, normal_matrix,
+def intersect_range(fn, scene, org, dirs, tnear, tfar, time, first, order, normal_matrix,
                     t_out, inst_out, prim_out, u_out, v_out, ng_out, i0, i1):
     """Closest hits of rays i0..i1: t (inf: none), instance (-1), primID,
     u, v and the world-space geometric normal (unit, not flipped). A
     ``scene`` that is one mesh's BVH, with no top level, reports instance 0
-    (``first`` = [0, 1], ``order`` = [0], ``normal_matrix`` the identity)."""
+    (``first`` = [0, 1], ``order`` = [0], ``normal_matrix`` the identity).
+    ``time``: each ray's time (empty: 0)."""
     f, w, addr = _rayhit_buffer()
     for i in range(i0, i1):
-        _load_ray(f, w, org, dirs, tnear, tfar, i)
+        _load_ray(f, w, org, dirs, tnear, tfar, time, i)
         w[HIT_GEOM] = INVALID_ID
         w[HIT_INST] = INVALID_ID
         w[HIT_INST_PRIM] = INVALID_ID
@@ -303,7 +342,8 @@ def intersect_range(fn, scene, org, dirs, tnear, tfar, first, order, normal_matr
             prim_out[i] = -1
             continue
         gi = w[HIT_INST]
-        inst = 0 if gi == INVALID_ID else order[first[gi] + w[HIT_INST_PRIM]]
+        ip = w[HIT_INST_PRIM]
+        inst = 0 if gi == INVALID_ID else order[first[gi] + (0 if ip == INVALID_ID else ip)]
         t_out[i] = f[RAY_TFAR]
         inst_out[i] = inst
         prim_out[i] = w[HIT_PRIM]
@@ -327,11 +367,12 @@ def intersect_range(fn, scene, org, dirs, tnear, tfar, first, order, normal_matr
 
 
 @kernel(nogil=True, opt=HOT)
-def occluded_range(fn, scene, org, dirs, tnear, tfar, out, i0, i1):
-    """out[i] = True where something lies on ray i within (tnear, tfar)."""
+def occluded_range(fn, scene, org, dirs, tnear, tfar, time, out, i0, i1):
+    """out[i] = True where something lies on ray i within (tnear, tfar) at
+    its time ``time[i]`` (empty: 0)."""
     f, w, addr = _rayhit_buffer()
     for i in range(i0, i1):
-        _load_ray(f, w, org, dirs, tnear, tfar, i)
+        _load_ray(f, w, org, dirs, tnear, tfar, time, i)
         call3(fn, scene, addr, 0)
         out[i] = f[RAY_TFAR] < 0.0
 
@@ -352,36 +393,48 @@ def _as_rays(org, dirs, tnear, tfar):
     return n, org, dirs, np.ascontiguousarray(tnear), np.ascontiguousarray(tfar)
 
 
+_STILL = np.zeros(0, np.float32)     # rays without a time (a still scene's: 0)
+
+
+def _times(time, n: int) -> np.ndarray:
+    """float32[n] ray times in [0, 1] (``_STILL`` for None)."""
+    return _STILL if time is None else np.ascontiguousarray(np.broadcast_to(np.asarray(time, np.float32), (n,)))
+
+
 def _no_hits(n: int):
     """``intersect``'s arrays for n rays, every one a miss."""
     return (np.full(n, np.inf, np.float32), np.full(n, -1, np.int64), np.full(n, -1, np.int64),
             np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros((n, 3), np.float32))
 
 
-def intersect(scene: InstancedScene, org, dirs, tnear=None, tfar=None, threads=None):
-    """Closest hits of the rays: (t float32 (inf: none), instance int64 (-1),
-    prim int64 (-1), u, v float32, world geometric normal float32[N,3])."""
+def intersect(scene: InstancedScene, org, dirs, tnear=None, tfar=None, threads=None, time=None):
+    """Closest hits of the rays (at their ``time``, None: 0): (t float32
+    (inf: none), instance int64 (-1), prim int64 (-1), u, v float32, world
+    geometric normal float32[N,3])."""
     n, org, dirs, tnear, tfar = _as_rays(org, dirs, tnear, tfar)
+    time = _times(time, n)
     t, inst, prim, u, v, ng = _no_hits(n)
     if scene.handle and n:
         fn = api().intersect1
 
         def one(rng):
-            intersect_range(fn, scene.handle, org, dirs, tnear, tfar, scene.first, scene.order,
+            intersect_range(fn, scene.handle, org, dirs, tnear, tfar, time, scene.first, scene.order,
                             scene.normal_matrix, t, inst, prim, u, v, ng, rng[0], rng[1])
         each_in_threads(one, _chunks(n), _workers(threads))
     return t, inst, prim, u, v, ng
 
 
-def occluded(scene: InstancedScene, org, dirs, tnear=None, tfar=None, threads=None) -> np.ndarray:
-    """bool[N]: True where something lies on the ray within (tnear, tfar)."""
+def occluded(scene: InstancedScene, org, dirs, tnear=None, tfar=None, threads=None, time=None) -> np.ndarray:
+    """bool[N]: True where something lies on the ray within (tnear, tfar)
+    at its ``time`` (None: 0)."""
     n, org, dirs, tnear, tfar = _as_rays(org, dirs, tnear, tfar)
+    time = _times(time, n)
     out = np.zeros(n, bool)
     if scene.handle and n:
         fn = api().occluded1
 
         def one(rng):
-            occluded_range(fn, scene.handle, org, dirs, tnear, tfar, out, rng[0], rng[1])
+            occluded_range(fn, scene.handle, org, dirs, tnear, tfar, time, out, rng[0], rng[1])
         each_in_threads(one, _chunks(n), _workers(threads))
     return out
 
@@ -398,16 +451,44 @@ class MeshRays:
     int32 0 (blocked) / -1 (free); ``output=1`` a dict of primID (int32, -1
     for a miss), u, v, tfar (the hit's t; a miss keeps its tfar; a ``dists``
     array given is overwritten with these) and geomID. The mesh is one
-    BVH (``Mesh``), traced without a top level."""
+    BVH (``Mesh``), traced without a top level.
 
-    def __init__(self, triangles: np.ndarray):
-        self.mesh = Mesh(None, triangles)
-        self.handle = self.mesh.handle
+    ``moving`` (a list of (start, stop, float64[K, 4, 4])): triangles
+    [start, stop) move rigidly over the shutter by those K matrices (taking
+    them from where ``triangles`` has them, evenly over t in [0, 1]); each
+    such group, and the still rest, gets a BVH of its own under a top level
+    whose moving instances Embree blends at a ray's time (``run``'s
+    ``time``, float32 per ray in [0, 1]; None: ``frame_time``, where
+    ``triangles`` has them); primIDs stay indices into ``triangles``."""
+
+    def __init__(self, triangles: np.ndarray, moving: Optional[Sequence[tuple]] = None, frame_time: float = 0.0):
+        self.frame_time = float(frame_time)
         self.first = np.array([0, 1], np.int64)
         self.order = np.zeros(1, np.int64)
         self.normal_matrix = np.eye(3)[None]
+        self.start = np.zeros(1, np.int64)      # per instance of the top level: its first triangle
+        if not moving:
+            self.mesh = Mesh(None, triangles)
+            self.handle = self.mesh.handle
+            return
+        tris = np.asarray(triangles, np.float32).reshape(-1, 3, 3)
+        still = np.ones(len(tris), bool)
+        groups = []
+        for a, b, steps in moving:
+            still[a:b] = False
+            groups.append((np.arange(a, b), np.asarray(steps, np.float64)))
+        groups.insert(0, (np.flatnonzero(still), None))
+        self.index = np.concatenate([g[0] for g in groups]).astype(np.int64)   # top-level order -> triangle
+        self.start = np.cumsum([0] + [len(g[0]) for g in groups])[:-1].astype(np.int64)
+        meshes = [Mesh(None, tris[g[0]]) for g in groups]
+        eye = np.broadcast_to(np.eye(4), (len(groups), 4, 4))
+        self.top = InstancedScene(meshes, np.arange(len(groups)), eye,
+                                  motion=(np.arange(1, len(groups)), np.stack([g[1] for g in groups[1:]], 1)))
+        self.mesh = None
+        self.handle = self.top.handle
+        self.first, self.order, self.normal_matrix = self.top.first, self.top.order, self.top.normal_matrix
 
-    def run(self, origins, dirs, dists=None, query="INTERSECT", output=None):
+    def run(self, origins, dirs, dists=None, query="INTERSECT", output=None, time=None):
         n = len(origins)
         if dists is None or np.isscalar(dists):
             tfar = np.full(n, 1e37 if dists is None else dists, np.float32)
@@ -416,18 +497,22 @@ class MeshRays:
         org = np.ascontiguousarray(origins, np.float32)
         d = np.ascontiguousarray(dirs, np.float32)
         tnear = np.zeros(n, np.float32)
+        time = _times(self.frame_time if time is None and self.mesh is None else time, n)
         a = api()
         if query == "OCCLUDED":
             hit = np.zeros(n, bool)
             if self.handle:
-                occluded_range(a.occluded1, self.handle, org, d, tnear, tfar, hit, 0, n)
+                occluded_range(a.occluded1, self.handle, org, d, tnear, tfar, time, hit, 0, n)
             return np.where(hit, np.int32(0), np.int32(-1))
         if query != "INTERSECT":
             raise ValueError(f"unknown ray query {query!r}")
         t, inst, prim, u, v, ng = _no_hits(n)
         if self.handle:
-            intersect_range(a.intersect1, self.handle, org, d, tnear, np.ascontiguousarray(tfar, np.float32),
+            intersect_range(a.intersect1, self.handle, org, d, tnear, np.ascontiguousarray(tfar, np.float32), time,
                             self.first, self.order, self.normal_matrix, t, inst, prim, u, v, ng, 0, n)
+            if self.mesh is None:                 # moving groups: back to indices into the triangles
+                ok = prim >= 0
+                prim[ok] = self.index[self.start[inst[ok]] + prim[ok]]
         primID = prim.astype(np.int32)
         if not output:
             return primID

@@ -12,7 +12,10 @@ Two stages, both ``frame.render_frame`` with the methods unchanged:
    receiver on its own (``Method.packed``) runs on that packed G-buffer, any
    other on the supersampled image with only those pixels set
    (``raycast.unpack_gbuffer``). The light views and
-   BVHs of stage 1 are shared.
+   BVHs of stage 1 are shared. With the camera's depth of field or motion
+   over the shutter every pixel is refined on the full grid, and each
+   sub-sample's ray starts at its own lens point and is taken at its own
+   shutter time (``camera_samples``; ``GBuffer.time``).
 
 The resolve (``pixel_filter.resolve``) filters the sub-pixel passes into the
 refined pixels: an average pass by the filter weights, an irradiance pass by
@@ -81,7 +84,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     # each unit's footprints (the geometry's and its passes' V); the coverage's are those
     # of the pixels beside a change of hit, which every unit refines on the full grid (the
     # geometry's own when there is no unit)
-    everywhere = scene.camera.has_depth_of_field     # every footprint sees through the lens
+    moves = scene.motion is not None and scene.motion.moves
+    everywhere = scene.camera.has_depth_of_field or moves   # every footprint sees through the lens or over time
     masks = [_refined(flt, g, [lr.computed[q] for q in method_registry.producers()[prod].passes], taps.size > 0,
                       everywhere) for lr, prod, pids in units]
     if not units:
@@ -98,9 +102,10 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     tg = time.perf_counter()
     lens = (camera_samples.lens_points(scene.camera, union, SW, s, _seed(options))
             if scene.camera.has_depth_of_field else None)
+    times = camera_samples.shutter_times(union, SW, s, _seed(options)) if moves else None
     sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
-                                      packed=True, lens=lens)
-    del lens
+                                      packed=True, lens=lens, time=times)
+    del lens, times
     tg = time.perf_counter() - tg
     setup_s = time.perf_counter() - t0 - tg       # refine masks, footprints, union
     overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
@@ -143,7 +148,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     first_hit = sub_g.hit[0] if len(samples) == 1 else _take(sub_g, np.searchsorted(union, flat[0])).hit
     base.coverage = coverage(flt, edges, g.hit, rows, cols, first_hit)
     base.pixel_filter = flt.to_json()
-    base.camera_effects = camera_samples.describe_effects(scene.camera, sampled=everywhere and taps.size > 0)
+    base.camera_effects = camera_samples.describe_effects(scene, sampled=everywhere and taps.size > 0)
     base.total_s += time.perf_counter() - t0
     return base
 
@@ -200,7 +205,7 @@ def _take(g: GBuffer, at: np.ndarray) -> GBuffer:
     """Entries ``at`` of the packed G-buffer ``g`` (a packed G-buffer)."""
     return GBuffer(position=g.position[:, at], normal=g.normal[:, at], depth=g.depth[:, at],
                    object_id=g.object_id[:, at], triangle_id=g.triangle_id[:, at], hit=g.hit[:, at],
-                   pixel=g.pixel[at])
+                   pixel=g.pixel[at], time=None if g.time is None else g.time[:, at])
 
 
 def _shared(m, overrides, method_overrides, share: int):
@@ -243,6 +248,9 @@ def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_v, sub_t, sub_g:
         phases["total"] = round(sum(phases.values()), 6)
         rec["time_s"] = phases
         rec["pixel_filter"] = {**flt.to_json(), **stats}
+        if scene.motion is not None and scene.motion.moves:
+            rec["shutter"] = ("occluders at the receiver's time" if method_registry.producer_of(pid).shutter_time
+                              else "occluders at the frame")
 
 
 def _errors(lr, mask: np.ndarray) -> None:

@@ -237,4 +237,4 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         progress("done", 1.0)
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
                        time.perf_counter() - t0, compile_s, cache=cache if keep else None,
-                       visibility=visibility, camera_effects=describe_effects(scene.camera, sampled=False))
+                       visibility=visibility, camera_effects=describe_effects(scene, sampled=False))

@@ -17,6 +17,7 @@ import numpy as np
 
 from .scene import Camera, GBuffer, InstanceGeometry, LightView, MeshInstances, Scene, ViewFace
 from . import alpha_rays, embree4, pixel_rays, views
+from .motion import blend, move_points
 from .sampling import scene_scale
 from .kernels import each_in_threads
 
@@ -35,10 +36,15 @@ class TriangleScene:
     an alpha matte: shadow rays then carry a transmittance
     (``transmittance``) and primary rays pass through clear texels
     (``alpha_rays.pass_through``); otherwise nothing changes.
+
+    ``moving`` (``embree4.MeshRays``' groups): triangles that move over the
+    shutter; every query then takes each ray's time (``time``, float32 in
+    [0, 1]; None: the frame's, ``frame_time``). The matte triangles' own BVH
+    (``transmittance``) stands still at the frame.
     """
 
     def __init__(self, triangles: np.ndarray, tri_index: Optional[np.ndarray] = None,
-                 alpha: Optional[alpha_rays.AlphaGeometry] = None):
+                 alpha: Optional[alpha_rays.AlphaGeometry] = None, moving=None, frame_time: float = 0.0):
         triangles = np.ascontiguousarray(triangles, np.float32).reshape(-1, 3, 3)
         if tri_index is None:
             tri_index = np.arange(len(triangles), dtype=np.int32)
@@ -48,15 +54,26 @@ class TriangleScene:
         self._parts = None
         self._scene = None
         if self.count:
-            self._scene = embree4.MeshRays(triangles)
+            self._scene = embree4.MeshRays(triangles, moving, frame_time)
 
     @classmethod
     def from_scene(cls, scene: Scene, mask: np.ndarray) -> "TriangleScene":
+        """The triangles ``mask`` selects; those of objects that move over
+        the shutter (``Scene.motion``) move with them."""
         idx = np.nonzero(mask)[0].astype(np.int32)
         alpha = None
         if scene.alpha is not None and scene.alpha.any_matte(mask):
             alpha = alpha_rays.AlphaGeometry(scene.alpha.packed(), scene.triangles, scene_scale(*scene.bounds()))
-        return cls(scene.triangles[idx], idx, alpha)
+        moving = None
+        motion = scene.motion
+        if motion is not None and len(motion.objects) and len(idx):
+            slot = motion.slot_of(scene.tri_object[idx])
+            order = np.argsort(slot, kind="stable")         # the still ones (-1) first, then by object
+            idx, slot = idx[order], slot[order]
+            ends = np.searchsorted(slot, np.arange(len(motion.objects) + 1) - 0.5)   # the still ones', object j's
+            moving = [(int(a), int(b), motion.delta[:, j]) for j, (a, b) in enumerate(zip(ends[:-1], ends[1:]))
+                      if b > a] or None
+        return cls(scene.triangles[idx], idx, alpha, moving, motion.frame_time if moving else 0.0)
 
     @staticmethod
     def matte_casters(scene: Scene):
@@ -79,11 +96,11 @@ class TriangleScene:
         """Every ray misses."""
         return self._scene is None
 
-    def closest(self, org, dirs, tfar=None) -> dict:
+    def closest(self, org, dirs, tfar=None, time=None) -> dict:
         """Closest hits of a band of float32 rays in this thread
         (``MeshRays.run``'s dict; ``tfar`` None: unbounded)."""
         kw = {"dists": tfar} if tfar is not None else {}
-        return self._scene.run(org, dirs, output=1, **kw)
+        return self._scene.run(org, dirs, output=1, time=time, **kw)
 
     def local_ids(self, tri: np.ndarray) -> np.ndarray:
         """Embree primIDs of the global triangle ids ``tri`` (-1 for -1)."""
@@ -91,13 +108,13 @@ class TriangleScene:
         local[self.tri_index] = np.arange(self.count, dtype=np.int32)
         return local[tri]
 
-    def transmittance(self, origins, dirs, tfar) -> np.ndarray:
+    def transmittance(self, origins, dirs, tfar, time=None) -> np.ndarray:
         """float32[N]: the share of each ray (float32, contiguous) that gets
         through within (0, tfar): 0 or 1 past opaque triangles, the product
         of (1 - alpha) past mattes (``alpha_rays.transmittance``; the opaque
         and the matte triangles get a BVH each, built on first use)."""
         if self.alpha is None:
-            return np.where(self.occluded_f32(origins, dirs, np.array(tfar, np.float32)) == -1,
+            return np.where(self.occluded_f32(origins, dirs, np.array(tfar, np.float32), time) == -1,
                             np.float32(1), np.float32(0))
         with _SPLIT_LOCK:
             if self._parts is None:
@@ -111,7 +128,7 @@ class TriangleScene:
         return (TriangleScene(tris[~has], self.tri_index[~has]),
                 TriangleScene(tris[has], self.tri_index[has], self.alpha))
 
-    def occluded(self, origins, dirs, tfar) -> np.ndarray:
+    def occluded(self, origins, dirs, tfar, time=None) -> np.ndarray:
         """bool[N]: True where something lies on the ray within (0, tfar)."""
         n = len(origins)
         if self._scene is None or n == 0:
@@ -122,18 +139,18 @@ class TriangleScene:
             r = self._scene.run(np.ascontiguousarray(origins[s:e], np.float32),
                                 np.ascontiguousarray(dirs[s:e], np.float32),
                                 dists=np.ascontiguousarray(tfar[s:e], np.float32),
-                                query="OCCLUDED")
+                                query="OCCLUDED", time=None if time is None else time[s:e])
             out[s:e] = r != -1
         return out
 
-    def occluded_f32(self, origins, dirs, tfar) -> np.ndarray:
+    def occluded_f32(self, origins, dirs, tfar, time=None) -> np.ndarray:
         """Like ``occluded`` for arrays already float32 and contiguous; returns
         the BVH's raw int32 result (-1 = unblocked)."""
         if self._scene is None:
             return np.full(len(origins), -1, np.int32)
-        return self._scene.run(origins, dirs, dists=tfar, query="OCCLUDED")
+        return self._scene.run(origins, dirs, dists=tfar, query="OCCLUDED", time=time)
 
-    def intersect(self, origins, dirs, tfar=None):
+    def intersect(self, origins, dirs, tfar=None, time=None):
         """Closest hits: (global triangle id or -1, t, u, v) as arrays;
         with ``alpha``, the first surface not clear there
         (``alpha_rays.pass_through``)."""
@@ -151,7 +168,7 @@ class TriangleScene:
                 kw["dists"] = np.array(tfar[s:e], np.float32, copy=True)  # Embree writes hits into it
             o = np.ascontiguousarray(origins[s:e], np.float32)
             d = np.ascontiguousarray(dirs[s:e], np.float32)
-            r = self._scene.run(o, d, output=1, **kw)
+            r = self._scene.run(o, d, output=1, time=None if time is None else time[s:e], **kw)
             if self.alpha is not None:     # alpha-tested like the light maps
                 tf = (np.array(tfar[s:e], np.float32) if tfar is not None
                       else np.full(e - s, np.inf, np.float32))
@@ -177,35 +194,46 @@ class InstanceScene:
     alpha = None
 
     def __init__(self, instances: MeshInstances, meshes, selected: np.ndarray,
-                 geometry: Optional[InstanceGeometry] = None):
+                 geometry: Optional[InstanceGeometry] = None, motion=None):
         selected = np.asarray(selected, np.int64)
         self.selected = selected
         self.geometry = geometry if geometry is not None else instances.packed()
         self.count = int(instances.instance_triangles()[selected].sum())
-        self._top = embree4.InstancedScene(meshes, instances.mesh[selected], instances.world_from_mesh[selected])
+        xf = instances.world_from_mesh[selected]
+        moving = None
+        self.frame_time = None             # a ray without a time: the still scene's (or the frame's)
+        if motion is not None and len(motion.objects):
+            self.frame_time = motion.frame_time
+            slot = motion.slot_of(instances.object_id[selected])
+            ids = np.flatnonzero(slot >= 0)
+            if len(ids):     # each step's placement: the object's step delta after the frame's
+                moving = (ids, np.einsum("kmij,mjl->kmil", motion.delta[:, slot[ids]], xf[ids]))
+        self._top = embree4.InstancedScene(meshes, instances.mesh[selected], xf, moving)
 
     @property
     def empty(self) -> bool:
         return not self._top.handle
 
-    def closest(self, org, dirs, tfar=None) -> dict:
-        """Closest hits of float32 rays in this thread: primID (the triangle
-        in its mesh, -1: none), instance (index in the scene's instances),
-        u, v, tfar (a miss keeps its tfar)."""
-        t, inst, prim, u, v, _ = embree4.intersect(self._top, org, dirs, tfar=tfar, threads=1)
+    def closest(self, org, dirs, tfar=None, time=None) -> dict:
+        """Closest hits of float32 rays in this thread (at their ``time``):
+        primID (the triangle in its mesh, -1: none), instance (index in the
+        scene's instances), u, v, tfar (a miss keeps its tfar)."""
+        time = self.frame_time if time is None else time
+        t, inst, prim, u, v, _ = embree4.intersect(self._top, org, dirs, tfar=tfar, threads=1, time=time)
         hit = prim >= 0
         inst[hit] = self.selected[inst[hit]]
         tf = np.full(len(org), 1e37, np.float32) if tfar is None else np.array(tfar, np.float32)
         tf[hit] = t[hit]
         return {"primID": prim.astype(np.int32), "instance": inst, "u": u, "v": v, "tfar": tf}
 
-    def occluded(self, origins, dirs, tfar) -> np.ndarray:
+    def occluded(self, origins, dirs, tfar, time=None) -> np.ndarray:
         """bool[N]: True where something lies on the ray within (0, tfar)."""
-        return embree4.occluded(self._top, origins, dirs, tfar=tfar, threads=1)
+        time = self.frame_time if time is None else time
+        return embree4.occluded(self._top, origins, dirs, tfar=tfar, threads=1, time=time)
 
-    def transmittance(self, origins, dirs, tfar) -> np.ndarray:
+    def transmittance(self, origins, dirs, tfar, time=None) -> np.ndarray:
         """float32[N]: 1 where the ray gets through within (0, tfar), else 0."""
-        return np.where(self.occluded(origins, dirs, tfar), np.float32(0), np.float32(1))
+        return np.where(self.occluded(origins, dirs, tfar, time), np.float32(0), np.float32(1))
 
     def object_ids(self, r: dict) -> np.ndarray:
         """int32 object id of each hit of ``closest``'s result (-1: none)."""
@@ -305,7 +333,8 @@ def camera_gbuffer(scene: Scene, width: int, height: int,
 
 def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, rows: np.ndarray,
                       tri_scene: Optional[TriangleScene] = None, threads: Optional[int] = None,
-                      packed: bool = False, lens: Optional[np.ndarray] = None) -> GBuffer:
+                      packed: bool = False, lens: Optional[np.ndarray] = None,
+                      time: Optional[np.ndarray] = None) -> GBuffer:
     """The camera G-buffer of a ``width`` x ``height`` view at the listed
     pixels (cols[i], rows[i]) only (``pixel_filter``'s sub-pixel samples are
     the pixel centres of a supersampled view); every other pixel is empty
@@ -314,8 +343,13 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
     pixels, as a packed G-buffer (shape (1, N), ``GBuffer.pixel``; dense:
     ``unpack_gbuffer``). ``lens`` (float64[N, 2], ``camera_samples.lens_points``):
     pixel i's ray starts at that camera-local lens point and passes through
-    the plane in focus (``pixel_rays.lens_ray_batch``)."""
+    the plane in focus (``pixel_rays.lens_ray_batch``). ``time`` (float32[N]
+    in [0, 1], ``camera_samples.shutter_times``): pixel i is seen at that
+    shutter time (``Scene.motion``): the camera's ray and the geometry where
+    they are then, the entry moved with its object (``motion.move_points``),
+    and ``GBuffer.time`` holds it."""
     cam: Camera = scene.camera
+    motion = scene.motion if time is not None and scene.motion is not None and scene.motion.moves else None
     if tri_scene is None:
         tri_scene = TriangleScene.from_scene(scene, scene.tri_visible_camera)
     cols = np.ascontiguousarray(cols, np.int64)
@@ -328,7 +362,8 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
     obj = np.full(m, -1, np.int32)
     tri = np.full(m, -1, np.int32)
     shade = _hit_shader(scene, tri_scene, params, cam.forward)
-    origins = None if lens is None or tri_scene.alpha is None else np.zeros((m, 3), np.float64)
+    moving_eye = lens is not None or (motion is not None and motion.camera is not None)
+    origins = np.zeros((m, 3), np.float64) if moving_eye and tri_scene.alpha is not None else None
 
     def chunk(rng):
         a, b = rng
@@ -342,9 +377,21 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
         else:
             pixel_rays.lens_ray_batch(params, width, height, cols[a:b], rows[a:b], lens[a:b],
                                       float(cam.focus_distance), org, dirs, tfar)
-            if origins is not None:
-                origins[a:b] = org
-        shade(tri_scene.closest(org, dirs, tfar), dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
+        if motion is not None and motion.camera is not None:
+            _camera_at(motion, time[a:b], org, dirs)
+        if origins is not None:
+            origins[a:b] = org
+        if motion is None:
+            shade(tri_scene.closest(org, dirs, tfar), dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b], tri[a:b])
+            return
+        shade(tri_scene.closest(org, dirs, tfar, time[a:b]), dirs, pos[a:b], nrm[a:b], depth[a:b], obj[a:b],
+              tri[a:b])
+        moved = move_points(motion, pos[a:b], nrm[a:b], obj[a:b], time[a:b])
+        if len(moved):                    # facing the ray again; depth along the frame's view axis
+            n, p = nrm[a:b], pos[a:b]
+            back = (n[moved] * dirs[moved]).sum(1) > 0
+            n[moved[back]] *= -1
+            depth[a:b][moved] = (p[moved] - cam.position) @ cam.forward
 
     each_in_threads(chunk, [(a, min(m, a + BAND_RAYS)) for a in range(0, m, BAND_RAYS)],
                     max(1, int(threads or numba.get_num_threads())))
@@ -352,8 +399,20 @@ def camera_gbuffer_at(scene: Scene, width: int, height: int, cols: np.ndarray, r
         _see_through_mattes(tri_scene, cam, scene.tri_object, pos, nrm, depth, obj, tri, origins)
     g = GBuffer(position=pos.reshape(1, m, 3), normal=nrm.reshape(1, m, 3), depth=depth.reshape(1, m),
                 object_id=obj.reshape(1, m), triangle_id=tri.reshape(1, m), hit=(tri >= 0).reshape(1, m),
-                pixel=rows * width + cols)
+                pixel=rows * width + cols,
+                time=None if time is None else np.asarray(time, np.float32).reshape(1, m))
     return g if packed else unpack_gbuffer(g, width, height)
+
+
+def _camera_at(motion, time: np.ndarray, org: np.ndarray, dirs: np.ndarray) -> None:
+    """Camera rays of the frame (float32, in place) as the camera that moves
+    over the shutter casts them at ``time``: each moved by the camera's
+    blended delta (``motion.blend``)."""
+    D = blend(motion.camera, time)
+    o = np.einsum("nij,nj->ni", D[:, :3, :3], org.astype(np.float64)) + D[:, :3, 3]
+    d = np.einsum("nij,nj->ni", D[:, :3, :3], dirs.astype(np.float64))
+    org[:] = o
+    dirs[:] = d / np.linalg.norm(d, axis=1)[:, None]
 
 
 def _hit_shader(scene: Scene, tri_scene, params, fwd):
@@ -388,9 +447,15 @@ def unpack_gbuffer(g: GBuffer, width: int, height: int) -> GBuffer:
     g_tri = np.full(height * width, -1, np.int32)
     g_pos[flat], g_nrm[flat] = g.position.reshape(-1, 3), g.normal.reshape(-1, 3)
     g_depth[flat], g_obj[flat], g_tri[flat] = g.depth.reshape(-1), g.object_id.reshape(-1), g.triangle_id.reshape(-1)
+    g_time = None
+    if g.time is not None:
+        g_time = np.zeros(height * width, np.float32)
+        g_time[flat] = g.time.reshape(-1)
+        g_time = g_time.reshape(height, width)
     return GBuffer(position=g_pos.reshape(height, width, 3), normal=g_nrm.reshape(height, width, 3),
                    depth=g_depth.reshape(height, width), object_id=g_obj.reshape(height, width),
-                   triangle_id=g_tri.reshape(height, width), hit=(g_tri >= 0).reshape(height, width))
+                   triangle_id=g_tri.reshape(height, width), hit=(g_tri >= 0).reshape(height, width),
+                   time=g_time)
 
 
 def _see_through_mattes(tri_scene: TriangleScene, cam: Camera, tri_object, pos, nrm, depth, obj, tri,

@@ -22,6 +22,7 @@ from typing import List, NamedTuple, Optional, Tuple
 import numpy as np
 
 from .alpha import AlphaMattes
+from .motion import ShutterMotion
 
 log = logging.getLogger(__name__)
 
@@ -498,6 +499,8 @@ class Scene:
     #: how the triangles were placed (``MeshInstances``); None for a scene
     #: built from triangles alone (every object its own mesh)
     instances: Optional[MeshInstances] = None
+    #: what moves over the shutter (``core/motion.py``); None: a still frame
+    motion: Optional[ShutterMotion] = None
 
     def __post_init__(self):
         if self.triangles is None:
@@ -634,6 +637,7 @@ class GBuffer:
     triangle_id: np.ndarray   # int32[H,W], -1 where empty
     hit: np.ndarray           # bool[H,W]
     pixel: Optional[np.ndarray] = None   # int64[N]: a packed G-buffer's pixels (None: dense)
+    time: Optional[np.ndarray] = None    # float32[H,W]: each entry's shutter time (None: the frame's)
 
     @property
     def shape(self) -> Tuple[int, int]:
@@ -646,6 +650,10 @@ class GBuffer:
         P = np.ascontiguousarray(self.position.reshape(-1, 3)[idx], np.float64)
         N = np.ascontiguousarray(self.normal.reshape(-1, 3)[idx], np.float64)
         return idx, P, N
+
+    def times(self, idx: np.ndarray) -> Optional[np.ndarray]:
+        """float32 shutter times of entries ``idx`` (None: all at the frame)."""
+        return None if self.time is None else np.ascontiguousarray(self.time.reshape(-1)[idx], np.float32)
 
     def seed_ids(self, idx: np.ndarray) -> np.ndarray:
         """The pixel ids that seed entries ``idx``' per-pixel samples: their

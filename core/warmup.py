@@ -33,6 +33,7 @@ import numpy as np
 
 from .alpha import LINEAR, REPEAT, AlphaMattes
 from .compile_ahead import waited_s
+from .motion import ShutterMotion
 from .scene import Camera, Light, MeshInstances, ObjectInfo, Scene
 from .views import look_rotation
 
@@ -55,7 +56,8 @@ class CompileNotice(str):
         return s
 
 
-def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False, lens: bool = False) -> Scene:
+def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False, lens: bool = False,
+                 moving: bool = False) -> Scene:
     """A tiny scene lit by a copy of ``light``: the light at height ``D`` shining
     down on a ground quad, an occluder quad halfway, the camera at the light
     looking down (so every pixel sees a receiver the light reaches). With
@@ -63,7 +65,8 @@ def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False, le
     partial texels: ``core/alpha.py``), so the matte kernels run. With
     ``instanced`` the two quads are instances of one quad mesh, not
     flattened (``MeshInstances``), so the kernels of rays on instances run.
-    With ``lens`` the camera has depth of field (``camera_samples``)."""
+    With ``lens`` the camera has depth of field (``camera_samples``); with
+    ``moving`` the occluder slides over the shutter (``core/motion.py``)."""
     D = max(4.0 * light.extent, 1.0) if light.kind != "sun" else 1.0
     m = np.eye(4)
     m[:3, :3] = look_rotation(np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]))
@@ -93,9 +96,17 @@ def warmup_scene(light: Light, mattes: bool = False, instanced: bool = False, le
         place[1][2, 3] = 0.5 * D
         ins = MeshInstances(vertices=[unit], faces=[np.array([[0, 1, 2], [0, 2, 3]], np.int32)],
                             mesh=[0, 0], object_id=[0, 1], world_from_mesh=place)
-        return Scene(None, None, objs, cam, [lt], (WARMUP_SIZE, WARMUP_SIZE), name="warm-up", instances=ins)
+        return Scene(None, None, objs, cam, [lt], (WARMUP_SIZE, WARMUP_SIZE), name="warm-up", instances=ins,
+                     motion=_sliding(o) if moving else None)
     return Scene(tris, np.array([0, 0, 1, 1], np.int32), objs, cam, [lt],
-                 (WARMUP_SIZE, WARMUP_SIZE), name="warm-up", alpha=alpha)
+                 (WARMUP_SIZE, WARMUP_SIZE), name="warm-up", alpha=alpha, motion=_sliding(o) if moving else None)
+
+
+def _sliding(distance: float) -> ShutterMotion:
+    """The warm-up's occluder (object 1) sliding ``distance`` along x over the shutter."""
+    delta = np.tile(np.eye(4), (3, 1, 1, 1))
+    delta[:, 0, 0, 3] = (-0.5 * distance, 0.0, 0.5 * distance)
+    return ShutterMotion([1], delta)
 
 
 def has_mattes(scene: Scene) -> bool:
@@ -275,6 +286,7 @@ def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable
     (handed in: that module imports this one)."""
     mattes, instanced = has_mattes(scene), not scene.is_flattened
     lens = scene.camera is not None and scene.camera.has_depth_of_field
+    moving = scene.motion is not None and scene.motion.moves
     kinds = list({(lt.kind, lt.shape, lt.is_spot, lt.is_zero_size): lt for lt in scene.lights}.items())
     spec = json.dumps(pixel_filter.to_json(), sort_keys=True, default=str)
     passes = sorted(set(passes))
@@ -283,8 +295,8 @@ def ensure_filter_compiled(scene: Scene, pixel_filter, render_filtered: Callable
     spent = 0.0
     for kind, light in kinds:
         def work(light=light):
-            render_filtered(warmup_scene(light, mattes, instanced, lens), passes, None, pixel_filter,
+            render_filtered(warmup_scene(light, mattes, instanced, lens, moving), passes, None, pixel_filter,
                             overrides={"samples": 4, "seed": 0}, progress=progress)
-        spent += _warm_once(("filter", kind, mattes, instanced, lens, spec, tuple(passes)), "pixel_filter", notify,
-                            work)
+        spent += _warm_once(("filter", kind, mattes, instanced, lens, moving, spec, tuple(passes)), "pixel_filter",
+                            notify, work)
     return spent

@@ -178,3 +178,47 @@ def render_state(scene) -> dict:
         if ob.type == "LIGHT":
             snap[f"light.{ob.name}"] = (ob.data.use_shadow, ob.hide_render, round(ob.data.energy, 6))
     return snap
+
+
+def linear_keys(ob, path: str, values, frames) -> None:
+    """Keyframes of ``ob.<path>`` at ``frames``, interpolated linearly."""
+    from bpy_extras import anim_utils
+    for v, f in zip(values, frames):
+        setattr(ob, path, v)
+        ob.keyframe_insert(path, frame=f)
+    ad = ob.animation_data
+    for fc in anim_utils.action_get_channelbag_for_slot(ad.action, ad.action_slot).fcurves:
+        for kp in fc.keyframe_points:
+            kp.interpolation = "LINEAR"
+
+
+def sliding_box_scene(scene, res=(48, 48)):
+    """In the empty ``scene``: a ground, a unit box at height 1 sliding from
+    x = -2 to 2 between frames 1 and 3 (linear keys), a sun tilted so the
+    shadow falls towards the camera, a camera above looking down; Cycles
+    with Blackman-Harris 1.5 px, the render's motion blur on (shutter 0.5,
+    centred), at frame 2."""
+    import bpy
+    bpy.ops.mesh.primitive_plane_add(size=12.0)
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 0.0, 1.0))
+    box = bpy.context.active_object
+    box.name = "Box"
+    linear_keys(box, "location", [(-2.0, 0, 1.0), (2.0, 0, 1.0)], [1, 3])   # 2 per frame: 1 over the shutter
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.angle, sun.data.energy = 0.02, 3.0
+    sun.rotation_euler = (-0.6, 0.0, 0.0)
+    scene.collection.objects.link(sun)
+    cam = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    cam.data.lens = 35.0
+    cam.location = (0, -1.0, 6.0)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    scene.render.engine = "CYCLES"
+    scene.cycles.pixel_filter_type = "BLACKMAN_HARRIS"
+    scene.cycles.filter_width = 1.5
+    scene.render.resolution_x, scene.render.resolution_y = res
+    scene.render.resolution_percentage = 100
+    scene.render.use_motion_blur = True
+    scene.render.motion_blur_shutter = 0.5
+    scene.frame_set(2)
+    return scene

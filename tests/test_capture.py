@@ -16,6 +16,7 @@ from penumbra.core import views
 from penumbra.core.scene import Scene
 from penumbra.bridge.capture import (
     CAPTURE_ENGINE_ID, capture_scene, is_capturing, render_resolution)
+from scenes import linear_keys
 
 # cube of side 2 centred at the origin: 8 vertices, 12 triangles
 CUBE_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
@@ -616,6 +617,44 @@ def test_depth_of_field_is_cycles_thin_lens(factory_scene, kind):
     expect = abs(float(np.dot(axis, np.array(cam_ob.location) - np.array(target.location))))
     assert cam.aperture_blades == 0 and cam.focus_distance == pytest.approx(expect, rel=1e-6)
     assert expect != pytest.approx(3.5)
+
+
+def test_motion_over_the_shutter_is_blenders_own_evaluation(factory_scene):
+    sc = factory_scene
+    cam = _camera(sc)
+    cam.location = (0, 0, 8)
+    mover, still = _cube(sc, "Mover"), _cube(sc, "Still")
+    still.location = (4, 0, 0)
+    linear_keys(mover, "location", [(0, 0, 0), (2, 1, 0)], [1, 3])
+    mover.keyframe_insert("rotation_euler", frame=1)
+    sc.frame_set(2)
+    assert capture_scene().motion is None                    # motion blur off: a still frame
+    sc.render.use_motion_blur = True
+    sc.render.motion_blur_shutter = 0.5
+    captured = capture_scene()
+    assert (sc.frame_current, sc.frame_subframe) == (2, 0.0)   # the frame is set back
+    motion = captured.motion
+    assert motion.steps == 3 and motion.camera is None
+    assert [captured.objects[i].name for i in motion.objects] == ["Mover"]
+    frame_m = np.array(mover.matrix_world)
+    for k, off in enumerate((-0.25, 0.0, 0.25)):
+        sc.frame_set(1 if off < 0 else 2, subframe=(1.75 if off < 0 else 2 + off) % 1)
+        expect = np.array(mover.matrix_world) @ np.linalg.inv(frame_m)
+        assert np.allclose(motion.delta[k, 0], expect, atol=1e-6)
+    assert np.allclose(motion.delta[:, 0, :3, 3], [[-0.25, -0.125, 0], [0, 0, 0], [0.25, 0.125, 0]], atol=1e-6)
+    sc.frame_set(2)
+    viewport = capture_scene(mode="VIEWPORT").motion             # the same steps from the viewport depsgraph
+    assert np.allclose(viewport.delta, motion.delta) and (sc.frame_current, sc.frame_subframe) == (2, 0.0)
+    mover.cycles.use_motion_blur = False                     # Cycles' per-object switch
+    assert capture_scene().motion is None
+    mover.cycles.use_motion_blur = True
+    mover.cycles.motion_steps = 2                             # Cycles: (2 << (2 - 1)) + 1 = 5 steps
+    sc.render.motion_blur_position = "START"
+    linear_keys(cam, "location", [(0, 0, 8), (0, 2, 8)], [2, 4])
+    motion = capture_scene().motion
+    assert motion.steps == 5 and motion.position == "START"
+    assert np.allclose(motion.delta[:, 0, 0, 3], np.linspace(0.0, 0.5, 5), atol=1e-6)
+    assert np.allclose(motion.camera[:, 1, 3], np.linspace(0.0, 0.5, 5), atol=1e-6)
 
 
 # --------------------------------------------------------------------------

@@ -402,3 +402,29 @@ def test_absurd_scene_resolution_exits_2(tmp_path, capsys):
     assert main(["render", blend, "--out", str(out)]) == 2
     _one_line_error(capsys.readouterr().err, "resolution")
     assert leftovers(out) == []
+
+
+def test_plan_and_render_carry_the_cameras_effects(tmp_path, capsys, factory_scene):
+    import bpy
+    from scenes import sliding_box_scene
+    sc = sliding_box_scene(factory_scene)
+    sc.camera.data.dof.use_dof = True
+    sc.camera.data.dof.focus_distance, sc.camera.data.dof.aperture_fstop = 3.0, 1.0
+    blend = str(tmp_path / "moving.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend, copy=True)
+    mtime = os.path.getmtime(blend)
+    capsys.readouterr()
+    assert main(["plan", blend, "--resolution", "32x32"]) == 0
+    said = capsys.readouterr().out
+    assert "camera: depth of field, lens radius 0.0175, focus 3" in said
+    assert "motion blur over 0.5 frame(s) (1 moving object(s), 3 steps)" in said
+    assert "auto -> embree_irr: objects or the camera move over the shutter" in said
+    assert main(["render", blend, "--out", str(tmp_path / "o"), "--resolution", "32x32", "--samples", "4",
+                 "--no-previews", "--quiet"]) == 0
+    rec = json.loads(next((tmp_path / "o").glob("*.json")).read_text())
+    eff = rec["camera_effects"]
+    assert eff["sampled"] == "per sub-pixel receiver" and eff["motion_blur"]["moving_objects"] == 1
+    assert eff["depth_of_field"]["focus_distance"] == pytest.approx(3.0)
+    (light,) = rec["lights"]
+    assert light["methods"]["embree_irr"]["shutter"] == "occluders at the receiver's time"
+    assert os.path.getmtime(blend) == mtime

@@ -164,7 +164,10 @@ def test_a_bladed_aperture_stays_inside_its_polygon_and_the_ratio_squeezes_x():
 
 
 def test_the_plan_line_names_the_lens():
-    cam = dataclasses.replace(persp_camera((0, 0, 1.0), (0, 0, 0)), aperture_radius=0.01, focus_distance=2.0)
-    assert "lens radius 0.01" in camera_samples.effects_line(cam, True)
-    assert "ignored" in camera_samples.effects_line(cam, False)
-    assert camera_samples.effects_line(dataclasses.replace(cam, aperture_radius=0.0), True) is None
+    scene = half_plane_scene(sun_light(0.0), res=8)
+    scene.camera = dataclasses.replace(persp_camera((0, 0, 1.0), (0, 0, 0)), aperture_radius=0.01,
+                                       focus_distance=2.0)
+    assert "lens radius 0.01" in camera_samples.effects_line(scene, True)
+    assert "ignored" in camera_samples.effects_line(scene, False)
+    scene.camera = dataclasses.replace(scene.camera, aperture_radius=0.0)
+    assert camera_samples.effects_line(scene, True) is None

@@ -60,6 +60,9 @@ class Method:
     #: come from Embree's two-level BVH: the G-buffer, light views from the
     #: light's centre, shadow rays); False: it needs world-space triangles
     runs_on_instances: bool = False
+    #: finds each receiver's occluders where they are at its shutter time
+    #: (``GBuffer.time``, ``core/motion.py``); otherwise where they are at the frame
+    shutter_time: bool = False
     #: the Preview's settings of this method, under a light's own knobs (which
     #: win); None: too slow for the Preview, which runs ``pcf`` instead
     preview_params: Optional[Mapping[str, object]] = None

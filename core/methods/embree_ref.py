@@ -29,7 +29,9 @@ stratum) (``sampling.reference_sample``), so every pixel draws its own,
 decorrelated samples and any method that shoots "the reference's own
 samples" draws the same ones. Rays start at the G-buffer point moved off its
 surface by ``sampling.offset_origin`` (Wächter & Binder, scaled to the scene
-extent).
+extent). A receiver taken at a shutter time (``GBuffer.time``: a filtered
+frame with motion blur) traces its rays at that time, against the occluders
+where they are then (``core/motion.py``).
 
 Rays are generated, traced (``core/embree4``'s kernels, which release the GIL)
 and reduced in batches of about ``RAYS_PER_BATCH``, one worker thread per
@@ -108,8 +110,9 @@ def reduce_visibility(trans, w, ns, v_avg, v_irr):
         v_irr[i] = wl / wt if wt > 0.0 else 0.0
 
 
-def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, threads=None):
-    """V_avg and V_irr (float32[n]) for points P with normals Nrm."""
+def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, threads=None, time=None):
+    """V_avg and V_irr (float32[n]) for points P with normals Nrm, their
+    shadow rays at the points' shutter ``time`` (float32[n]; None: the frame)."""
     lp = sampling.pack_light(light)
     n = len(P)
     ns = int(samples)
@@ -131,7 +134,8 @@ def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, thread
         tfar = np.empty(m, np.float32)
         w = np.empty(m, np.float64)
         generate_shadow_rays(P[a:b], Nrm[a:b], pix[a:b], lp, ns, seed, scale, org, dirs, tfar, w)
-        reduce_visibility(tri_scene.transmittance(org, dirs, tfar), w, ns, v_avg[a:b], v_irr[a:b])
+        t = None if time is None else np.repeat(time[a:b], ns)
+        reduce_visibility(tri_scene.transmittance(org, dirs, tfar, t), w, ns, v_avg[a:b], v_irr[a:b])
 
     each_in_threads(work, chunks, max(1, int(threads or numba.get_num_threads())))
     return v_avg, v_irr, n * ns
@@ -252,6 +256,7 @@ class EmbreeReference(Method):
     needs = frozenset({GBUFFER, SHADOW_GEOMETRY})
     packed = True                # shades each receiver of a packed G-buffer on its own
     runs_on_instances = True     # a G-buffer and shadow rays
+    shutter_time = True          # each shadow ray at its receiver's time
     Params = EmbreeParams
     physical = True
 
@@ -268,7 +273,7 @@ class EmbreeReference(Method):
         ns = 1 if light.is_zero_size else max(1, int(params.samples))
         with timer("trace"):
             va, vi, rays = trace_visibility(buffers.shadow_scene_for(light), P, Nrm, g.seed_ids(idx), light, ns,
-                                            int(params.seed), buffers.scale)
+                                            int(params.seed), buffers.scale, time=g.times(idx))
         out_a = np.ones(H * W, np.float32)
         out_i = np.ones(H * W, np.float32)
         out_a[idx] = va

@@ -1,0 +1,155 @@
+"""Motion blur (``core/motion.py``, the shutter times of
+``core/camera_samples.py``, Embree's moving instances): a hard shadow edge
+whose occluder, or whose camera, moves over the shutter against the closed
+form of its time average; the instanced and flattened forms of the same
+scene; what ``auto`` and the JSON say."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from penumbra.core import camera_samples, raycast
+from penumbra.core.auto_choice import choose, scene_shape
+from penumbra.core.filtered_frame import render_filtered
+from penumbra.core.frame import render_frame
+from penumbra.core.motion import ShutterMotion, blend, frame_offsets
+from penumbra.core.pixel_filter import PixelFilter
+from penumbra.core.scene import MeshInstances, Scene
+from synthetic import half_plane_scene, sun_light
+
+FLT = PixelFilter("blackman-harris", 1.5, 4)
+
+
+def _sliding(dy: float, steps: int = 3) -> np.ndarray:
+    """float64[steps, 4, 4]: a translation along y from -dy/2 to +dy/2 over the shutter."""
+    out = np.tile(np.eye(4), (steps, 1, 1))
+    out[:, 1, 3] = np.linspace(-dy / 2, dy / 2, steps)
+    return out
+
+
+def _ramp_truth(scene: Scene, lit_share) -> np.ndarray:
+    """Per pixel row: the filtered time average of a ground point's lit share
+    ``lit_share(y)`` (the top orthographic camera's rows, Blackman-Harris)."""
+    W, H = scene.resolution
+    d = np.linspace(-FLT.radius, FLT.radius, 4001)
+    w = FLT.profile(d)
+    half = scene.camera.ortho_scale / 2
+    y = half - (np.arange(H)[:, None] + 0.5 + d[None]) / H * 2 * half
+    return (lit_share(y) * w).sum(1) / w.sum()
+
+
+def _rmse(V, truth):
+    return float(np.sqrt(np.mean((V - truth[:, None]) ** 2)))
+
+
+def test_a_moving_occluder_blurs_its_shadow_as_the_shutter_averages_it():
+    # the occluder covers y < 0 at the frame and slides by dy over the shutter: a ground point at
+    # y is lit while the edge is below it, for a share (y + dy/2) / dy of the shutter
+    dy = 0.5
+    scene = half_plane_scene(sun_light(0.0), res=64)
+    scene.motion = ShutterMotion([1], _sliding(dy)[:, None])
+    truth = _ramp_truth(scene, lambda y: np.clip((y + dy / 2) / dy, 0.0, 1.0))
+    res = render_filtered(scene, ["embree_irr", "pcf"], pixel_filter=FLT)
+    V = res.lights[0].passes["embree_irr"]
+    assert ((truth > 0.05) & (truth < 0.95)).sum() >= 8
+    assert _rmse(V, truth) < 0.02 and np.abs(V.mean(1) - truth).max() < 0.02
+    eff = res.to_json()["camera_effects"]
+    assert eff["motion_blur"]["moving_objects"] == 1 and eff["sampled"] == "per sub-pixel receiver"
+    rec = res.lights[0].record
+    assert rec["embree_irr"]["shutter"] == "occluders at the receiver's time"
+    assert rec["pcf"]["shutter"] == "occluders at the frame"
+    # pcf keeps the frame's occluder: its edge stays sharp, as the record says
+    still = _ramp_truth(scene, lambda y: (y > 0).astype(float))
+    assert _rmse(res.lights[0].passes["pcf"], still) < _rmse(res.lights[0].passes["pcf"], truth)
+
+
+def test_a_moving_camera_blurs_a_still_shadow_edge():
+    # the camera slides by dy along y: the image of a ground point moves, so a pixel sees the
+    # edge y = 0 pass through it over the shutter; a pixel whose frame point is y sees y - s(t)
+    dy = 0.4
+    scene = half_plane_scene(sun_light(0.0), res=64)
+    scene.motion = ShutterMotion(np.zeros(0, np.int32), np.zeros((3, 0, 4, 4)), camera=_sliding(dy))
+    truth = _ramp_truth(scene, lambda y: np.clip((y + dy / 2) / dy, 0.0, 1.0))
+    V = render_filtered(scene, ["embree_irr"], pixel_filter=FLT).lights[0].passes["embree_irr"]
+    assert _rmse(V, truth) < 0.02
+
+
+def test_instanced_and_flattened_forms_move_alike():
+    dy = 0.5
+    flat = half_plane_scene(sun_light(0.0), res=48)
+    tris = flat.triangles.astype(np.float64)
+    quads = [tris[0:2], tris[2:4]]
+    ins = MeshInstances(vertices=[q.reshape(-1, 3) for q in quads],
+                        faces=[np.arange(6, dtype=np.int32).reshape(2, 3)] * 2,
+                        mesh=[0, 1], object_id=[0, 1], world_from_mesh=[np.eye(4), np.eye(4)])
+    kept = Scene(None, None, flat.objects, flat.camera, flat.lights, flat.resolution, instances=ins)
+    assert not kept.is_flattened
+    for s in (flat, kept):
+        s.motion = ShutterMotion([1], _sliding(dy)[:, None])
+    a = render_filtered(flat, ["embree_irr"], pixel_filter=FLT).lights[0].passes["embree_irr"]
+    b = render_filtered(kept, ["embree_irr"], pixel_filter=FLT).lights[0].passes["embree_irr"]
+    assert not kept.is_flattened
+    assert np.abs(a - b).max() < 1e-3
+
+
+def test_rays_find_moving_triangles_where_they_are_at_their_time():
+    scene = half_plane_scene(sun_light(0.0), res=8)
+    scene.motion = ShutterMotion([1], _sliding(2.0)[:, None])
+    bvh = raycast.TriangleScene.from_scene(scene, scene.tri_casts_shadow)
+    # a ray straight up from the ground at y = 0.5, towards the occluder at z = 2 (covering y < 0 at
+    # the frame, y < -1 + 2 t over the shutter): blocked once the edge passed it, at t > 0.75
+    org = np.array([[0.0, 0.5, 0.01]] * 4, np.float32)
+    up = np.array([[0.0, 0.0, 1.0]] * 4, np.float32)
+    t = np.array([0.0, 0.5, 0.74, 0.9], np.float32)
+    hit = bvh.occluded(org, up, np.full(4, 10.0, np.float32), t)
+    assert hit.tolist() == [False, False, False, True]
+    assert not bvh.occluded(org, up, np.full(4, 10.0, np.float32)).any()    # no time: the frame (edge y = 0)
+
+
+def test_blend_and_offsets_follow_the_shutter():
+    steps = _sliding(1.0, 5)
+    m = blend(steps, np.array([0.0, 0.125, 0.5, 1.0]))
+    assert np.allclose(m[:, 1, 3], [-0.5, -0.375, 0.0, 0.5])
+    assert np.allclose(frame_offsets(3, 0.5, "CENTER"), [-0.25, 0.0, 0.25])
+    assert np.allclose(frame_offsets(3, 1.0, "START"), [0.0, 0.5, 1.0])
+    assert np.allclose(frame_offsets(5, 0.5, "END"), [-0.5, -0.375, -0.25, -0.125, 0.0])
+
+
+def test_shutter_times_are_stratified_per_pixel():
+    grid, W, H = 4, 8, 8
+    SW = grid * W
+    flat = np.arange(SW * grid * H)
+    t = camera_samples.shutter_times(flat, SW, grid, seed=2)
+    rows, cols = np.divmod(flat, SW)
+    pixel = (rows // grid) * W + cols // grid
+    for p in range(W * H):
+        strata = np.sort(np.floor(t[pixel == p] * grid * grid).astype(int))
+        assert strata.tolist() == list(range(grid * grid))       # one sample in each stratum
+    assert np.array_equal(camera_samples.shutter_times(flat[[3, 99]], SW, grid, seed=2), t[[3, 99]])
+
+
+def test_auto_runs_the_reference_when_something_moves():
+    scene = half_plane_scene(sun_light(0.05), res=16)
+    still = choose("sun", 0.05, shape=scene_shape(scene, scene.lights[0]))
+    scene.motion = ShutterMotion([1], _sliding(0.5)[:, None])
+    moving = choose("sun", 0.05, shape=scene_shape(scene, scene.lights[0]))
+    assert moving.method == "embree_irr" and moving.rule == "moving"
+    assert still.rule != "moving"
+    hard = choose("sun", 0.0, shape=scene_shape(scene, scene.lights[0]))
+    assert hard.method == "embree_irr"            # a moving hard shadow is not hard
+
+
+def test_pixel_centres_stay_at_the_frame():
+    scene = half_plane_scene(sun_light(0.0), res=16)
+    ref = render_frame(scene, ["embree_irr"]).lights[0].passes["embree_irr"]
+    scene.motion = ShutterMotion([1], _sliding(0.5)[:, None])
+    res = render_frame(scene, ["embree_irr"])
+    assert np.array_equal(res.lights[0].passes["embree_irr"], ref)
+    assert res.to_json()["camera_effects"]["sampled"].startswith("no")
+    assert "motion blur over 0.5 frame(s) (1 moving object(s), 3 steps)" in camera_samples.effects_line(scene, True)
+
+
+@pytest.mark.parametrize("bad", [np.zeros((3, 2, 4, 4)), np.zeros((3, 4, 4))])
+def test_motion_arrays_must_match_the_moving_objects(bad):
+    with pytest.raises(ValueError):
+        ShutterMotion([1], bad)
