@@ -325,16 +325,23 @@ class MeshInstances:
         """``flatten``, refused in one line (``GeometryTooLarge``) when the
         soup cannot fit in this machine's memory: before allocating it
         (``BYTES_PER_FLATTENED_TRIANGLE``) or when the allocation fails."""
-        memory = physical_memory()
-        need = self.instanced_triangles * BYTES_PER_FLATTENED_TRIANGLE
-        if memory is not None and need > memory:
-            raise GeometryTooLarge(self._too_large(
-                f"needs at least {need / 2**30:.0f} GB for them, more than this machine's {memory / 2**30:.0f} GB"))
+        self.check_fits(self.instanced_triangles, "them")
         try:
             with np.errstate(invalid="ignore", over="ignore"):   # non-finite placements: finite_triangles
                 return self.flatten()
         except MemoryError:
             raise GeometryTooLarge(self._too_large("there is not enough memory to hold them")) from None
+
+    def check_fits(self, triangles: int, what: str) -> None:
+        """Refuse (``GeometryTooLarge``) to flatten ``triangles`` (``what``
+        they are, for the message) when they cannot fit in this machine's
+        memory (``BYTES_PER_FLATTENED_TRIANGLE`` each)."""
+        memory = physical_memory()
+        need = int(triangles) * BYTES_PER_FLATTENED_TRIANGLE
+        if memory is not None and need > memory:
+            raise GeometryTooLarge(self._too_large(
+                f"needs at least {need / 2**30:.0f} GB for {what}, more than this machine's "
+                f"{memory / 2**30:.0f} GB"))
 
     def _too_large(self, why: str) -> str:
         return (f"the scene places {self.instanced_triangles:,} triangles ({self.count:,} instances of "
@@ -467,9 +474,14 @@ def expand_instances(scene: "Scene", selected: np.ndarray) -> ExpandedInstances:
     instances) as an ``ExpandedInstances`` (``expandable`` ones only)."""
     ins = scene.instances
     selected = expandable(ins, selected)
-    with np.errstate(invalid="ignore", over="ignore"):
-        tris, ids = ins.flatten(selected)
     per = ins.instance_triangles()
+    ins.check_fits(int(per[selected].sum()), f"the {int(selected.sum()):,} instance(s) that can shadow a "
+                                            f"visible receiver")
+    try:
+        with np.errstate(invalid="ignore", over="ignore"):
+            tris, ids = ins.flatten(selected)
+    except MemoryError:
+        raise GeometryTooLarge(ins._too_large("there is not enough memory to hold them")) from None
     counts = np.where(selected, per, 0)
     order = ins.order()
     start = np.full(ins.count, -1, np.int64)

@@ -741,9 +741,10 @@ def test_degenerate_instances_render_clean_passes(tmp_path, scale):
 
 def test_a_scene_too_large_to_flatten_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
     """A scatter whose flattened triangles cannot fit in memory: the capture
-    keeps it as instances, and flattening it (penumbra_casting's blockers
-    are world-space triangles) is refused before allocating (the CLI: one
-    line, exit 2); a MemoryError while flattening says the same."""
+    keeps it as instances, and flattening it, or expanding the instances
+    penumbra_casting needs as world-space blockers, is refused before
+    allocating (the CLI: one line, exit 2); a MemoryError while flattening
+    says the same."""
     from penumbra.cli import main
     from penumbra.core import scene as core_scene
     from penumbra.core.scene import GeometryTooLarge, MeshInstances
