@@ -39,6 +39,7 @@ import numpy as np
 
 import bpy
 
+from ..core.exr import DEPTH_PASS, VECTOR_PASS
 from ..core.motion import ShutterMotion, frame_offsets
 from ..core.scene import Camera, Light, MeshInstances, ObjectInfo, Scene, finite_triangles
 from .mattes import MatteCapture
@@ -470,31 +471,55 @@ def _capture_from_depsgraph(depsgraph, scene, resolution, set_time=None) -> Scen
         _capture_instance(inst, filter_render, visible, meshes, pieces, infos, lights, mattes)
     captured = _assemble(scene, depsgraph, resolution, meshes, pieces, infos, lights, mattes)
     captured.motion = _shutter_motion(scene, depsgraph, pieces, captured, set_time)
+    captured.frame_motion = _frame_motion(scene, depsgraph, pieces, captured, set_time)
+    vl = depsgraph.view_layer
+    captured.data_passes = tuple(p for p, on in ((DEPTH_PASS, getattr(vl, "use_pass_z", False)),
+                                                 (VECTOR_PASS, getattr(vl, "use_pass_vector", False))) if on)
     return captured
 
 
 def _shutter_motion(scene, depsgraph, pieces, captured: Scene, set_time) -> Optional[ShutterMotion]:
     """What moves over the shutter when the scene renders with motion blur,
-    as Cycles syncs it (``core/motion.py``): the depsgraph evaluated at each
-    step's frame and subframe (``set_time``; the frame is set back after),
-    reading only the placements of the captured objects and the camera (an
-    object with Cycles' motion blur off stands still). None: no motion blur,
-    no ``set_time``, or nothing moves."""
+    as Cycles syncs it (``core/motion.py``): Cycles' time steps over the
+    shutter (``_motion_over``). None: no motion blur, no ``set_time``, or
+    nothing moves."""
     r = scene.render
     if set_time is None or not r.use_motion_blur:
         return None
+    obs = [ob for ob in scene.objects if ob.type in MESH_TYPES]
+    level = max([_cycles(ob, "motion_steps", 1) for ob in obs] + [1])
+    steps = (2 << (min(int(level), MAX_MOTION_LEVEL) - 1)) + 1
+    shutter, position = float(r.motion_blur_shutter), str(r.motion_blur_position)
+    return _motion_over(scene, depsgraph, pieces, captured, set_time, frame_offsets(steps, shutter, position),
+                        shutter, position)
+
+
+def _frame_motion(scene, depsgraph, pieces, captured: Scene, set_time) -> Optional[ShutterMotion]:
+    """The placements at the previous and the next frame, for the Vector
+    pass (``core/data_passes.py``): a ``ShutterMotion`` over frames -1, 0,
+    +1, when the view layer's Vector pass is on (None otherwise, or when
+    nothing moves)."""
+    if set_time is None or not getattr(depsgraph.view_layer, "use_pass_vector", False):
+        return None
+    return _motion_over(scene, depsgraph, pieces, captured, set_time, np.array([-1.0, 0.0, 1.0]), 2.0, "CENTER")
+
+
+def _motion_over(scene, depsgraph, pieces, captured: Scene, set_time, offsets: np.ndarray, shutter: float,
+                 position: str) -> Optional[ShutterMotion]:
+    """The captured objects' and the camera's placements at the frame plus
+    each of ``offsets`` (frames; the depsgraph evaluated there by
+    ``set_time``, the frame set back after), reading only placements, as
+    deltas from the frame's (an object with Cycles' motion blur off stands
+    still). None when nothing moves."""
     frame_of = {}                    # object id -> (name, its placement at the frame)
     ids = {o.name: o.id for o in captured.objects}
     for name, _mesh, m in pieces:
         frame_of.setdefault(ids[name], (name, m))
     order = sorted(frame_of)
     row = {frame_of[i][0]: j for j, i in enumerate(order)}
-    obs = [ob for ob in scene.objects if ob.type in MESH_TYPES]
-    level = max([_cycles(ob, "motion_steps", 1) for ob in obs] + [1])
-    steps = (2 << (min(int(level), MAX_MOTION_LEVEL) - 1)) + 1
-    offsets = frame_offsets(steps, float(r.motion_blur_shutter), str(r.motion_blur_position))
-    at = np.broadcast_to(np.array([frame_of[i][1] for i in order]).reshape(-1, 4, 4),
-                         (steps, len(order), 4, 4)).copy()
+    steps = len(offsets)
+    still = np.array([frame_of[i][1] for i in order]).reshape(-1, 4, 4)
+    at = np.broadcast_to(still, (steps, len(order), 4, 4)).copy()
     cam = captured.camera
     cams = np.broadcast_to(cam.world_from_camera, (steps, 4, 4)).copy() if cam is not None else None
     frame, sub = int(scene.frame_current), float(scene.frame_subframe)
@@ -515,7 +540,6 @@ def _shutter_motion(scene, depsgraph, pieces, captured: Scene, set_time) -> Opti
                 cams[k] = _capture_camera(scene, depsgraph).world_from_camera
     finally:
         set_time(frame, sub)
-    still = np.array([frame_of[i][1] for i in order]).reshape(-1, 4, 4)
     with np.errstate(all="ignore"):          # a zero-scale placement: pinv keeps it finite
         delta = np.einsum("kmij,mjl->kmil", at, np.linalg.pinv(still)) if len(order) else at
     delta[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
@@ -527,8 +551,7 @@ def _shutter_motion(scene, depsgraph, pieces, captured: Scene, set_time) -> Opti
             cam_delta = None
     if not moving.any() and cam_delta is None:
         return None
-    return ShutterMotion(np.array(order, np.int32)[moving], delta[:, moving], cam_delta,
-                         float(r.motion_blur_shutter), str(r.motion_blur_position))
+    return ShutterMotion(np.array(order, np.int32)[moving], delta[:, moving], cam_delta, shutter, position)
 
 
 def _cycles(ob, attr: str, default):

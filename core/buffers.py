@@ -102,6 +102,8 @@ class FrameBuffers:
         #: scene was captured as instances and is not flattened
         self.instanced = not scene.is_flattened
         self._mesh_bvhs = None
+        #: a filtered frame's sub-pixel stage (``supersampled``), not the frame's own view
+        self.subpixel = False
 
     @property
     def build_times(self) -> Dict[str, float]:
@@ -137,6 +139,7 @@ class FrameBuffers:
         sub-pixel receivers (occluder culling keeps what can shadow them; the
         culled BVHs are shared when it did not grow)."""
         sub = FrameBuffers(scene, width, height, self.map_size_given)
+        sub.subpixel = True
         sub._map_base = self._map_base
         sub._gbuffer = gbuffer
         sub.ledger.record("gbuffer", NEED_PHASE[GBUFFER], seconds)

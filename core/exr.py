@@ -3,7 +3,9 @@
 One layer per light, one single-channel float32 pass per method id: channel
 ``<layer>.<method>.V``, which Blender splits as layer / pass / channel, so its
 Image node shows one socket per method. A filtered frame (``pixel_filter``)
-adds the coverage to each layer as pass ``Alpha``, channel ``<layer>.Alpha.A``.
+adds the coverage to each layer as pass ``Alpha``, channel ``<layer>.Alpha.A``;
+the Z and vector passes (``core/data_passes.py``) go into each layer as
+Blender names them: ``<layer>.Depth.Z``, ``<layer>.Vector.X`` ... ``.W``.
 Files are written atomically: to a
 temporary name in the same folder, then renamed.
 """
@@ -18,6 +20,9 @@ import numpy as np
 
 CHANNEL = "V"
 ALPHA_PASS = "Alpha"     # the coverage of a filtered frame; its channel is "A"
+DEPTH_PASS, VECTOR_PASS = "Depth", "Vector"
+#: the channels of a pass not named after a method (every other: ``CHANNEL``)
+PASS_CHANNELS = {ALPHA_PASS: "A", DEPTH_PASS: "Z", VECTOR_PASS: "XYZW"}
 TEMP_PREFIX = ".penumbra-"
 
 
@@ -62,22 +67,25 @@ def atomic_write_bytes(path: str, data: bytes) -> None:
 
 def write_multilayer(path: str, layers: Mapping[str, Mapping[str, np.ndarray]],
                      attributes: Mapping[str, str] | None = None) -> None:
-    """Write ``layers[layer][pass] = float32[H,W]`` as one multilayer EXR."""
+    """Write ``layers[layer][pass] = float32[H,W]`` (float32[H,W,C] for a
+    pass of C channels, ``PASS_CHANNELS``) as one multilayer EXR."""
     import OpenEXR
     channels = {}
     shape = None
     for layer, passes in layers.items():
         for pname, img in passes.items():
-            a = np.ascontiguousarray(img, np.float32)
-            if a.ndim != 2:
-                raise ValueError(f"pass {layer}.{pname} must be 2-D")
+            a = np.asarray(img, np.float32)
+            names = PASS_CHANNELS.get(pname, CHANNEL)
+            if a.shape[2:] != ((len(names),) if len(names) > 1 else ()) or a.ndim < 2:
+                raise ValueError(f"pass {layer}.{pname} must be 2-D with {len(names)} channel(s)")
             if shape is None:
-                shape = a.shape
-            elif a.shape != shape:
+                shape = a.shape[:2]
+            elif a.shape[:2] != shape:
                 raise ValueError("all passes of one EXR must share a size")
             if not np.isfinite(a).all():
                 raise ValueError(f"pass {layer}.{pname} holds non-finite values")
-            channels[f"{layer}.{pname}.{'A' if pname == ALPHA_PASS else CHANNEL}"] = a
+            for c, name in enumerate(names):
+                channels[f"{layer}.{pname}.{name}"] = np.ascontiguousarray(a if a.ndim == 2 else a[..., c])
     if not channels:
         raise ValueError("nothing to write")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -90,7 +98,8 @@ def write_multilayer(path: str, layers: Mapping[str, Mapping[str, np.ndarray]],
 
 def read_multilayer(path: str) -> Dict[str, Dict[str, np.ndarray]]:
     """Read every part's channels back into ``{layer: {pass: array}}``
-    (channel names ``layer.pass.X``; a name with fewer dots keeps what it has)."""
+    (channel names ``layer.pass.X``; a name with fewer dots keeps what it has;
+    a pass of several channels, ``PASS_CHANNELS``, as [H, W, C])."""
     import OpenEXR
     out: Dict[str, Dict[str, np.ndarray]] = {}
     with OpenEXR.File(path, separate_channels=True) as f:
@@ -103,5 +112,14 @@ def read_multilayer(path: str) -> Dict[str, Dict[str, np.ndarray]]:
                     layer, pname = bits
                 else:
                     layer, pname = "", bits[0]
-                out.setdefault(layer, {})[pname] = np.asarray(ch.pixels)
+                names = PASS_CHANNELS.get(pname, "")
+                if len(names) > 1 and bits[-1] in names:
+                    parts = out.setdefault(layer, {}).setdefault(pname, {})
+                    parts[names.index(bits[-1])] = np.asarray(ch.pixels)
+                else:
+                    out.setdefault(layer, {})[pname] = np.asarray(ch.pixels)
+    for passes in out.values():
+        for pname, v in passes.items():
+            if isinstance(v, dict):
+                passes[pname] = np.stack([v[k] for k in sorted(v)], -1)
     return out

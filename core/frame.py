@@ -14,6 +14,7 @@ import numpy as np
 from . import methods as method_registry
 from .buffers import EXPAND_PHASE, FrameBuffers
 from .camera_samples import describe_effects
+from .data_passes import frame_data_passes
 from .frame_cache import FrameCache
 from .compile_ahead import frame_keys, prefetch
 from .methods.base import AVERAGE, IRRADIANCE, VISIBILITIES, params_dict
@@ -52,6 +53,8 @@ class FrameResult:
     cache: Optional[FrameCache] = field(default=None, repr=False, compare=False)  # for a later ``previous``
     visibility: str = IRRADIANCE            # the frame's definition of V (each pass's: its record)
     camera_effects: Optional[dict] = None   # ``camera_samples.describe_effects``: None for a pinhole
+    #: the Z and vector passes (``core/data_passes.py``), written into every layer
+    data_passes: Dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def to_json(self) -> dict:
         return {
@@ -65,6 +68,7 @@ class FrameResult:
             "visibility": self.visibility,
             **({"pixel_filter": self.pixel_filter} if self.pixel_filter is not None else {}),
             **({"camera_effects": self.camera_effects} if self.camera_effects is not None else {}),
+            **({"data_passes": sorted(self.data_passes)} if self.data_passes else {}),
             "lights": [{"name": lr.name, "layer": lr.layer, "methods": lr.record} for lr in self.lights],
         }
 
@@ -235,6 +239,8 @@ def render_frame(scene: Scene, passes: Sequence[str], light_names: Optional[Sequ
         results.append(lr)
     if progress:
         progress("done", 1.0)
+    data = frame_data_passes(scene, buffers.gbuffer) if scene.data_passes and not buffers.subpixel else {}
     return FrameResult(scene.name, scene.frame, (W, H), plan, results, dict(buffers.build_times),
                        time.perf_counter() - t0, compile_s, cache=cache if keep else None,
-                       visibility=visibility, camera_effects=describe_effects(scene, sampled=False))
+                       visibility=visibility, camera_effects=describe_effects(scene, sampled=False),
+                       data_passes=data)

@@ -28,6 +28,8 @@ def write_frame(result: FrameResult, out_dir: str, previews: bool = True) -> Dic
     layers = {lr.layer: lr.passes for lr in result.lights}
     if result.coverage is not None:       # a filtered frame: its alpha in every layer
         layers = {k: {**v, exr.ALPHA_PASS: result.coverage} for k, v in layers.items()}
+    if result.data_passes:                # the Z and vector passes in every layer, as Blender's
+        layers = {k: {**v, **result.data_passes} for k, v in layers.items()}
     record = result.to_json()
     if layers and any(layers.values()):
         definitions = {lr.layer: {pid: rec["visibility"] for pid, rec in lr.record.items()} for lr in result.lights}

@@ -513,6 +513,12 @@ class Scene:
     instances: Optional[MeshInstances] = None
     #: what moves over the shutter (``core/motion.py``); None: a still frame
     motion: Optional[ShutterMotion] = None
+    #: the Z and vector passes to write beside the shadow passes
+    #: (``core/data_passes.py``: "Depth", "Vector"; the view layer's switches)
+    data_passes: Tuple[str, ...] = ()
+    #: placements at the previous and the next frame, for the Vector pass
+    #: (a ``ShutterMotion`` over frames -1, 0, +1); None: nothing moves
+    frame_motion: Optional[ShutterMotion] = None
 
     def __post_init__(self):
         if self.triangles is None:
