@@ -12,10 +12,12 @@ Two stages, both ``frame.render_frame`` with the methods unchanged:
    receiver on its own (``Method.packed``) runs on that packed G-buffer, any
    other on the supersampled image with only those pixels set
    (``raycast.unpack_gbuffer``). The light views and
-   BVHs of stage 1 are shared. With the camera's depth of field or motion
-   over the shutter every pixel is refined on the full grid, and each
-   sub-sample's ray starts at its own lens point and is taken at its own
-   shutter time (``camera_samples``; ``GBuffer.time``).
+   BVHs of stage 1 are shared. With the camera's depth of field (or a
+   camera that moves over the shutter) every pixel is refined on the full
+   grid, with objects that move the pixels they can change
+   (``_moving_footprints``); each sub-sample's ray starts at its own lens
+   point and is taken at its own shutter time (``camera_samples``;
+   ``GBuffer.time``).
 
 The resolve (``pixel_filter.resolve``) filters the sub-pixel passes into the
 refined pixels: an average pass by the filter weights, an irradiance pass by
@@ -42,6 +44,8 @@ from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footpr
                            resolve_samples)
 from .scene import GBuffer, Scene
 from .compile_ahead import frame_keys, prefetch
+from .data_passes import raster
+from .motion import swept_boxes
 from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 16      # stratified light samples per sub-pixel receiver for its unshadowed irradiance (E0)
@@ -85,11 +89,16 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     # of the pixels beside a change of hit, which every unit refines on the full grid (the
     # geometry's own when there is no unit)
     moves = scene.motion is not None and scene.motion.moves
-    everywhere = scene.camera.has_depth_of_field or moves   # every footprint sees through the lens or over time
+    # every footprint sees through the lens, or the camera moves: all pixels; moving objects: theirs
+    everywhere = scene.camera.has_depth_of_field or (moves and scene.motion.camera is not None)
+    moving = {}
+    if moves and not everywhere and taps.size > 0:
+        moving = {lr.name: _moving_footprints(scene, buffers, scene.light(lr.name), flt.reach) for lr in base.lights}
     masks = [_refined(flt, g, [lr.computed[q] for q in method_registry.producers()[prod].passes], taps.size > 0,
-                      everywhere) for lr, prod, pids in units]
+                      everywhere, moving.get(lr.name)) for lr, prod, pids in units]
     if not units:
-        masks = [_refined(flt, g, [], taps.size > 0, everywhere)]
+        masks = [_refined(flt, g, [], taps.size > 0, everywhere,
+                          np.logical_or.reduce(list(moving.values())) if moving else None)]
     flat = [footprint_flat(refine, s, int(m0), int(taps.shape[0]), full, flt.shade_lattice)
             for refine, full in masks]
     samples = [(f // SW, f % SW) for f in flat]
@@ -148,7 +157,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     first_hit = sub_g.hit[0] if len(samples) == 1 else _take(sub_g, np.searchsorted(union, flat[0])).hit
     base.coverage = coverage(flt, edges, g.hit, rows, cols, first_hit)
     base.pixel_filter = flt.to_json()
-    base.camera_effects = camera_samples.describe_effects(scene, sampled=everywhere and taps.size > 0)
+    base.camera_effects = camera_samples.describe_effects(scene, sampled=(everywhere or moves) and taps.size > 0)
     base.total_s += time.perf_counter() - t0
     return base
 
@@ -168,12 +177,15 @@ def _warmup_passes(passes: Sequence[str]) -> list:
     return own if own and "auto" not in passes else ["embree", "embree_irr"]
 
 
-def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: bool = False):
+def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: bool = False,
+             moving: Optional[np.ndarray] = None):
     """(refine, full) bool[H, W] of ``refine_mask`` for the pixel-centre
     passes ``values`` (none: the geometry alone); nothing refined when the
     filter is narrower than the sub-sample spacing; everything (full grid)
     for ``threshold`` < 0 (the full supersampled pass: bench, tests) or
-    ``everywhere`` (a thin lens: no pixel centre stands for its footprint)."""
+    ``everywhere`` (a thin lens, a moving camera: no pixel centre stands for
+    its footprint); the pixels ``moving`` marks on the full grid too (what
+    moves over the shutter can change them: ``_moving_footprints``)."""
     H, W = g.shape
     refine = np.zeros((H, W), bool)
     full = np.zeros((H, W), bool)
@@ -184,7 +196,82 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: b
         stack = np.ascontiguousarray(np.stack(values) if len(values) else np.zeros((0, H, W)), np.float32)
         refine_mask(g.hit, g.object_id, g.depth, g.normal, stack, flt.reach, float(flt.threshold),
                     DEPTH_JUMP, NORMAL_COS, refine, float(flt.sharp), full, float(flt.geo_v))
+    if any_taps and moving is not None:
+        refine |= moving
+        full |= moving
     return refine, full
+
+
+def _moving_footprints(scene: Scene, buffers: FrameBuffers, light, reach: int) -> np.ndarray:
+    """bool[H, W]: the pixels whose footprint something moving over the
+    shutter can change (``Scene.motion``, the camera still): those within
+    ``reach`` of the image of a moving object's swept box (its surface, what
+    it hides or shows), or of a pixel-centre receiver whose shadow rays to
+    ``light`` (the box from it to the light's; a sun: swept towards it
+    across the scene, widened by the cone) can meet the swept box of a
+    moving object that casts shadows. Conservative: a pixel left out keeps
+    its pixel-centre value, found at the frame, which motion cannot change."""
+    motion = scene.motion
+    g = buffers.gbuffer
+    H, W = g.shape
+    out = np.zeros((H, W), bool)
+    boxes, casts = _moving_boxes(scene)
+    swept = swept_boxes(motion, boxes)
+    cam = scene.camera
+    for lo, hi in swept[np.isfinite(swept).all(axis=(1, 2))]:
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        local = (corners - cam.position) @ np.asarray(cam.world_from_camera, np.float64)[:3, :3]
+        if cam.kind != "ORTHO" and (local[:, 2] > -max(cam.clip_start, 1e-9)).any():
+            out[:] = True                       # it reaches behind the camera's plane: every pixel
+            break
+        xy = raster(cam, cam.world_from_camera, corners, W, H)
+        c0, c1 = int(np.floor(xy[:, 0].min())) - reach, int(np.ceil(xy[:, 0].max())) + reach
+        r0, r1 = int(np.floor(H - xy[:, 1].max())) - reach, int(np.ceil(H - xy[:, 1].min())) + reach
+        out[max(r0, 0):max(min(r1, H), 0), max(c0, 0):max(min(c1, W), 0)] = True
+    casters = swept[casts & np.isfinite(swept).all(axis=(1, 2))]
+    if len(casters) and light.casts_shadow and g.hit.any():
+        idx = np.flatnonzero(g.hit.reshape(-1))
+        P = g.position.reshape(-1, 3)[idx]
+        if light.kind == "sun":
+            reach_d = 2.0 * buffers.scale
+            far = P - light.direction * reach_d
+            spread = light.sun_spread * reach_d
+            lo, hi = np.minimum(P, far) - spread, np.maximum(P, far) + spread
+        else:
+            blo, bhi = light.box()
+            lo, hi = np.minimum(P, blo), np.maximum(P, bhi)
+        near = np.zeros(len(idx), bool)
+        for clo, chi in casters:
+            near |= np.all((hi >= clo) & (lo <= chi), axis=1)
+        shadow = np.zeros(H * W, bool)
+        shadow[idx[near]] = True
+        out |= hit_edges(shadow.reshape(H, W), reach) | shadow.reshape(H, W)
+    return out
+
+
+def _moving_boxes(scene: Scene):
+    """(float64[m, 2, 3] the box of each moving object at the frame, in
+    ``motion.objects``' order (+-inf: no geometry), bool[m] whether it
+    casts shadows)."""
+    motion = scene.motion
+    m = len(motion.objects)
+    boxes = np.empty((m, 2, 3), np.float64)
+    boxes[:, 0], boxes[:, 1] = np.inf, -np.inf
+    if scene.is_flattened:
+        slot = motion.slot_of(scene.tri_object)
+        sel = slot >= 0
+        tris = scene.triangles[sel].astype(np.float64)
+        np.minimum.at(boxes[:, 0], slot[sel], tris.min(axis=1))
+        np.maximum.at(boxes[:, 1], slot[sel], tris.max(axis=1))
+    else:
+        ins = scene.instances
+        slot = motion.slot_of(ins.object_id)
+        sel = slot >= 0
+        ib = ins.instance_boxes()[sel]
+        np.minimum.at(boxes[:, 0], slot[sel], ib[:, 0])
+        np.maximum.at(boxes[:, 1], slot[sel], ib[:, 1])
+    casts = np.array([scene.objects[int(o)].casts_shadow for o in motion.objects], bool)
+    return boxes, casts
 
 
 def hit_edges(hit: np.ndarray, reach: int) -> np.ndarray:

@@ -15,7 +15,7 @@ from penumbra.core.frame import render_frame
 from penumbra.core.motion import ShutterMotion, blend, frame_offsets
 from penumbra.core.pixel_filter import PixelFilter
 from penumbra.core.scene import MeshInstances, Scene
-from synthetic import half_plane_scene, sun_light
+from synthetic import box, half_plane_scene, light_matrix, make_scene, quad, sun_light, top_ortho_camera
 
 FLT = PixelFilter("blackman-harris", 1.5, 4)
 
@@ -61,6 +61,24 @@ def test_a_moving_occluder_blurs_its_shadow_as_the_shutter_averages_it():
     # pcf keeps the frame's occluder: its edge stays sharp, as the record says
     still = _ramp_truth(scene, lambda y: (y > 0).astype(float))
     assert _rmse(res.lights[0].passes["pcf"], still) < _rmse(res.lights[0].passes["pcf"], truth)
+
+
+def test_only_the_pixels_a_moving_object_can_change_are_refined():
+    # a small box sliding over a large sun-lit ground: the pass refined where it can move or
+    # cast its shadow equals the one refined everywhere, at a fraction of the sub-pixel receivers
+    tris = quad(-4, 4, -4, 4, 0.0) + box(-0.2, 0.2, -0.2, 0.2, 0.3, 0.7)
+    sun = sun_light(0.0)
+    sun.world_from_light = light_matrix((0, 0, 10.0), forward=(0.8, 0.0, -1.0))   # the shadow falls beside it
+    scene = make_scene(tris, [0, 0] + [1] * 12, [sun], res=64, camera=top_ortho_camera(2.0, height=2.0))
+    scene.motion = ShutterMotion([1], _sliding(0.6)[:, None])
+    adaptive = render_filtered(scene, ["embree_irr"], pixel_filter=FLT)
+    everywhere = render_filtered(scene, ["embree_irr"], pixel_filter=PixelFilter("blackman-harris", 1.5, 4,
+                                                                                  threshold=-1.0))
+    a, e = adaptive.lights[0].passes["embree_irr"], everywhere.lights[0].passes["embree_irr"]
+    refined = adaptive.lights[0].record["embree_irr"]["pixel_filter"]["refined_pixels"]
+    assert 0 < refined < 0.3 * 64 * 64
+    assert ((a > 0.05) & (a < 0.95)).sum() > 20                  # the blurred shadow and silhouette are there
+    assert np.abs(a - e).max() < 1e-5
 
 
 def test_a_moving_camera_blurs_a_still_shadow_edge():
