@@ -15,7 +15,7 @@ Two stages, both ``frame.render_frame`` with the methods unchanged:
    BVHs of stage 1 are shared. With the camera's depth of field (or a
    camera that moves over the shutter) every pixel is refined on the full
    grid, with objects that move the pixels they can change
-   (``_moving_footprints``); each sub-sample's ray starts at its own lens
+   (``_moving_images``, ``_moving_shadows``); each sub-sample's ray starts at its own lens
    point and is taken at its own shutter time (``camera_samples``;
    ``GBuffer.time``).
 
@@ -93,7 +93,10 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     everywhere = scene.camera.has_depth_of_field or (moves and scene.motion.camera is not None)
     moving = {}
     if moves and not everywhere and taps.size > 0:
-        moving = {lr.name: _moving_footprints(scene, buffers, scene.light(lr.name), flt.reach) for lr in base.lights}
+        swept, casts = _swept_boxes(scene)
+        seen = _moving_images(scene, g, swept, flt.reach)
+        moving = {lr.name: seen | _moving_shadows(buffers, scene.light(lr.name), swept[casts], flt.reach)
+                  for lr in base.lights}
     masks = [_refined(flt, g, [lr.computed[q] for q in method_registry.producers()[prod].passes], taps.size > 0,
                       everywhere, moving.get(lr.name)) for lr, prod, pids in units]
     if not units:
@@ -185,7 +188,7 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: b
     for ``threshold`` < 0 (the full supersampled pass: bench, tests) or
     ``everywhere`` (a thin lens, a moving camera: no pixel centre stands for
     its footprint); the pixels ``moving`` marks on the full grid too (what
-    moves over the shutter can change them: ``_moving_footprints``)."""
+    moves over the shutter can change them: ``_moving_images``, ``_moving_shadows``)."""
     H, W = g.shape
     refine = np.zeros((H, W), bool)
     full = np.zeros((H, W), bool)
@@ -202,51 +205,66 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: b
     return refine, full
 
 
-def _moving_footprints(scene: Scene, buffers: FrameBuffers, light, reach: int) -> np.ndarray:
-    """bool[H, W]: the pixels whose footprint something moving over the
-    shutter can change (``Scene.motion``, the camera still): those within
-    ``reach`` of the image of a moving object's swept box (its surface, what
-    it hides or shows), or of a pixel-centre receiver whose shadow rays to
-    ``light`` (the box from it to the light's; a sun: swept towards it
-    across the scene, widened by the cone) can meet the swept box of a
-    moving object that casts shadows. Conservative: a pixel left out keeps
-    its pixel-centre value, found at the frame, which motion cannot change."""
-    motion = scene.motion
-    g = buffers.gbuffer
+def _moving_images(scene: Scene, g: GBuffer, swept: np.ndarray, reach: int) -> np.ndarray:
+    """bool[H, W]: the pixels within ``reach`` of the image of a box in
+    ``swept`` (each moving object's over the shutter, ``_swept_boxes``):
+    its surface, what it hides or shows (every pixel when one reaches
+    behind the camera's plane). With ``_moving_shadows``: the pixels whose
+    footprint something moving can change (the camera still); a pixel left
+    out keeps its pixel-centre value, found at the frame, which motion
+    cannot change."""
     H, W = g.shape
     out = np.zeros((H, W), bool)
-    boxes, casts = _moving_boxes(scene)
-    swept = swept_boxes(motion, boxes)
     cam = scene.camera
-    for lo, hi in swept[np.isfinite(swept).all(axis=(1, 2))]:
+    for lo, hi in swept:
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         local = (corners - cam.position) @ np.asarray(cam.world_from_camera, np.float64)[:3, :3]
         if cam.kind != "ORTHO" and (local[:, 2] > -max(cam.clip_start, 1e-9)).any():
-            out[:] = True                       # it reaches behind the camera's plane: every pixel
+            out[:] = True
             break
         xy = raster(cam, cam.world_from_camera, corners, W, H)
         c0, c1 = int(np.floor(xy[:, 0].min())) - reach, int(np.ceil(xy[:, 0].max())) + reach
         r0, r1 = int(np.floor(H - xy[:, 1].max())) - reach, int(np.ceil(H - xy[:, 1].min())) + reach
         out[max(r0, 0):max(min(r1, H), 0), max(c0, 0):max(min(c1, W), 0)] = True
-    casters = swept[casts & np.isfinite(swept).all(axis=(1, 2))]
-    if len(casters) and light.casts_shadow and g.hit.any():
-        idx = np.flatnonzero(g.hit.reshape(-1))
-        P = g.position.reshape(-1, 3)[idx]
-        if light.kind == "sun":
-            reach_d = 2.0 * buffers.scale
-            far = P - light.direction * reach_d
-            spread = light.sun_spread * reach_d
-            lo, hi = np.minimum(P, far) - spread, np.maximum(P, far) + spread
-        else:
-            blo, bhi = light.box()
-            lo, hi = np.minimum(P, blo), np.maximum(P, bhi)
-        near = np.zeros(len(idx), bool)
-        for clo, chi in casters:
-            near |= np.all((hi >= clo) & (lo <= chi), axis=1)
-        shadow = np.zeros(H * W, bool)
-        shadow[idx[near]] = True
-        out |= hit_edges(shadow.reshape(H, W), reach) | shadow.reshape(H, W)
     return out
+
+
+def _moving_shadows(buffers: FrameBuffers, light, casters: np.ndarray, reach: int) -> np.ndarray:
+    """bool[H, W]: the pixels within ``reach`` of a pixel-centre receiver
+    whose shadow rays to ``light`` (the box from it to the light's; a sun:
+    swept towards it across the scene, widened by the cone) can meet one of
+    the ``casters`` boxes (moving objects that cast shadows, swept over the
+    shutter)."""
+    g = buffers.gbuffer
+    H, W = g.shape
+    if not len(casters) or not light.casts_shadow or not g.hit.any():
+        return np.zeros((H, W), bool)
+    idx = np.flatnonzero(g.hit.reshape(-1))
+    P = g.position.reshape(-1, 3)[idx]
+    if light.kind == "sun":
+        reach_d = 2.0 * buffers.scale
+        far = P - light.direction * reach_d
+        spread = light.sun_spread * reach_d
+        lo, hi = np.minimum(P, far) - spread, np.maximum(P, far) + spread
+    else:
+        blo, bhi = light.box()
+        lo, hi = np.minimum(P, blo), np.maximum(P, bhi)
+    near = np.zeros(len(idx), bool)
+    for clo, chi in casters:
+        near |= np.all((hi >= clo) & (lo <= chi), axis=1)
+    shadow = np.zeros(H * W, bool)
+    shadow[idx[near]] = True
+    shadow = shadow.reshape(H, W)
+    return hit_edges(shadow, reach) | shadow
+
+
+def _swept_boxes(scene: Scene):
+    """(float64[m, 2, 3] the boxes holding each moving object with geometry
+    over the shutter, bool[m] whether it casts shadows)."""
+    boxes, casts = _moving_boxes(scene)
+    swept = swept_boxes(scene.motion, boxes)
+    ok = np.isfinite(swept).all(axis=(1, 2))
+    return swept[ok], casts[ok]
 
 
 def _moving_boxes(scene: Scene):
