@@ -211,3 +211,22 @@ def leaf_cluster(rng, n: int, spread: float, centre, half: float):
     k = np.arange(n)
     faces = np.concatenate([np.stack([k, k + n, k + 2 * n], 1), np.stack([k, k + 2 * n, k + 3 * n], 1)])
     return verts, faces.astype(np.int32)
+
+
+def instanced_grove(verts, leaves, ground_half: float, placements, light, camera, res: int, casts: bool = True):
+    """A ground square of half side ``ground_half`` and one instance of the
+    leaf cluster (``verts``, ``leaves``) per matrix of ``placements`` (one
+    object each; ``casts``: they cast shadows), under ``light``, seen by
+    ``camera`` at ``res`` x ``res``: (the scene kept as instances, the same
+    scene flattened)."""
+    from penumbra.core.scene import MeshInstances, ObjectInfo, Scene
+    h = float(ground_half)
+    ground = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]], np.float64)
+    n = len(placements)
+    objects = [ObjectInfo("ground", 0)] + [ObjectInfo(f"tree{i}", i + 1, casts_shadow=casts) for i in range(n)]
+    instances = MeshInstances(vertices=[verts, ground], faces=[leaves, np.array([[0, 1, 2], [0, 2, 3]])],
+                              mesh=[1] + [0] * n, object_id=np.arange(n + 1),
+                              world_from_mesh=[np.eye(4)] + list(placements))
+    lazy = Scene(None, None, objects, camera, [light], (res, res), instances=instances)
+    tris, ids = instances.flatten()
+    return lazy, Scene(tris, ids, objects, camera, [light], (res, res))

@@ -6,11 +6,11 @@ not kept as instances builds the same buffers as before."""
 import numpy as np
 import pytest
 
-from helpers import leaf_cluster, placement
+from helpers import instanced_grove, leaf_cluster, placement
 from penumbra.core.buffers import EXPAND_PHASE, FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.planner import plan_frame
-from penumbra.core.scene import Light, MeshInstances, ObjectInfo, Scene
+from penumbra.core.scene import Light
 from synthetic import light_matrix, persp_camera
 
 NEAR, FAR, LEAVES = 10, 8, 60
@@ -23,23 +23,14 @@ def _grove_and_far_trees(res=40):
     as instances and the same scene flattened."""
     rng = np.random.default_rng(7)
     verts, leaves = leaf_cluster(rng, LEAVES, 0.25, (0, 0, 0.9), 0.08)
-    ground = np.array([[-16, -16, 0], [16, -16, 0], [16, 16, 0], [-16, 16, 0]], np.float64)
     near = [placement((s, s, s), a, (x, y, 0)) for s, a, x, y in
             zip(0.8 + 0.4 * rng.random(NEAR), 6.3 * rng.random(NEAR), *(rng.random((2, NEAR)) * 2.4 - 1.2))]
     corners = [(sx * 13.0 + dx, sy * 13.0, 0) for sx in (-1, 1) for sy in (-1, 1) for dx in (0.0, 1.5)]
     far = [placement((1, 1, 1), 0.0, c) for c in corners]
-    n = NEAR + FAR
-    objects = [ObjectInfo("ground", 0)] + [ObjectInfo(f"tree{i}", i + 1) for i in range(n)]
-    instances = MeshInstances(vertices=[verts, ground], faces=[leaves, np.array([[0, 1, 2], [0, 2, 3]])],
-                              mesh=[1] + [0] * n, object_id=np.arange(n + 1),
-                              world_from_mesh=[np.eye(4)] + near + far)
     light = Light("Area", "area", light_matrix((0.4, -0.3, 3.5), (-0.4, 0.3, -3.5)), blender_type="AREA",
                   shape="SQUARE", size=1.0)
     cam = persp_camera((1.0, -2.5, 6.5), (0, 0, 0.3), lens=35.0)
-    lazy = Scene(None, None, objects, cam, [light], (res, res), instances=instances)
-    tris, ids = instances.flatten()
-    flat = Scene(tris, ids, objects, cam, [light], (res, res))
-    return lazy, flat
+    return instanced_grove(verts, leaves, 16.0, near + far, light, cam, res)
 
 
 def test_only_the_instances_that_can_shadow_a_visible_receiver_are_expanded():

@@ -3,12 +3,12 @@ light views and shadow rays go through Embree's two-level BVH
 (``raycast.InstanceScene``) and agree with the same scene flattened."""
 import numpy as np
 
-from helpers import leaf_cluster, placement
+from helpers import instanced_grove, leaf_cluster, placement
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.filtered_frame import render_filtered
 from penumbra.core.frame import render_frame
 from penumbra.core.pixel_filter import parse
-from penumbra.core.scene import Light, MeshInstances, ObjectInfo, Scene
+from penumbra.core.scene import Light
 from synthetic import light_matrix, persp_camera
 
 
@@ -17,21 +17,13 @@ def _grove(res=48, casts=True):
     rotated and scaled), under an area light, seen obliquely."""
     rng = np.random.default_rng(5)
     verts, leaves = leaf_cluster(rng, 60, 0.25, (0, 0, 0.9), 0.08)
-    ground = np.array([[-4, -4, 0], [4, -4, 0], [4, 4, 0], [-4, 4, 0]], np.float64)
     n = 12
     xf = [placement((s, s, s), ang, (x, y, 0)) for s, ang, x, y in
           zip(0.8 + 0.4 * rng.random(n), 6.3 * rng.random(n), *(rng.random((2, n)) * 3 - 1.5))]
-    objects = [ObjectInfo("ground", 0)] + [ObjectInfo(f"tree{i}", i + 1, casts_shadow=casts) for i in range(n)]
-    instances = MeshInstances(vertices=[verts, ground], faces=[leaves, np.array([[0, 1, 2], [0, 2, 3]])],
-                              mesh=[1] + [0] * n, object_id=np.arange(n + 1),
-                              world_from_mesh=[np.eye(4)] + xf)
     light = Light("Area", "area", light_matrix((0.5, -0.4, 3.5), (-0.5, 0.4, -3.5)), blender_type="AREA",
                   shape="SQUARE", size=1.2)
     cam = persp_camera((3.2, -3.6, 2.6), (0, 0, 0.5), lens=30.0)
-    lazy = Scene(None, None, objects, cam, [light], (res, res), instances=instances)
-    tris, ids = instances.flatten()
-    flat = Scene(tris, ids, objects, cam, [light], (res, res))
-    return lazy, flat
+    return instanced_grove(verts, leaves, 4.0, xf, light, cam, res, casts)
 
 
 def test_the_instanced_gbuffer_is_the_flattened_one():
