@@ -23,6 +23,7 @@ from .ledger import BuildLedger, _closure
 from .methods.base import (GBUFFER, LIGHT_SAMPLE_VIEWS, LIGHT_VIEW, MESH_PIECES, PRECOMPUTE, SHADOW_GEOMETRY,
                            SHADOW_TRIANGLES, params_dict)
 from .methods.surfaces import mesh_pieces
+from .motion import move_triangles
 from .scene import (ExpandedInstances, GBuffer, Light, LightView, Scene, expand_instances, expandable,
                     expansion_counts)
 from .sampling import scene_scale
@@ -104,6 +105,11 @@ class FrameBuffers:
         self._mesh_bvhs = None
         #: a filtered frame's sub-pixel stage (``supersampled``), not the frame's own view
         self.subpixel = False
+        #: the shutter time the occluders are taken at (``supersampled``'s
+        #: ``at_time``); None: the frame's
+        self.shutter_slice: Optional[float] = None
+        self._at_slice: Dict[int, object] = {}    # id of a BVH -> it at ``shutter_slice``
+        self._moved_triangles: Optional[Tuple[np.ndarray, np.ndarray]] = None
 
     @property
     def build_times(self) -> Dict[str, float]:
@@ -126,7 +132,8 @@ class FrameBuffers:
         return self.map_size_given or views.default_map_size(*self._map_base, light.kind)
 
     def supersampled(self, scene: Scene, width: int, height: int, gbuffer: GBuffer,
-                     seconds: float) -> "FrameBuffers":
+                     seconds: float, at_time: Optional[float] = None,
+                     bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> "FrameBuffers":
         """Buffers for ``pixel_filter``'s sub-pixel stage: ``scene`` at the
         supersampled ``width`` x ``height`` with its camera G-buffer given
         (built in ``seconds``; a packed one: the passes are packed too,
@@ -137,7 +144,14 @@ class FrameBuffers:
         ``light_extent``) is the pixel-centre stage's, so a sub-pixel receiver
         is shaded as a pixel centre there would be; their box grows to hold the
         sub-pixel receivers (occluder culling keeps what can shadow them; the
-        culled BVHs are shared when it did not grow)."""
+        culled BVHs are shared when it did not grow).
+
+        ``at_time`` (a shutter time in [0, 1], ``filtered_frame``'s time
+        slices): the occluders where they are then. The BVHs are traced at
+        that time (``TriangleScene.at_time``), the shadow triangles are moved
+        (``motion.move_triangles``), the light views and method precomputes
+        are built anew (billed to this stage), fitted to ``bounds`` (the
+        frame's and what moves over the shutter)."""
         sub = FrameBuffers(scene, width, height, self.map_size_given)
         sub.subpixel = True
         sub._map_base = self._map_base
@@ -159,12 +173,25 @@ class FrameBuffers:
                 sub.culling = dict(self.culling)
             elif self.instanced:          # more instances can shadow the grown box: expanded anew
                 sub._drop_expansion()
+        if at_time is not None:
+            sub.shutter_slice = float(at_time)
+            sub._views, sub._labelled = {}, set()
+            if bounds is not None:
+                sub._bounds = (np.asarray(bounds[0], np.float64), np.asarray(bounds[1], np.float64))
         return sub
+
+    def _sliced(self, bvh):
+        """``bvh`` traced at ``shutter_slice`` (itself without one)."""
+        if self.shutter_slice is None or bvh is None:
+            return bvh
+        if id(bvh) not in self._at_slice:
+            self._at_slice[id(bvh)] = (bvh, bvh.at_time(self.shutter_slice))
+        return self._at_slice[id(bvh)][1]
 
     def _drop_expansion(self) -> None:
         """Forget the expanded instances and what was made of them (the
         world-space triangle buffers, the views labelled per triangle)."""
-        self._expansion = self._shadow = self._shadow_triangles = self._pieces = None
+        self._expansion = self._shadow = self._shadow_triangles = self._pieces = self._moved_triangles = None
         self._views = {k: v for k, v in self._views.items() if k not in self._labelled}
         self._labelled = set()
 
@@ -185,7 +212,8 @@ class FrameBuffers:
         maps: billed where it was built; else ``build()`` every call."""
         if self._precomputed is None:
             return build()
-        key = (tag, light.name, light_key(light), params_key(params_dict(params)), self.map_size_for(light))
+        key = (tag, light.name, light_key(light), params_key(params_dict(params)), self.map_size_for(light),
+               self.shutter_slice)
         if key not in self._precomputed:
             self._precomputed[key] = build()
         return self._precomputed[key]
@@ -314,7 +342,7 @@ class FrameBuffers:
             self._shadow = self._bvh("bvh_shadow", "bvh", self.scene.tri_casts_shadow,
                                      self._camera_scene, "bvh_camera", self.scene.tri_visible_camera)
         self._use("bvh_shadow")
-        return self._shadow
+        return self._sliced(self._shadow)
 
     @property
     def shadow_triangles(self) -> Tuple[np.ndarray, np.ndarray]:
@@ -330,6 +358,15 @@ class FrameBuffers:
                 return soup.triangles[mask], soup.tri_object[mask]
             self._shadow_triangles = self._timed("shadow_triangles", "shadow_triangles", select, built_from=source)
         self._use("shadow_triangles")
+        if self.shutter_slice is not None and self.scene.motion is not None:
+            if self._moved_triangles is None:
+                tris, ids = self._shadow_triangles
+                self._moved_triangles = self._timed(
+                    "shadow_triangles_moved", "shadow_triangles",
+                    lambda: (move_triangles(self.scene.motion, tris, ids, self.shutter_slice), ids),
+                    built_from=("shadow_triangles",))
+            self._use("shadow_triangles_moved")
+            return self._moved_triangles
         return self._shadow_triangles
 
     @property
@@ -536,10 +573,11 @@ class FrameBuffers:
                     key, "bvh", lambda: raycast.TriangleScene.from_scene(self.scene, mask), built_from=("gbuffer",))
             else:
                 key = "bvh_shadow"
-                self._culled[light.name] = self.shadow_scene
+                self.shadow_scene
+                self._culled[light.name] = self._shadow
             self._bvh_key[light.name] = key
         self._use(self._bvh_key[light.name])
-        return self._culled[light.name]
+        return self._sliced(self._culled[light.name])
 
     # -- light views -------------------------------------------------------
     def light_view(self, light: Light, map_size: Optional[int] = None,
@@ -554,7 +592,7 @@ class FrameBuffers:
         name = f"light_view:{light.name}:{ms}:{key}"
         if k not in self._views:
             def build():
-                faces = views.light_view_faces(light, self.receivers(), self.scene.bounds(), ms, eye)
+                faces = views.light_view_faces(light, self.receivers(), self._bounds, ms, eye)
                 e = light.position if eye is None else eye
                 labels = tri_label
                 if labels is None and not isinstance(occ, raycast.InstanceScene):

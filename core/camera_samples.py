@@ -48,6 +48,7 @@ from typing import Optional
 import numpy as np
 
 from .jit import inner, kernel
+from .motion import TIME_SLICES
 from .sampling import concentric_disk, rand01
 from .scene import Camera
 
@@ -217,7 +218,10 @@ def effects_line(scene, sampled: bool) -> Optional[str]:
     from . import methods as registry
     timed = ", ".join(sorted(p for p in registry.pass_ids(external=False)
                              if getattr(registry.producer_of(p), "shutter_time", False)))
-    how = (f"every pixel refined, each sub-pixel receiver on its own lens ray and shutter time; occluders "
-           f"at the receiver's time for {timed}, at the frame for the other methods"
-           if sampled else "ignored: pixel centres through a pinhole at the frame (--pixel-filter none)")
+    how = "each sub-pixel receiver on its own lens ray and shutter time"
+    if motion is not None and len(motion.objects):
+        how += (f"; moving occluders at the receiver's time for {timed}, at {TIME_SLICES} time slices "
+                f"for the other methods")
+    if not sampled:
+        how = "ignored: pixel centres through a pinhole at the frame (--pixel-filter none)"
     return f"camera: {'; '.join(parts)}: {how}"

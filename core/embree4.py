@@ -34,6 +34,7 @@ it into world space with the instance's normal matrix.
 """
 from __future__ import annotations
 
+import copy
 import ctypes
 import glob
 import os
@@ -487,6 +488,16 @@ class MeshRays:
         self.mesh = None
         self.handle = self.top.handle
         self.first, self.order, self.normal_matrix = self.top.first, self.top.order, self.top.normal_matrix
+
+    def at_time(self, t: float) -> "MeshRays":
+        """These rays' BVH with a ray without a time taken at shutter time
+        ``t`` instead of ``frame_time`` (shares the BVH; itself when nothing
+        moves)."""
+        if self.mesh is not None:
+            return self
+        other = copy.copy(self)
+        other.frame_time = float(t)
+        return other
 
     def run(self, origins, dirs, dists=None, query="INTERSECT", output=None, time=None):
         n = len(origins)

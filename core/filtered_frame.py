@@ -17,7 +17,11 @@ Two stages, both ``frame.render_frame`` with the methods unchanged:
    grid, with objects that move the pixels they can change
    (``_moving_images``, ``_moving_shadows``); each sub-sample's ray starts at its own lens
    point and is taken at its own shutter time (``camera_samples``;
-   ``GBuffer.time``).
+   ``GBuffer.time``). A method that does not trace each receiver's time
+   (``Method.shutter_time``) shades the sub-samples of each of
+   ``motion.TIME_SLICES`` spans of the shutter with the moving occluders
+   where they are at the span's middle (``_time_slices``; its own light
+   views and precomputes: ``FrameBuffers.supersampled``'s ``at_time``).
 
 The resolve (``pixel_filter.resolve``) filters the sub-pixel passes into the
 refined pixels: an average pass by the filter weights, an irradiance pass by
@@ -45,7 +49,7 @@ from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footpr
 from .scene import GBuffer, Scene
 from .compile_ahead import frame_keys, prefetch
 from .data_passes import raster
-from .motion import swept_boxes
+from .motion import TIME_SLICES, swept_boxes
 from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 16      # stratified light samples per sub-pixel receiver for its unshadowed irradiance (E0)
@@ -55,12 +59,15 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                     pixel_filter: Optional[PixelFilter] = None, **options) -> FrameResult:
     """``frame.render_frame(scene, passes, light_names, **options)`` with the
     passes filtered by ``pixel_filter`` (None or ``none``: exactly
-    ``render_frame``). Each light's producer (a method with its passes) gets
+    ``render_frame``); ``time_slices`` (default ``TIME_SLICES``): the
+    shutter spans a method that does not trace each receiver's time takes
+    the moving occluders at (1: at the frame). Each light's producer (a method with its passes) gets
     its own sub-pixel samples, the footprints that the geometry or its own
     pixel-centre passes need refined (``refine_mask``), so a method's
     filtered pass does not depend on what else the frame computes; the
     G-buffer is traced once at the union of them all."""
     flt = pixel_filter or PixelFilter()
+    slices = int(options.pop("time_slices", TIME_SLICES))
     if flt.is_none:
         return render_frame(scene, passes, light_names, **options)
     W, H = scene.resolution
@@ -92,8 +99,14 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     # every footprint sees through the lens, or the camera moves: all pixels; moving objects: theirs
     everywhere = scene.camera.has_depth_of_field or (moves and scene.motion.camera is not None)
     moving = {}
+    objects_move = moves and len(scene.motion.objects) > 0
+    swept, casts = _swept_boxes(scene) if objects_move else (np.zeros((0, 2, 3)), np.zeros(0, bool))
+    slice_bounds = _slice_bounds(buffers.bounds(), swept)
+
+    def sliced(m) -> bool:
+        """Producer ``m`` takes the occluders at time slices (objects move, it does not trace each time)."""
+        return objects_move and slices > 1 and not m.shutter_time
     if moves and not everywhere and taps.size > 0:
-        swept, casts = _swept_boxes(scene)
         seen = _moving_images(scene, g, swept, flt.reach)
         moving = {lr.name: seen | _moving_shadows(buffers, scene.light(lr.name), swept[casts], flt.reach)
                   for lr in base.lights}
@@ -137,22 +150,25 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
             if groups[0][1] == groups[1][1]:           # one run over every sub-sample
                 groups = [(np.arange(len(at)), groups[0][1])]
             for part, mo in groups:
-                if not len(part):
-                    continue
-                g_p = g_u if len(part) == len(at) else _take(g_u, part)
-                gb = g_p if m.packed else raycast.unpack_gbuffer(g_p, SW, SH)
-                sub = render_frame(sub_scene, pids, [lr.name], overrides, mo,
-                                   buffers=buffers.supersampled(sub_scene, SW, SH, gb, tg * len(part) / len(union)))
-                for pid in (sub.lights[0].passes if sub.lights else ()):
-                    v = sub.lights[0].passes[pid]
-                    v = v.reshape(-1) if m.packed else v[rows[part], cols[part]]
-                    sub_v.setdefault(pid, np.ones(len(at), np.float32))[part] = v
-                    sub_t[pid] = sub_t.get(pid, 0.0) + sub.lights[0].record[pid]["time_s"]["total"]
+                for at_time, sl in (_time_slices(g_u, part, slices, scene.motion) if sliced(m) else [(None, part)]):
+                    if not len(sl):
+                        continue
+                    g_p = g_u if len(sl) == len(at) else _take(g_u, sl)
+                    gb = g_p if m.packed else raycast.unpack_gbuffer(g_p, SW, SH)
+                    sub_buffers = buffers.supersampled(sub_scene, SW, SH, gb, tg * len(sl) / len(union), at_time,
+                                                       slice_bounds)
+                    sub = render_frame(sub_scene, pids, [lr.name], overrides, mo, buffers=sub_buffers)
+                    for pid in (sub.lights[0].passes if sub.lights else ()):
+                        v = sub.lights[0].passes[pid]
+                        v = v.reshape(-1) if m.packed else v[rows[sl], cols[sl]]
+                        sub_v.setdefault(pid, np.ones(len(at), np.float32))[sl] = v
+                        sub_t[pid] = sub_t.get(pid, 0.0) + sub.lights[0].record[pid]["time_s"]["total"]
         sub_s = time.perf_counter() - t2
         stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
                  "subpixel_receivers": int(g_u.hit.sum())}
         own_s = setup_s / len(units) + time.perf_counter() - t1 - sub_s
-        _resolve_unit(scene, flt, lr, pids, sub_v, sub_t, g_u, buffers, refine, rows, cols, stats, own_s)
+        _resolve_unit(scene, flt, lr, pids, sub_v, sub_t, g_u, buffers, refine, rows, cols, stats, own_s,
+                      slices if objects_move else 1)
     for lr in base.lights:
         _errors(lr, buffers.reach(scene.light(lr.name)))   # the pixel-centre stage's mask, as its errors used
     rows, cols = samples[0]
@@ -163,6 +179,39 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     base.camera_effects = camera_samples.describe_effects(scene, sampled=(everywhere or moves) and taps.size > 0)
     base.total_s += time.perf_counter() - t0
     return base
+
+
+def shutter_words(method, slices: int) -> str:
+    """How ``method``'s filtered pass finds the occluders over the shutter
+    (the record's ``shutter``), with objects moving at ``slices`` time slices."""
+    if method.shutter_time:
+        return "occluders at the receiver's time"
+    return f"occluders at {slices} time slices" if slices > 1 else "occluders at the frame"
+
+
+def _time_slices(g: GBuffer, part: np.ndarray, slices: int, motion):
+    """[(shutter time or None, entries of ``part``)]: the sub-samples
+    ``part`` of the packed G-buffer ``g`` split by their time
+    (``GBuffer.time``) into ``slices`` equal spans of the shutter, each
+    taken at its span's middle (None: the frame's own time, whose buffers
+    the pixel-centre stage built)."""
+    if g.time is None or slices <= 1:
+        return [(None, part)]
+    k = np.minimum((g.time.reshape(-1)[part] * slices).astype(np.int64), slices - 1)
+    out = []
+    for j in range(slices):
+        t = (j + 0.5) / slices
+        out.append((None if abs(t - motion.frame_time) < 1e-12 else t, part[k == j]))
+    return out
+
+
+def _slice_bounds(bounds, swept: np.ndarray):
+    """The frame's ``bounds`` grown to hold the ``swept`` boxes (a time
+    slice's light views are fitted to them)."""
+    lo, hi = np.asarray(bounds[0], np.float64), np.asarray(bounds[1], np.float64)
+    if len(swept):
+        lo, hi = np.minimum(lo, swept[:, 0].min(0)), np.maximum(hi, swept[:, 1].max(0))
+    return lo, hi
 
 
 def _seed(options) -> int:
@@ -325,13 +374,14 @@ def _shared(m, overrides, method_overrides, share: int):
 
 def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_v, sub_t, sub_g: GBuffer, buffers: FrameBuffers,
                   refine: np.ndarray, rows: np.ndarray, cols: np.ndarray, stats: Dict[str, int],
-                  own_s: float) -> None:
+                  own_s: float, slices: int = 1) -> None:
     """Filter light ``lr``'s passes ``pids`` (one producer's) in place from
     the sub-pixel stage's values ``sub_v[pid]`` (float32 per sub-sample, in
     ``sub_g``'s order; empty: nothing to refine) that took ``sub_t[pid]``
     seconds; record the filter, the sub-pixel sample counts and the
     sub-pixel stage's time (``own_s``: the producer's share of the refine
-    masks, footprints and G-buffer lists)."""
+    masks, footprints and G-buffer lists; ``slices``: the time slices its
+    occluders were taken at, when objects move)."""
     light = scene.light(lr.name)
     e0 = None
     for pid in pids:
@@ -354,8 +404,7 @@ def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_v, sub_t, sub_g:
         rec["time_s"] = phases
         rec["pixel_filter"] = {**flt.to_json(), **stats}
         if scene.motion is not None and scene.motion.moves:
-            rec["shutter"] = ("occluders at the receiver's time" if method_registry.producer_of(pid).shutter_time
-                              else "occluders at the frame")
+            rec["shutter"] = shutter_words(method_registry.producer_of(pid), slices)
 
 
 def _errors(lr, mask: np.ndarray) -> None:

@@ -18,6 +18,14 @@ Parameters (``bridge/capture.py`` reads them as Cycles syncs them):
 A step k is captured at frame + offset(t_k): CENTER (t - 1/2) shutter, START
 t shutter, END (t - 1) shutter (``frame_offsets``).
 
+Time slices (``TIME_SLICES``, 3): a method that does not trace each
+receiver's own time (``Method.shutter_time`` False: every method but the
+ray-traced references) shades a sub-pixel receiver whose time falls in the
+k-th of K equal spans of the shutter with the occluders where they are at
+the span's middle, t = (k + 1/2) / K: its own light views, BVHs traced at
+that time and triangles moved there (``move_triangles``,
+``FrameBuffers.supersampled``'s ``at_time``).
+
 Departures from Cycles: Cycles interpolates an object's decomposed
 transform (translation, rotation quaternion, scale); the linear blend of
 matrices is the same for translation and scale and shrinks a rotating
@@ -33,6 +41,8 @@ from typing import Optional
 import numpy as np
 
 POSITIONS = ("START", "CENTER", "END")
+#: shutter spans whose occluders a method that does not trace each receiver's time sees (module docstring)
+TIME_SLICES = 3
 
 
 def frame_offsets(steps: int, shutter: float, position: str = "CENTER") -> np.ndarray:
@@ -127,6 +137,23 @@ def move_points(motion: ShutterMotion, position: np.ndarray, normal: np.ndarray,
     N /= np.maximum(np.linalg.norm(N, axis=1), 1e-300)[:, None]
     normal[idx] = N
     return idx
+
+
+def move_triangles(motion: ShutterMotion, triangles: np.ndarray, object_id: np.ndarray, t: float) -> np.ndarray:
+    """float32[T, 3, 3]: ``triangles`` (at the frame's placement, their
+    objects ``object_id``) with those of moving objects where they are at
+    shutter time ``t`` (``blend``); ``triangles`` itself when none moves."""
+    slot = motion.slot_of(object_id)
+    idx = np.flatnonzero(slot >= 0)
+    if not len(idx):
+        return triangles
+    out = np.array(triangles, np.float32, copy=True)
+    for j in np.unique(slot[idx]):
+        sel = idx[slot[idx] == j]
+        D = blend(motion.delta[:, j], np.array([t]))[0]
+        v = triangles[sel].reshape(-1, 3).astype(np.float64)
+        out[sel] = (v @ D[:3, :3].T + D[:3, 3]).reshape(-1, 3, 3).astype(np.float32)
+    return out
 
 
 def swept_boxes(motion: ShutterMotion, boxes: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ is fixed at 0, so callers that shoot from a surface offset the origin
 """
 from __future__ import annotations
 
+import copy
 import threading
 from typing import Optional
 
@@ -95,6 +96,19 @@ class TriangleScene:
     def empty(self) -> bool:
         """Every ray misses."""
         return self._scene is None
+
+    def at_time(self, t: float) -> "TriangleScene":
+        """This BVH with a ray without a time taken at shutter time ``t``
+        (the moving triangles where they are then; shares the BVH; itself
+        when nothing moves)."""
+        if self._scene is None:
+            return self
+        moved = self._scene.at_time(t)
+        if moved is self._scene:
+            return self
+        other = copy.copy(self)
+        other._scene = moved
+        return other
 
     def closest(self, org, dirs, tfar=None, time=None) -> dict:
         """Closest hits of a band of float32 rays in this thread
@@ -213,6 +227,15 @@ class InstanceScene:
     @property
     def empty(self) -> bool:
         return not self._top.handle
+
+    def at_time(self, t: float) -> "InstanceScene":
+        """This BVH with a ray without a time taken at shutter time ``t``
+        (shares the BVH; itself when nothing moves)."""
+        if self.frame_time is None:
+            return self
+        other = copy.copy(self)
+        other.frame_time = float(t)
+        return other
 
     def closest(self, org, dirs, tfar=None, time=None) -> dict:
         """Closest hits of float32 rays in this thread (at their ``time``):

@@ -487,7 +487,8 @@ def expand_instances(scene: "Scene", selected: np.ndarray) -> ExpandedInstances:
     start = np.full(ins.count, -1, np.int64)
     start[order] = np.concatenate([[0], np.cumsum(counts[order])[:-1]]) if ins.count else []
     start[~selected] = -1
-    flat = Scene(tris, ids, scene.objects, scene.camera, scene.lights, scene.resolution, scene.frame, scene.name)
+    flat = Scene(tris, ids, scene.objects, scene.camera, scene.lights, scene.resolution, scene.frame, scene.name,
+                 motion=scene.motion)
     return ExpandedInstances(flat, selected, ins.triangle_offsets(), start, ins.count, int(per.sum()),
                              order[per[order] > 0], expansion_counts(scene, selected))
 

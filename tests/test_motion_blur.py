@@ -57,10 +57,44 @@ def test_a_moving_occluder_blurs_its_shadow_as_the_shutter_averages_it():
     assert eff["motion_blur"]["moving_objects"] == 1 and eff["sampled"] == "per sub-pixel receiver"
     rec = res.lights[0].record
     assert rec["embree_irr"]["shutter"] == "occluders at the receiver's time"
-    assert rec["pcf"]["shutter"] == "occluders at the frame"
-    # pcf keeps the frame's occluder: its edge stays sharp, as the record says
+    assert rec["pcf"]["shutter"] == "occluders at 3 time slices"
+
+
+MAP_AND_TRIANGLE_METHODS = ["pcf", "single_sample", "layered", "depth_raytrace", "penumbra_casting", "irregular"]
+
+
+def test_the_other_methods_take_the_moving_occluder_at_time_slices():
+    # with K slices a method sees the occluder where it is at each slice's middle, t_k = (k + 1/2) / K:
+    # the edge at dy (t_k - 1/2), a staircase of K steps whose filtered form is a closed form too;
+    # with one slice (at the frame) the edge stays sharp, as the record says
+    dy = 0.5
+    scene = half_plane_scene(sun_light(0.0), res=64)
+    scene.motion = ShutterMotion([1], _sliding(dy)[:, None])
+    truth = _ramp_truth(scene, lambda y: np.clip((y + dy / 2) / dy, 0.0, 1.0))
+    stairs = _ramp_truth(scene, lambda y: np.mean([y > dy * ((k + 0.5) / 3 - 0.5) for k in range(3)], 0))
     still = _ramp_truth(scene, lambda y: (y > 0).astype(float))
-    assert _rmse(res.lights[0].passes["pcf"], still) < _rmse(res.lights[0].passes["pcf"], truth)
+    three = render_filtered(scene, MAP_AND_TRIANGLE_METHODS, pixel_filter=FLT).lights[0]
+    one = render_filtered(scene, MAP_AND_TRIANGLE_METHODS, pixel_filter=FLT, time_slices=1).lights[0]
+    for m in MAP_AND_TRIANGLE_METHODS:
+        assert three.record[m]["shutter"] == "occluders at 3 time slices"
+        assert one.record[m]["shutter"] == "occluders at the frame"
+        assert _rmse(one.passes[m], still) < 0.02 < 0.08 < _rmse(one.passes[m], truth)
+        assert _rmse(three.passes[m], stairs) < 0.03      # the map methods: the edge on their texels
+        assert _rmse(three.passes[m], truth) < 0.035
+
+
+def test_time_slices_move_instances_and_triangles_alike():
+    dy = 0.5
+    flat = half_plane_scene(sun_light(0.0), res=32)
+    kept = _kept_as_instances(flat)
+    for s in (flat, kept):
+        s.motion = ShutterMotion([1], _sliding(dy)[:, None])
+    methods = ["pcf", "penumbra_casting"]
+    a = render_filtered(flat, methods, pixel_filter=FLT).lights[0].passes
+    b = render_filtered(kept, methods, pixel_filter=FLT).lights[0].passes
+    assert not kept.is_flattened
+    for m in methods:
+        assert np.abs(a[m] - b[m]).max() < 1e-3
 
 
 def test_only_the_pixels_a_moving_object_can_change_are_refined():
@@ -92,9 +126,8 @@ def test_a_moving_camera_blurs_a_still_shadow_edge():
     assert _rmse(V, truth) < 0.02
 
 
-def test_instanced_and_flattened_forms_move_alike():
-    dy = 0.5
-    flat = half_plane_scene(sun_light(0.0), res=48)
+def _kept_as_instances(flat: Scene) -> Scene:
+    """``half_plane_scene``'s ground and occluder as two instances of two meshes."""
     tris = flat.triangles.astype(np.float64)
     quads = [tris[0:2], tris[2:4]]
     ins = MeshInstances(vertices=[q.reshape(-1, 3) for q in quads],
@@ -102,6 +135,13 @@ def test_instanced_and_flattened_forms_move_alike():
                         mesh=[0, 1], object_id=[0, 1], world_from_mesh=[np.eye(4), np.eye(4)])
     kept = Scene(None, None, flat.objects, flat.camera, flat.lights, flat.resolution, instances=ins)
     assert not kept.is_flattened
+    return kept
+
+
+def test_instanced_and_flattened_forms_move_alike():
+    dy = 0.5
+    flat = half_plane_scene(sun_light(0.0), res=48)
+    kept = _kept_as_instances(flat)
     for s in (flat, kept):
         s.motion = ShutterMotion([1], _sliding(dy)[:, None])
     a = render_filtered(flat, ["embree_irr"], pixel_filter=FLT).lights[0].passes["embree_irr"]
