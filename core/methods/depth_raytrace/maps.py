@@ -385,8 +385,11 @@ def build_reference_maps(buffers, light: Light, map_size: int, ref_points: int,
         _build_levels(zp, persp, foot, ga, gt, offs[n, :K + 1].copy(), dims[n, :K + 1].copy(), mn, mx, conn,
                       zflat)
         root = offs[n, K]
-        fp[n, FP_MNROOT] = mn[root]
-        fp[n, FP_MXROOT] = mx[root]
+        lo, hi = float(mn[root]), float(mx[root])
+        if lo < np.inf and not hi > lo:      # one depth over the window: a ray crossing it still needs a band
+            hi = lo + 1e-6 * max(abs(lo), 1.0)
+        fp[n, FP_MNROOT] = lo
+        fp[n, FP_MXROOT] = hi
         fp[n, FP_GAPABS] = ga
         fp[n, FP_GAPTEX] = gt
     return ReferenceMaps(eye_pts, fp, offs, dims, mn, mx, conn, zflat, [lv.depth for lv in lvs], F,

@@ -12,7 +12,7 @@ import numba
 import numpy as np
 import pytest
 
-from penumbra.core import views
+from penumbra.core import raycast, views
 from penumbra.core.buffers import FrameBuffers
 from penumbra.core.frame import render_frame
 from penumbra.core.methods import producer_of
@@ -599,3 +599,25 @@ def test_benchmark_table_rows():
             assert np.isfinite(r[k]) and r[k] >= 0, k
         assert r["accel_coherence_rays_per_pixel"] < r["samples"]
     assert "| 64 |" in format_table(rows)
+
+
+def test_a_sun_window_of_one_depth_still_blocks():
+    # receivers under the inside of a flat occluder only: the sun's window is fitted to their
+    # blockers, every texel holds the occluder's one depth, and a ray crossing it is blocked (a
+    # root key range of zero width used to let every ray through)
+    scene = half_plane_scene(sun_light(0.0), res=64)
+    scene.triangles = scene.triangles.copy()
+    scene.triangles[2:4, :, 1] -= 0.1667                   # the occluder's edge off the texel grid
+    b = FrameBuffers(scene, 64, 64)
+    render_frame(scene, ["pcf"], buffers=b)
+    sub_scene = scene.at_resolution(256, 256)
+    rows = np.arange(139, 148)
+    g = raycast.camera_gbuffer_at(sub_scene, 256, 256, np.full(9, 22), rows, b.camera_scene, packed=True)
+    y = g.position[0, :, 1]
+    assert (y < -0.17).all()                                # every receiver lies under the occluder
+    m = producer_of("depth_raytrace")
+    view = b.supersampled(sub_scene, 256, 256, g, 0.0).view(m.needs)
+    params = m.make_params({})
+    assert resolve_map_size(params, 256, 256, scene.lights[0]) == 1024
+    V = m.run(view, scene.lights[0], params).passes["depth_raytrace"]
+    assert np.array_equal(V.reshape(-1), np.zeros(9, np.float32))
