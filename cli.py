@@ -371,7 +371,7 @@ def cmd_plan(args) -> int:
     G-buffer at the plan's resolution (``--resolution``, default the
     scene's; ``core.planner.plan_frame``)."""
     from .core.buffers import FrameBuffers
-    from .core.camera_samples import effects_line
+    from .core.camera_effects import effects_line
     from .core.planner import plan_frame, resolve_passes
     passes = resolve_passes(args.methods, _available_external(), allow_auto=True)
     path = _check_blend(args.scene)

@@ -14,8 +14,9 @@ Three variants:
 Per variant: Cycles' truth at ``TRUTH_SAMPLES`` (cached in
 ``<cache>/penumbra/truth`` by the variant's settings), Cycles' pair at
 ``PAIR_SAMPLES`` (wall seconds of both renders and its error), and
-Penumbra's filtered ``embree_irr`` and default (``auto``) passes at
-``LIGHT_SAMPLES`` light samples (median wall seconds of ``repeats`` warm
+Penumbra's filtered passes ``REQUESTS`` (the reference ``embree_irr``, the
+default ``auto``, ``pcf`` and ``penumbra_casting``, which take moving
+occluders at time slices) at ``LIGHT_SAMPLES`` light samples (median wall seconds of ``repeats`` warm
 runs of ``render_filtered`` on the captured scene, compilation excluded;
 their error). Errors: RMSE against the truth over the pixels the light
 reaches (``reach_mask`` on the pixel-centre G-buffer) and over the
@@ -44,6 +45,8 @@ TRUTH_SAMPLES, QUICK_TRUTH_SAMPLES = 1024, 256
 PAIR_SAMPLES = 64
 LIGHT_SAMPLES = 64
 VARIANTS = ("still", "motion", "dof")
+#: Penumbra's passes per variant: the reference, the default, a map method, a world-triangle method
+REQUESTS = ("embree_irr", "auto", "pcf", "penumbra_casting")
 LIGHT = "Area"
 
 
@@ -125,7 +128,7 @@ def _measure(variant: str, res, repeats: int, quick: bool) -> List[dict]:
     pair, pair_s = cycles_pair_of(build_scene(variant, res), LIGHT, res, PAIR_SAMPLES, seed=0)
     rows = [{"variant": variant, "request": "cycles", "pass": f"Cycles pair {PAIR_SAMPLES} spp", "seconds": pair_s,
              **dict(zip(("rmse_lit", "rmse_silhouette"), _errors(pair, truth, lit, edge)))}]
-    for passes in (["embree_irr"], ["auto"]):
+    for passes in ([m] for m in REQUESTS):
         over = {"samples": LIGHT_SAMPLES, "seed": 1}
         times, res_ = [], None
         for _ in range(repeats + 1):                    # the first run compiles: not counted
@@ -133,7 +136,7 @@ def _measure(variant: str, res, repeats: int, quick: bool) -> List[dict]:
             res_ = render_filtered(captured, passes, overrides=over, pixel_filter=flt)
             times.append(time.perf_counter() - t - res_.compile_s)
         lr = res_.lights[0]
-        pid = next(iter(lr.passes)) if passes == ["auto"] else "embree_irr"
+        pid = next(iter(lr.passes)) if passes == ["auto"] else passes[0]
         rows.append({"variant": variant, "request": passes[0],
                      "pass": pid if passes != ["auto"] else f"auto -> {pid}",
                      "seconds": statistics.median(times[1:]),

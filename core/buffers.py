@@ -13,6 +13,7 @@ method is billed the builds it used and what they were built from
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, Dict, FrozenSet, Iterable, Optional, Set, Tuple
 
 import numpy as np
@@ -109,7 +110,11 @@ class FrameBuffers:
         #: ``at_time``); None: the frame's
         self.shutter_slice: Optional[float] = None
         self._at_slice: Dict[int, object] = {}    # id of a BVH -> it at ``shutter_slice``
-        self._moved_triangles: Optional[Tuple[np.ndarray, np.ndarray]] = None
+        #: shutter time -> what every sub-pixel stage at that time shares: its light
+        #: views ("views", "labelled") and moved shadow triangles ("moved": id of
+        #: the triangles moved -> (them, the moved ones))
+        self._slice_state: Dict[float, dict] = {}
+        self._moved: Dict[int, tuple] = {}
 
     @property
     def build_times(self) -> Dict[str, float]:
@@ -150,8 +155,9 @@ class FrameBuffers:
         slices): the occluders where they are then. The BVHs are traced at
         that time (``TriangleScene.at_time``), the shadow triangles are moved
         (``motion.move_triangles``), the light views and method precomputes
-        are built anew (billed to this stage), fitted to ``bounds`` (the
-        frame's and what moves over the shutter)."""
+        are built for that time, fitted to ``bounds`` (the frame's and what
+        moves over the shutter), once for every stage at that time (billed
+        to the one that built them)."""
         sub = FrameBuffers(scene, width, height, self.map_size_given)
         sub.subpixel = True
         sub._map_base = self._map_base
@@ -175,10 +181,19 @@ class FrameBuffers:
                 sub._drop_expansion()
         if at_time is not None:
             sub.shutter_slice = float(at_time)
-            sub._views, sub._labelled = {}, set()
+            sub._slice_state = self._slice_state
+            state = self._slice_state.setdefault(sub.shutter_slice, {"views": {}, "labelled": set(), "moved": {}})
+            sub._views, sub._labelled, sub._moved = state["views"], state["labelled"], state["moved"]
             if bounds is not None:
                 sub._bounds = (np.asarray(bounds[0], np.float64), np.asarray(bounds[1], np.float64))
         return sub
+
+    def stand_for_shutter(self) -> None:
+        """From now on the pixel-centre G-buffer's receivers stand for the
+        whole shutter (``GBuffer.over_shutter``: a filtered frame of moving
+        objects seen by a still camera, away from their images)."""
+        g = self.gbuffer
+        self._gbuffer = dataclasses.replace(g, over_shutter=np.ones(g.shape, bool))
 
     def _sliced(self, bvh):
         """``bvh`` traced at ``shutter_slice`` (itself without one)."""
@@ -191,7 +206,7 @@ class FrameBuffers:
     def _drop_expansion(self) -> None:
         """Forget the expanded instances and what was made of them (the
         world-space triangle buffers, the views labelled per triangle)."""
-        self._expansion = self._shadow = self._shadow_triangles = self._pieces = self._moved_triangles = None
+        self._expansion = self._shadow = self._shadow_triangles = self._pieces = None
         self._views = {k: v for k, v in self._views.items() if k not in self._labelled}
         self._labelled = set()
 
@@ -359,14 +374,14 @@ class FrameBuffers:
             self._shadow_triangles = self._timed("shadow_triangles", "shadow_triangles", select, built_from=source)
         self._use("shadow_triangles")
         if self.shutter_slice is not None and self.scene.motion is not None:
-            if self._moved_triangles is None:
-                tris, ids = self._shadow_triangles
-                self._moved_triangles = self._timed(
+            tris, ids = self._shadow_triangles
+            if id(tris) not in self._moved:
+                self._moved[id(tris)] = (tris, self._timed(
                     "shadow_triangles_moved", "shadow_triangles",
                     lambda: (move_triangles(self.scene.motion, tris, ids, self.shutter_slice), ids),
-                    built_from=("shadow_triangles",))
+                    built_from=("shadow_triangles",)))
             self._use("shadow_triangles_moved")
-            return self._moved_triangles
+            return self._moved[id(tris)][1]
         return self._shadow_triangles
 
     @property

@@ -43,17 +43,15 @@ and time per sub-pixel sample.
 from __future__ import annotations
 
 import math
-from typing import Optional
-
 import numpy as np
 
 from .jit import inner, kernel
-from .motion import TIME_SLICES
 from .sampling import concentric_disk, rand01
 from .scene import Camera
 
 LENS_SALT = 0x6C656E73          # keeps the lens' hash streams apart from the light samples'
 TIME_SALT = 0x74696D65          # ... and the shutter's apart from both
+RAY_TIME_SALT = 0x72617974      # ... and a receiver's shadow rays' times apart from its own
 
 
 @inner(forceinline=True)
@@ -167,6 +165,31 @@ def shutter_times(flat: np.ndarray, sub_width: int, grid: int, seed: int = 0) ->
     return out.astype(np.float32)
 
 
+@kernel(nogil=True)
+def _ray_times(pix, ns, seed, out):
+    """``ray_times``' kernel."""
+    for i in range(pix.shape[0]):
+        lo = np.uint32(rand01(seed, pix[i], np.int64(RAY_TIME_SALT), np.int64(2)) * 16777216.0)
+        hi = np.uint32(rand01(seed, pix[i], np.int64(RAY_TIME_SALT), np.int64(3)) * 256.0)
+        key = lo | (hi << np.uint32(24))          # the pixel's order of the strata (``_stratum_order``)
+        for s in range(ns):
+            k = _permute(s, ns, key)
+            out[i * ns + s] = (k + rand01(seed, pix[i], np.int64(RAY_TIME_SALT + 1), np.int64(s))) / ns
+
+
+def ray_times(pix: np.ndarray, ns: int, seed: int = 0) -> np.ndarray:
+    """float32[n * ns]: the shutter times of the ``ns`` shadow rays of each
+    receiver ``pix[i]`` (its pixel id) that stands for the whole shutter
+    (``GBuffer.over_shutter``): ray s on one of ns strata of the shutter,
+    in a per-pixel hashed order, jittered, so light sample and time are
+    stratified jointly."""
+    pix = np.ascontiguousarray(pix, np.int64)
+    out = np.zeros(len(pix) * int(ns), np.float64)
+    if len(pix):
+        _ray_times(pix, int(ns), int(seed), out)
+    return out.astype(np.float32)
+
+
 def lens_points(cam: Camera, flat: np.ndarray, sub_width: int, grid: int, seed: int = 0) -> np.ndarray:
     """float64[N, 2]: the camera-local lens point (x, y) of each sub-sample
     ``flat[i]`` (row-major index in the ``grid``-times supersampled view,
@@ -179,49 +202,3 @@ def lens_points(cam: Camera, flat: np.ndarray, sub_width: int, grid: int, seed: 
                      int(cam.aperture_blades), float(cam.aperture_rotation),
                      1.0 / max(float(cam.aperture_ratio), 1e-6), out)
     return out
-
-
-def describe_effects(scene, sampled: bool) -> Optional[dict]:
-    """The camera's effects as the frame's JSON records them (None: a still
-    frame through a pinhole): the thin lens' parameters, the shutter's
-    motion (``ShutterMotion.to_json``), and whether the passes sample them
-    (a filtered frame: every method's sub-pixel receivers lie on their own
-    lens rays at their own times; pixel centres: a pinhole at the frame)."""
-    cam, motion = scene.camera, scene.motion
-    moves = motion is not None and motion.moves
-    if not cam.has_depth_of_field and not moves:
-        return None
-    out = {}
-    if cam.has_depth_of_field:
-        out["depth_of_field"] = {"aperture_radius": float(cam.aperture_radius),
-                                 "focus_distance": float(cam.focus_distance),
-                                 "blades": int(cam.aperture_blades), "rotation": float(cam.aperture_rotation),
-                                 "ratio": float(cam.aperture_ratio)}
-    if moves:
-        out["motion_blur"] = motion.to_json()
-    out["sampled"] = "per sub-pixel receiver" if sampled else "no: pixel centres (a pinhole at the frame)"
-    return out
-
-
-def effects_line(scene, sampled: bool) -> Optional[str]:
-    """One line for ``penumbra plan``: the camera's effects and how the
-    passes take them (None: a still frame through a pinhole)."""
-    cam, motion = scene.camera, scene.motion
-    parts = []
-    if cam.has_depth_of_field:
-        parts.append(f"depth of field, lens radius {cam.aperture_radius:.4g}, focus {cam.focus_distance:.4g}")
-    if motion is not None and motion.moves:
-        what = [f"{len(motion.objects)} moving object(s)"] + (["the camera"] if motion.camera is not None else [])
-        parts.append(f"motion blur over {motion.shutter:g} frame(s) ({' and '.join(what)}, {motion.steps} steps)")
-    if not parts:
-        return None
-    from . import methods as registry
-    timed = ", ".join(sorted(p for p in registry.pass_ids(external=False)
-                             if getattr(registry.producer_of(p), "shutter_time", False)))
-    how = "each sub-pixel receiver on its own lens ray and shutter time"
-    if motion is not None and len(motion.objects):
-        how += (f"; moving occluders at the receiver's time for {timed}, at {TIME_SLICES} time slices "
-                f"for the other methods")
-    if not sampled:
-        how = "ignored: pixel centres through a pinhole at the frame (--pixel-filter none)"
-    return f"camera: {'; '.join(parts)}: {how}"

@@ -148,6 +148,26 @@ def _copy_into(ptr: int, array: np.ndarray) -> None:
     ctypes.memmove(ptr, np.ascontiguousarray(array).ctypes.data, array.nbytes)
 
 
+def _add_triangles(a: _Api, scene: int, vertices: np.ndarray, triangles: np.ndarray,
+                   steps: Optional[np.ndarray] = None) -> None:
+    """Attach a triangle geometry to ``scene``: float32 ``vertices`` [V, 3],
+    uint32 ``triangles`` [T, 3]; with ``steps`` (float64[K, 4, 4]) K time
+    steps, the vertices placed by each step's matrix."""
+    geom = a.NewGeometry(a.device, GEOMETRY_TRIANGLE)
+    if steps is None:
+        _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_VERTEX, 0, FORMAT_FLOAT3, 12, len(vertices)), vertices)
+    else:
+        a.SetGeometryTimeStepCount(geom, len(steps))
+        v64 = vertices.astype(np.float64)
+        for k, m in enumerate(steps):
+            vk = (v64 @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+            _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_VERTEX, k, FORMAT_FLOAT3, 12, len(vertices)), vk)
+    _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_INDEX, 0, FORMAT_UINT3, 12, len(triangles)), triangles)
+    a.CommitGeometry(geom)
+    a.AttachGeometry(scene, geom)
+    a.ReleaseGeometry(geom)
+
+
 class Mesh:
     """One BVH over a triangle mesh in its own space (float32 vertices [V,3],
     triangles [T,3] of vertex indices; or triangles float32[T,3,3] with
@@ -166,12 +186,7 @@ class Mesh:
             return
         a = api()
         scene = _new_scene(a)
-        geom = a.NewGeometry(a.device, GEOMETRY_TRIANGLE)
-        _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_VERTEX, 0, FORMAT_FLOAT3, 12, len(vertices)), vertices)
-        _copy_into(a.SetNewGeometryBuffer(geom, BUFFER_INDEX, 0, FORMAT_UINT3, 12, len(triangles)), triangles)
-        a.CommitGeometry(geom)
-        a.AttachGeometry(scene, geom)
-        a.ReleaseGeometry(geom)
+        _add_triangles(a, scene, vertices, triangles)
         a.CommitScene(scene)
         a.check("building a mesh BVH")
         self.handle = scene
@@ -444,6 +459,36 @@ def _workers(threads) -> int:
     return max(1, int(threads or numba.get_num_threads()))
 
 
+class MotionTriangles:
+    """One BVH over triangles float32[T, 3, 3] of which the groups
+    ``moving`` (a list of (start, stop, float64[K, 4, 4])) move: a triangle
+    geometry of the still ones and one per group with K time steps, its
+    vertices placed by each step's matrix (Embree blends vertices linearly
+    between steps). Rays carry a time; hits report no triangle (for
+    occlusion queries)."""
+
+    def __init__(self, triangles: np.ndarray, moving: Sequence[tuple]):
+        tris = np.asarray(triangles, np.float32).reshape(-1, 3, 3)
+        still = np.ones(len(tris), bool)
+        for a_, b_, _ in moving:
+            still[a_:b_] = False
+        a = api()
+        scene = _new_scene(a)
+        parts = [(tris[still], None)] + [(tris[a_:b_], np.asarray(steps, np.float64)) for a_, b_, steps in moving]
+        for part, steps in parts:
+            if len(part):
+                v = np.ascontiguousarray(part.reshape(-1, 3))
+                _add_triangles(a, scene, v, np.arange(len(v), dtype=np.uint32).reshape(-1, 3), steps)
+        a.CommitScene(scene)
+        a.check("building a moving triangles' BVH")
+        self.handle = scene
+
+    def __del__(self):
+        if self.handle and _api is not None:
+            _api.ReleaseScene(self.handle)
+            self.handle = 0
+
+
 class MeshRays:
     """One triangle mesh (float32[T,3,3], world space) traced in the calling
     thread with embreex's ``EmbreeScene.run`` contract, which the ray casting
@@ -460,7 +505,11 @@ class MeshRays:
     such group, and the still rest, gets a BVH of its own under a top level
     whose moving instances Embree blends at a ray's time (``run``'s
     ``time``, float32 per ray in [0, 1]; None: ``frame_time``, where
-    ``triangles`` has them); primIDs stay indices into ``triangles``."""
+    ``triangles`` has them); primIDs stay indices into ``triangles``.
+    Occlusion queries go to a second BVH, built on the first of them
+    (``MotionTriangles``): the still triangles and each moving group's
+    vertices at its K steps, which Embree blends linearly as the matrices
+    are (the same places at every time), without a top level to cross."""
 
     def __init__(self, triangles: np.ndarray, moving: Optional[Sequence[tuple]] = None, frame_time: float = 0.0):
         self.frame_time = float(frame_time)
@@ -488,6 +537,15 @@ class MeshRays:
         self.mesh = None
         self.handle = self.top.handle
         self.first, self.order, self.normal_matrix = self.top.first, self.top.order, self.top.normal_matrix
+        self._occluder = {"bvh": None, "lock": threading.Lock(), "from": (tris, moving)}   # shared by ``at_time``
+
+    def _occlusion_bvh(self) -> "MotionTriangles":
+        """The occlusion queries' BVH (built on first use)."""
+        occ = self._occluder
+        with occ["lock"]:
+            if occ["bvh"] is None:
+                occ["bvh"] = MotionTriangles(*occ.pop("from"))
+        return occ["bvh"]
 
     def at_time(self, t: float) -> "MeshRays":
         """These rays' BVH with a ray without a time taken at shutter time
@@ -512,8 +570,9 @@ class MeshRays:
         a = api()
         if query == "OCCLUDED":
             hit = np.zeros(n, bool)
-            if self.handle:
-                occluded_range(a.occluded1, self.handle, org, d, tnear, tfar, time, hit, 0, n)
+            handle = self.handle if self.mesh is not None else self._occlusion_bvh().handle
+            if handle:
+                occluded_range(a.occluded1, handle, org, d, tnear, tfar, time, hit, 0, n)
             return np.where(hit, np.int32(0), np.int32(-1))
         if query != "INTERSECT":
             raise ValueError(f"unknown ray query {query!r}")

@@ -3,7 +3,7 @@
 Two stages, both ``frame.render_frame`` with the methods unchanged:
 
 1. pixel centres: every pass at one receiver per pixel centre (the
-   ``--pixel-filter none`` pass, bit for bit);
+   ``--pixel-filter none`` pass, bit for bit, in a still frame);
 2. sub-pixel samples: where a pixel's footprint holds a discontinuity or a
    shadow edge (``pixel_filter.refine_mask``), the G-buffer is traced at the
    ``grid`` x ``grid`` sub-pixel samples of every footprint that needs them
@@ -11,17 +11,23 @@ Two stages, both ``frame.render_frame`` with the methods unchanged:
    ``raycast.camera_gbuffer_at(packed=True)``); a method that shades each
    receiver on its own (``Method.packed``) runs on that packed G-buffer, any
    other on the supersampled image with only those pixels set
-   (``raycast.unpack_gbuffer``). The light views and
-   BVHs of stage 1 are shared. With the camera's depth of field (or a
-   camera that moves over the shutter) every pixel is refined on the full
-   grid, with objects that move the pixels they can change
-   (``_moving_images``, ``_moving_shadows``); each sub-sample's ray starts at its own lens
-   point and is taken at its own shutter time (``camera_samples``;
-   ``GBuffer.time``). A method that does not trace each receiver's time
-   (``Method.shutter_time``) shades the sub-samples of each of
-   ``motion.TIME_SLICES`` spans of the shutter with the moving occluders
-   where they are at the span's middle (``_time_slices``; its own light
-   views and precomputes: ``FrameBuffers.supersampled``'s ``at_time``).
+   (``raycast.unpack_gbuffer``). The light views and BVHs of stage 1 are
+   shared.
+
+Camera effects. With the camera's depth of field (or a camera that moves
+over the shutter) every pixel is refined on the full grid; each sub-sample's
+ray starts at its own lens point and is taken at its own shutter time
+(``camera_samples``; ``GBuffer.time``). With objects that move and a still
+camera, the pixels their images can reach are refined on the full grid
+(``_moving_images``); elsewhere a receiver holds still over the shutter and
+stands for all of it (``GBuffer.over_shutter``): a method that traces each
+receiver's time (``Method.shutter_time``) spreads its shadow rays over the
+shutter, any other averages ``motion.TIME_SLICES`` slices of it, at the
+pixel centres whose shadows something moving can change (``_moving_shadows``,
+``_slice_centres``) as at the sub-samples. Such a method shades a moving
+receiver with the occluders where they are at the middle of its time's span
+(``_time_slices``; light views and precomputes of the slice's own:
+``FrameBuffers.supersampled``'s ``at_time``).
 
 The resolve (``pixel_filter.resolve``) filters the sub-pixel passes into the
 refined pixels: an average pass by the filter weights, an irradiance pass by
@@ -37,7 +43,7 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
-from . import camera_samples, raycast
+from . import camera_effects, camera_samples, raycast
 from . import methods as method_registry
 from .buffers import FrameBuffers
 from .frame import REFERENCE_FOR, FrameResult, render_frame
@@ -78,13 +84,22 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                                        _warmup_passes(passes))
     buffers = FrameBuffers(scene, W, H, options.get("map_size"))
     buffers.share_precomputed()           # layered's LDI, depth_raytrace's maps: built once for both stages
+    m0, taps = flt.taps()
+    moves = scene.motion is not None and scene.motion.moves
+    # every footprint sees through the lens, or the camera moves: all pixels; moving objects: theirs
+    everywhere = scene.camera.has_depth_of_field or (moves and scene.motion.camera is not None)
+    objects_move = moves and len(scene.motion.objects) > 0
+    swept, casts = _swept_boxes(scene) if objects_move else (np.zeros((0, 2, 3)), np.zeros(0, bool))
+    seen = None                           # the pixels a moving object's image can reach
+    if objects_move and not everywhere and taps.size > 0:
+        seen = _moving_images(scene, buffers, swept, flt.reach)
+        buffers.stand_for_shutter()       # elsewhere a pixel centre's receiver holds still over the shutter
     base = render_frame(scene, passes, light_names, buffers=buffers, **options)
     base.compile_s += compile_s           # the filter's kernels: compiled before anything was timed
     t0 = time.perf_counter()
     g = buffers.gbuffer
     s = int(flt.grid)
     SW, SH = s * W, s * H
-    m0, taps = flt.taps()
     units = []                            # (light result, producer id, its computed passes)
     for lr in base.lights:
         by_producer: Dict[str, list] = {}
@@ -92,26 +107,29 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
             if not method_registry.is_external(pid) and "skipped" not in rec:
                 by_producer.setdefault(method_registry.producer_of(pid).id, []).append(pid)
         units += [(lr, prod, pids) for prod, pids in by_producer.items()]
-    # each unit's footprints (the geometry's and its passes' V); the coverage's are those
-    # of the pixels beside a change of hit, which every unit refines on the full grid (the
-    # geometry's own when there is no unit)
-    moves = scene.motion is not None and scene.motion.moves
-    # every footprint sees through the lens, or the camera moves: all pixels; moving objects: theirs
-    everywhere = scene.camera.has_depth_of_field or (moves and scene.motion.camera is not None)
     moving = {}
-    objects_move = moves and len(scene.motion.objects) > 0
-    swept, casts = _swept_boxes(scene) if objects_move else (np.zeros((0, 2, 3)), np.zeros(0, bool))
     slice_bounds = _slice_bounds(buffers.bounds(), swept)
 
     def sliced(m) -> bool:
         """Producer ``m`` takes the occluders at time slices (objects move, it does not trace each time)."""
         return objects_move and slices > 1 and not m.shutter_time
-    if moves and not everywhere and taps.size > 0:
-        seen = _moving_images(scene, g, swept, flt.reach)
+    overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
+    sliced_s = {}                         # (light, producer) -> seconds of its pixel centres' time slices
+    if seen is not None:
         moving = {lr.name: seen | _moving_shadows(buffers, scene.light(lr.name), swept[casts], flt.reach)
                   for lr in base.lights}
+        for lr, prod, pids in units:      # a still receiver in a moving shadow: its pixel centre over the shutter
+            if sliced(method_registry.producers()[prod]):
+                still = moving[lr.name] & ~seen & buffers.reach(scene.light(lr.name))
+                sliced_s[lr.name, prod] = _slice_centres(scene, buffers, lr, method_registry.producers()[prod],
+                                                         still, slices, slice_bounds, overrides, method_overrides)
+    # each unit's footprints (the geometry's and its passes' V); the coverage's are those
+    # of the pixels beside a change of hit, which every unit refines on the full grid (the
+    # geometry's own when there is no unit). What moves is refined on the full grid where its
+    # image can reach; a still receiver's pixel centre already stands for the shutter (its
+    # rays spread over it, or its time slices)
     masks = [_refined(flt, g, [lr.computed[q] for q in method_registry.producers()[prod].passes], taps.size > 0,
-                      everywhere, moving.get(lr.name)) for lr, prod, pids in units]
+                      everywhere, seen) for lr, prod, pids in units]
     if not units:
         masks = [_refined(flt, g, [], taps.size > 0, everywhere,
                           np.logical_or.reduce(list(moving.values())) if moving else None)]
@@ -131,9 +149,10 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     sub_g = raycast.camera_gbuffer_at(sub_scene, SW, SH, union % SW, union // SW, buffers.camera_scene,
                                       packed=True, lens=lens, time=times)
     del lens, times
+    if seen is not None:                  # a sub-sample away from the moving images stands for the shutter
+        sub_g.over_shutter = ~seen.reshape(-1)[(union // SW // s) * W + (union % SW) // s].reshape(1, -1)
     tg = time.perf_counter() - tg
-    setup_s = time.perf_counter() - t0 - tg       # refine masks, footprints, union
-    overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
+    setup_s = time.perf_counter() - t0 - tg - sum(sliced_s.values())    # refine masks, footprints, union
     for i, (lr, prod, pids) in enumerate(units):
         t1 = time.perf_counter()
         at = np.searchsorted(union, flat[i])      # the unit's samples in the traced union
@@ -150,7 +169,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
             if groups[0][1] == groups[1][1]:           # one run over every sub-sample
                 groups = [(np.arange(len(at)), groups[0][1])]
             for part, mo in groups:
-                for at_time, sl in (_time_slices(g_u, part, slices, scene.motion) if sliced(m) else [(None, part)]):
+                for at_time, sl, share in (_time_slices(g_u, part, slices, scene.motion) if sliced(m)
+                                           else [(None, part, None)]):
                     if not len(sl):
                         continue
                     g_p = g_u if len(sl) == len(at) else _take(g_u, sl)
@@ -161,14 +181,15 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                     for pid in (sub.lights[0].passes if sub.lights else ()):
                         v = sub.lights[0].passes[pid]
                         v = v.reshape(-1) if m.packed else v[rows[sl], cols[sl]]
-                        sub_v.setdefault(pid, np.ones(len(at), np.float32))[sl] = v
+                        acc = sub_v.setdefault(pid, np.zeros(len(at), np.float32))
+                        acc[sl] = v if share is None else acc[sl] + share * v
                         sub_t[pid] = sub_t.get(pid, 0.0) + sub.lights[0].record[pid]["time_s"]["total"]
         sub_s = time.perf_counter() - t2
         stats = {"refined_pixels": int(refine.sum()), "subpixel_samples": int(len(rows)),
                  "subpixel_receivers": int(g_u.hit.sum())}
         own_s = setup_s / len(units) + time.perf_counter() - t1 - sub_s
         _resolve_unit(scene, flt, lr, pids, sub_v, sub_t, g_u, buffers, refine, rows, cols, stats, own_s,
-                      slices if objects_move else 1)
+                      slices if objects_move else 1, sliced_s.get((lr.name, prod), 0.0))
     for lr in base.lights:
         _errors(lr, buffers.reach(scene.light(lr.name)))   # the pixel-centre stage's mask, as its errors used
     rows, cols = samples[0]
@@ -176,7 +197,7 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     first_hit = sub_g.hit[0] if len(samples) == 1 else _take(sub_g, np.searchsorted(union, flat[0])).hit
     base.coverage = coverage(flt, edges, g.hit, rows, cols, first_hit)
     base.pixel_filter = flt.to_json()
-    base.camera_effects = camera_samples.describe_effects(scene, sampled=(everywhere or moves) and taps.size > 0)
+    base.camera_effects = camera_effects.describe_effects(scene, sampled=(everywhere or moves) and taps.size > 0)
     base.total_s += time.perf_counter() - t0
     return base
 
@@ -189,19 +210,64 @@ def shutter_words(method, slices: int) -> str:
     return f"occluders at {slices} time slices" if slices > 1 else "occluders at the frame"
 
 
+def _slice_centres(scene: Scene, buffers: FrameBuffers, lr, m, pixels: np.ndarray, slices: int, bounds,
+                   overrides, method_overrides) -> float:
+    """Producer ``m``'s pixel-centre passes of light ``lr`` at ``pixels``
+    (bool[H, W]: still receivers whose shadows something moving can change)
+    as the mean of its values at the ``slices`` time slices, each with the
+    occluders where they are then (``FrameBuffers.supersampled``'s
+    ``at_time``, fitted to ``bounds``; the slice at the frame's own time is
+    the pixel-centre stage's). In place in ``lr.computed`` (and so in its
+    passes); returns the seconds it took."""
+    t0 = time.perf_counter()
+    H, W = pixels.shape
+    idx = np.flatnonzero(pixels.reshape(-1))
+    own = [q for q in m.passes if q in lr.computed]
+    if not len(idx) or not own:
+        return 0.0
+    g = buffers.gbuffer
+    centres = GBuffer(position=g.position.reshape(1, -1, 3)[:, idx], normal=g.normal.reshape(1, -1, 3)[:, idx],
+                      depth=g.depth.reshape(1, -1)[:, idx], object_id=g.object_id.reshape(1, -1)[:, idx],
+                      triangle_id=g.triangle_id.reshape(1, -1)[:, idx], hit=g.hit.reshape(1, -1)[:, idx], pixel=idx)
+    gb = centres if m.packed else raycast.unpack_gbuffer(centres, W, H)
+    rows, cols = idx // W, idx % W
+    total = {q: np.zeros(len(idx), np.float64) for q in own}
+    for j in range(slices):
+        t = (j + 0.5) / slices
+        if abs(t - scene.motion.frame_time) < 1e-12:
+            for q in own:
+                total[q] += lr.computed[q][rows, cols]
+            continue
+        sub = render_frame(scene, own, [lr.name], overrides, method_overrides,
+                           buffers=buffers.supersampled(scene, W, H, gb, 0.0, t, bounds))
+        for q in own:
+            v = sub.lights[0].passes[q]
+            total[q] += v.reshape(-1) if m.packed else v[rows, cols]
+    for q in own:
+        lr.computed[q][rows, cols] = (total[q] / slices).astype(np.float32)
+    return time.perf_counter() - t0
+
+
 def _time_slices(g: GBuffer, part: np.ndarray, slices: int, motion):
-    """[(shutter time or None, entries of ``part``)]: the sub-samples
-    ``part`` of the packed G-buffer ``g`` split by their time
-    (``GBuffer.time``) into ``slices`` equal spans of the shutter, each
-    taken at its span's middle (None: the frame's own time, whose buffers
-    the pixel-centre stage built)."""
+    """[(shutter time or None, entries of ``part``, float32 share of each)]:
+    the sub-samples ``part`` of the packed G-buffer ``g`` split by their
+    time (``GBuffer.time``) into ``slices`` equal spans of the shutter,
+    each taken at its span's middle (None: the frame's own time, whose
+    buffers the pixel-centre stage built), with share 1; a sub-sample that
+    stands for the whole shutter (``GBuffer.over_shutter``) is in every
+    slice with share 1 / ``slices``."""
     if g.time is None or slices <= 1:
-        return [(None, part)]
+        return [(None, part, np.ones(len(part), np.float32))]
     k = np.minimum((g.time.reshape(-1)[part] * slices).astype(np.int64), slices - 1)
+    spread = g.spread(part)
+    if spread is None:
+        spread = np.zeros(len(part), bool)
     out = []
     for j in range(slices):
         t = (j + 0.5) / slices
-        out.append((None if abs(t - motion.frame_time) < 1e-12 else t, part[k == j]))
+        sel = (k == j) | spread
+        share = np.where(spread[sel], np.float32(1.0 / slices), np.float32(1.0)).astype(np.float32)
+        out.append((None if abs(t - motion.frame_time) < 1e-12 else t, part[sel], share))
     return out
 
 
@@ -254,27 +320,67 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: b
     return refine, full
 
 
-def _moving_images(scene: Scene, g: GBuffer, swept: np.ndarray, reach: int) -> np.ndarray:
-    """bool[H, W]: the pixels within ``reach`` of the image of a box in
-    ``swept`` (each moving object's over the shutter, ``_swept_boxes``):
-    its surface, what it hides or shows (every pixel when one reaches
-    behind the camera's plane). With ``_moving_shadows``: the pixels whose
-    footprint something moving can change (the camera still); a pixel left
-    out keeps its pixel-centre value, found at the frame, which motion
-    cannot change."""
+def _moving_images(scene: Scene, buffers: FrameBuffers, swept: np.ndarray, reach: int) -> np.ndarray:
+    """bool[H, W]: the pixels a moving object's image can reach over the
+    shutter, and so what it hides or shows, within ``reach``: those in the
+    image of a box in ``swept`` (each moving object's over the shutter) and
+    near one whose centre sees a moving object at one of the motion's steps
+    (the pixel-centre G-buffer at the step's time), as near as the image of
+    a moving object's box moves between two steps (every pixel when a swept
+    box reaches behind the camera's plane). With ``_moving_shadows``: the
+    pixels whose footprint something moving can change (the camera still); a
+    pixel left out keeps its pixel-centre value, which motion cannot change."""
+    g = buffers.gbuffer
     H, W = g.shape
-    out = np.zeros((H, W), bool)
-    cam = scene.camera
-    for lo, hi in swept:
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        local = (corners - cam.position) @ np.asarray(cam.world_from_camera, np.float64)[:3, :3]
-        if cam.kind != "ORTHO" and (local[:, 2] > -max(cam.clip_start, 1e-9)).any():
-            out[:] = True
-            break
-        xy = raster(cam, cam.world_from_camera, corners, W, H)
+    cam, motion = scene.camera, scene.motion
+    if not len(swept):
+        return np.zeros((H, W), bool)
+    corners = np.array([[[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+                        for lo, hi in swept]).reshape(-1, 3)
+    local = (corners - cam.position) @ np.asarray(cam.world_from_camera, np.float64)[:3, :3]
+    if cam.kind != "ORTHO" and (local[:, 2] > -max(cam.clip_start, 1e-9)).any():
+        return np.ones((H, W), bool)
+    in_boxes = np.zeros((H, W), bool)
+    for xy in raster(cam, cam.world_from_camera, corners, W, H).reshape(-1, 8, 2):
         c0, c1 = int(np.floor(xy[:, 0].min())) - reach, int(np.ceil(xy[:, 0].max())) + reach
         r0, r1 = int(np.floor(H - xy[:, 1].max())) - reach, int(np.ceil(H - xy[:, 1].min())) + reach
-        out[max(r0, 0):max(min(r1, H), 0), max(c0, 0):max(min(c1, W), 0)] = True
+        in_boxes[max(r0, 0):max(min(r1, H), 0), max(c0, 0):max(min(c1, W), 0)] = True
+    boxes, _ = _moving_boxes(scene)
+    ok = np.isfinite(boxes).all(axis=(1, 2))
+    box_corners = np.stack([np.stack([boxes[ok, (b >> a) & 1, a] for a in range(3)], 1) for b in range(8)], 1)
+    shift = 0.0                           # the farthest a box corner's image moves between two steps
+    prev = None
+    for D in motion.delta[:, ok]:         # [m, 4, 4] each step
+        moved = np.einsum("mij,mcj->mci", D[:, :3, :3], box_corners) + D[:, None, :3, 3]
+        xy = raster(cam, cam.world_from_camera, moved.reshape(-1, 3), W, H)
+        if prev is not None:
+            shift = max(shift, float(np.max(np.linalg.norm(xy - prev, axis=1))))
+        prev = xy
+    step_t = np.linspace(0.0, 1.0, motion.steps)
+    idx = np.arange(H * W, dtype=np.int64)
+    seen = np.zeros(H * W, bool)
+    for t in step_t:
+        at = g if abs(t - motion.frame_time) < 1e-12 else raycast.camera_gbuffer_at(
+            scene, W, H, idx % W, idx // W, buffers.camera_scene, packed=True,
+            time=np.full(H * W, t, np.float32))
+        seen |= (motion.slot_of(at.object_id.reshape(-1)) >= 0) & at.hit.reshape(-1)
+    return in_boxes & _dilate(seen.reshape(H, W), reach + int(np.ceil(shift)) + 1)
+
+
+def _dilate(mask: np.ndarray, r: int) -> np.ndarray:
+    """bool like ``mask``: the pixels within ``r`` (in x and in y) of a set one."""
+    out = mask.copy()
+    for axis in (0, 1):
+        grown = out.copy()
+        n = out.shape[axis]
+        for d in range(1, min(r, n - 1) + 1):
+            if axis == 0:
+                grown[d:] |= out[:-d]
+                grown[:-d] |= out[d:]
+            else:
+                grown[:, d:] |= out[:, :-d]
+                grown[:, :-d] |= out[:, d:]
+        out = grown
     return out
 
 
@@ -359,7 +465,8 @@ def _take(g: GBuffer, at: np.ndarray) -> GBuffer:
     """Entries ``at`` of the packed G-buffer ``g`` (a packed G-buffer)."""
     return GBuffer(position=g.position[:, at], normal=g.normal[:, at], depth=g.depth[:, at],
                    object_id=g.object_id[:, at], triangle_id=g.triangle_id[:, at], hit=g.hit[:, at],
-                   pixel=g.pixel[at], time=None if g.time is None else g.time[:, at])
+                   pixel=g.pixel[at], time=None if g.time is None else g.time[:, at],
+                   over_shutter=None if g.over_shutter is None else g.over_shutter[:, at])
 
 
 def _shared(m, overrides, method_overrides, share: int):
@@ -374,14 +481,15 @@ def _shared(m, overrides, method_overrides, share: int):
 
 def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_v, sub_t, sub_g: GBuffer, buffers: FrameBuffers,
                   refine: np.ndarray, rows: np.ndarray, cols: np.ndarray, stats: Dict[str, int],
-                  own_s: float, slices: int = 1) -> None:
+                  own_s: float, slices: int = 1, sliced_s: float = 0.0) -> None:
     """Filter light ``lr``'s passes ``pids`` (one producer's) in place from
     the sub-pixel stage's values ``sub_v[pid]`` (float32 per sub-sample, in
     ``sub_g``'s order; empty: nothing to refine) that took ``sub_t[pid]``
     seconds; record the filter, the sub-pixel sample counts and the
     sub-pixel stage's time (``own_s``: the producer's share of the refine
     masks, footprints and G-buffer lists; ``slices``: the time slices its
-    occluders were taken at, when objects move)."""
+    occluders were taken at, when objects move; ``sliced_s``: the seconds
+    its pixel centres' time slices took, ``_slice_centres``)."""
     light = scene.light(lr.name)
     e0 = None
     for pid in pids:
@@ -398,6 +506,8 @@ def _resolve_unit(scene: Scene, flt: PixelFilter, lr, pids, sub_v, sub_t, sub_g:
                                      0.0, 1.0).astype(np.float32)
             sub_time = sub_t[pid]
         phases = {k: v for k, v in rec["time_s"].items() if k != "total"}
+        if sliced_s:
+            phases["time_slices"] = round(sliced_s / len(pids), 6)
         phases["subpixel"] = round(sub_time + own_s / len(pids), 6)
         phases["resolve"] = round(time.perf_counter() - t, 6)
         phases["total"] = round(sum(phases.values()), 6)

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import methods as method_registry
 from .buffers import EXPAND_PHASE, FrameBuffers
-from .camera_samples import describe_effects
+from .camera_effects import describe_effects
 from .data_passes import frame_data_passes
 from .frame_cache import FrameCache
 from .compile_ahead import frame_keys, prefetch
@@ -52,7 +52,7 @@ class FrameResult:
     coverage: Optional[np.ndarray] = None   # float32[H,W] alpha of a filtered frame (None: pixel centres)
     cache: Optional[FrameCache] = field(default=None, repr=False, compare=False)  # for a later ``previous``
     visibility: str = IRRADIANCE            # the frame's definition of V (each pass's: its record)
-    camera_effects: Optional[dict] = None   # ``camera_samples.describe_effects``: None for a pinhole
+    camera_effects: Optional[dict] = None   # ``camera_effects.describe_effects``: None for a pinhole
     #: the Z and vector passes (``core/data_passes.py``), written into every layer
     data_passes: Dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 

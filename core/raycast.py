@@ -475,10 +475,15 @@ def unpack_gbuffer(g: GBuffer, width: int, height: int) -> GBuffer:
         g_time = np.zeros(height * width, np.float32)
         g_time[flat] = g.time.reshape(-1)
         g_time = g_time.reshape(height, width)
+    spread = None
+    if g.over_shutter is not None:
+        spread = np.zeros(height * width, bool)
+        spread[flat] = g.over_shutter.reshape(-1)
+        spread = spread.reshape(height, width)
     return GBuffer(position=g_pos.reshape(height, width, 3), normal=g_nrm.reshape(height, width, 3),
                    depth=g_depth.reshape(height, width), object_id=g_obj.reshape(height, width),
                    triangle_id=g_tri.reshape(height, width), hit=(g_tri >= 0).reshape(height, width),
-                   time=g_time)
+                   time=g_time, over_shutter=spread)
 
 
 def _see_through_mattes(tri_scene: TriangleScene, cam: Camera, tri_object, pos, nrm, depth, obj, tri,

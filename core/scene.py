@@ -657,6 +657,11 @@ class GBuffer:
     hit: np.ndarray           # bool[H,W]
     pixel: Optional[np.ndarray] = None   # int64[N]: a packed G-buffer's pixels (None: dense)
     time: Optional[np.ndarray] = None    # float32[H,W]: each entry's shutter time (None: the frame's)
+    #: bool[H,W]: the entries that stand for the whole shutter (receivers a
+    #: still camera sees on still objects, in a filtered frame of moving
+    #: ones): a method that traces time draws each of their shadow rays' own
+    #: (``camera_samples.ray_times``) instead of the entry's ``time``; None: none
+    over_shutter: Optional[np.ndarray] = None
 
     @property
     def shape(self) -> Tuple[int, int]:
@@ -673,6 +678,11 @@ class GBuffer:
     def times(self, idx: np.ndarray) -> Optional[np.ndarray]:
         """float32 shutter times of entries ``idx`` (None: all at the frame)."""
         return None if self.time is None else np.ascontiguousarray(self.time.reshape(-1)[idx], np.float32)
+
+    def spread(self, idx: np.ndarray) -> Optional[np.ndarray]:
+        """bool: which of entries ``idx`` stand for the whole shutter
+        (``over_shutter``; None: none does)."""
+        return None if self.over_shutter is None else np.ascontiguousarray(self.over_shutter.reshape(-1)[idx], bool)
 
     def seed_ids(self, idx: np.ndarray) -> np.ndarray:
         """The pixel ids that seed entries ``idx``' per-pixel samples: their

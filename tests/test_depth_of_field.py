@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from penumbra.core import camera_samples, raycast, views
+from penumbra.core import camera_effects, camera_samples, raycast, views
 from penumbra.core.camera_samples import aperture_point, lens_points
 from penumbra.core.filtered_frame import render_filtered
 from penumbra.core.frame import render_frame
@@ -167,7 +167,7 @@ def test_the_plan_line_names_the_lens():
     scene = half_plane_scene(sun_light(0.0), res=8)
     scene.camera = dataclasses.replace(persp_camera((0, 0, 1.0), (0, 0, 0)), aperture_radius=0.01,
                                        focus_distance=2.0)
-    assert "lens radius 0.01" in camera_samples.effects_line(scene, True)
-    assert "ignored" in camera_samples.effects_line(scene, False)
+    assert "lens radius 0.01" in camera_effects.effects_line(scene, True)
+    assert "ignored" in camera_effects.effects_line(scene, False)
     scene.camera = dataclasses.replace(scene.camera, aperture_radius=0.0)
-    assert camera_samples.effects_line(scene, True) is None
+    assert camera_effects.effects_line(scene, True) is None

@@ -18,7 +18,8 @@ product of (1 - alpha) through alpha mattes (``alpha_rays.transmittance``).
 Parameters:
 
   ==========  =======  ==================================================
-  samples     256      shadow rays per pixel (1 for a light of size zero)
+  samples     256      shadow rays per pixel (1 for a light of size zero,
+                       unless the receiver stands for the whole shutter)
   seed        0        seed of the counter hash that jitters the samples
   ==========  =======  ==================================================
 
@@ -31,7 +32,10 @@ samples" draws the same ones. Rays start at the G-buffer point moved off its
 surface by ``sampling.offset_origin`` (Wächter & Binder, scaled to the scene
 extent). A receiver taken at a shutter time (``GBuffer.time``: a filtered
 frame with motion blur) traces its rays at that time, against the occluders
-where they are then (``core/motion.py``).
+where they are then (``core/motion.py``); one that stands for the whole
+shutter (``GBuffer.over_shutter``: a still camera's pixel centres) traces
+each ray at its own time, stratified over the shutter jointly with the
+light strata (``camera_samples.ray_times``).
 
 Rays are generated, traced (``core/embree4``'s kernels, which release the GIL)
 and reduced in batches of about ``RAYS_PER_BATCH``, one worker thread per
@@ -46,7 +50,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .. import sampling
+from .. import camera_samples, sampling
 from ..jit import HOT, kernel
 from ..kernels import each_in_threads, each_range
 from ..sampling import L_AX, L_AY, L_AZ, L_CX, L_HX, L_HY, L_SHAPE, offset_origin, reference_sample, strata
@@ -110,9 +114,15 @@ def reduce_visibility(trans, w, ns, v_avg, v_irr):
         v_irr[i] = wl / wt if wt > 0.0 else 0.0
 
 
-def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, threads=None, time=None):
+def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, threads=None, time=None,
+                     over_shutter=None):
     """V_avg and V_irr (float32[n]) for points P with normals Nrm, their
-    shadow rays at the points' shutter ``time`` (float32[n]; None: the frame)."""
+    shadow rays at the points' shutter ``time`` (float32[n]; None: the
+    frame), those of the points ``over_shutter`` marks (bool[n]; None:
+    none) each at its own time over the shutter (``camera_samples.ray_times``;
+    with ``time`` None every point must be marked)."""
+    if over_shutter is not None and time is None and not over_shutter.all():
+        raise ValueError("points that do not stand for the shutter need their time")
     lp = sampling.pack_light(light)
     n = len(P)
     ns = int(samples)
@@ -135,6 +145,10 @@ def trace_visibility(tri_scene, P, Nrm, pix, light, samples, seed, scale, thread
         w = np.empty(m, np.float64)
         generate_shadow_rays(P[a:b], Nrm[a:b], pix[a:b], lp, ns, seed, scale, org, dirs, tfar, w)
         t = None if time is None else np.repeat(time[a:b], ns)
+        if over_shutter is not None and over_shutter[a:b].any():
+            spread = np.repeat(over_shutter[a:b], ns)
+            own = camera_samples.ray_times(pix[a:b], ns, seed)
+            t = own if t is None else np.where(spread, own, t)
         reduce_visibility(tri_scene.transmittance(org, dirs, tfar, t), w, ns, v_avg[a:b], v_irr[a:b])
 
     each_in_threads(work, chunks, max(1, int(threads or numba.get_num_threads())))
@@ -270,10 +284,14 @@ class EmbreeReference(Method):
         H, W = g.shape
         with timer("select"):
             idx, P, Nrm = g.hit_points()
-        ns = 1 if light.is_zero_size else max(1, int(params.samples))
+        spread = g.spread(idx)
+        ns = max(1, int(params.samples))
+        if light.is_zero_size and (spread is None or not spread.any()):   # one ray finds a point's hard shadow
+            ns = 1
         with timer("trace"):
             va, vi, rays = trace_visibility(buffers.shadow_scene_for(light), P, Nrm, g.seed_ids(idx), light, ns,
-                                            int(params.seed), buffers.scale, time=g.times(idx))
+                                            int(params.seed), buffers.scale, time=g.times(idx),
+                                            over_shutter=spread)
         out_a = np.ones(H * W, np.float32)
         out_i = np.ones(H * W, np.float32)
         out_a[idx] = va
