@@ -38,6 +38,7 @@ filtered by their renderer. The frame gets a coverage (alpha) image.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Dict, Optional, Sequence
 
@@ -55,7 +56,7 @@ from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footpr
 from .scene import GBuffer, Scene
 from .compile_ahead import frame_keys, prefetch
 from .data_passes import raster
-from .motion import TIME_SLICES, swept_boxes
+from .motion import TIME_SLICES, retime_points, swept_boxes
 from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 16      # stratified light samples per sub-pixel receiver for its unshadowed irradiance (E0)
@@ -111,15 +112,16 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     slice_bounds = _slice_bounds(buffers.bounds(), swept)
 
     def sliced(m) -> bool:
-        """Producer ``m`` takes the occluders at time slices (objects move, it does not trace each time)."""
-        return objects_move and slices > 1 and not m.shutter_time
+        """Producer ``m`` takes the occluders at time slices (objects move, it does not trace each
+        time; one slice: the frame)."""
+        return objects_move and not m.shutter_time
     overrides, method_overrides = options.get("overrides"), options.get("method_overrides")
     sliced_s = {}                         # (light, producer) -> seconds of its pixel centres' time slices
     if seen is not None:
         moving = {lr.name: seen | _moving_shadows(buffers, scene.light(lr.name), swept[casts], flt.reach)
                   for lr in base.lights}
         for lr, prod, pids in units:      # a still receiver in a moving shadow: its pixel centre over the shutter
-            if sliced(method_registry.producers()[prod]):
+            if sliced(method_registry.producers()[prod]) and slices > 1:
                 still = moving[lr.name] & ~seen & buffers.reach(scene.light(lr.name))
                 sliced_s[lr.name, prod] = _slice_centres(scene, buffers, lr, method_registry.producers()[prod],
                                                          still, slices, slice_bounds, overrides, method_overrides)
@@ -174,6 +176,8 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
                     if not len(sl):
                         continue
                     g_p = g_u if len(sl) == len(at) else _take(g_u, sl)
+                    if share is not None:         # the receivers where the slice's occluders are
+                        g_p = _retimed(g_p, scene.motion, scene.motion.frame_time if at_time is None else at_time)
                     gb = g_p if m.packed else raycast.unpack_gbuffer(g_p, SW, SH)
                     sub_buffers = buffers.supersampled(sub_scene, SW, SH, gb, tg * len(sl) / len(union), at_time,
                                                        slice_bounds)
@@ -256,7 +260,7 @@ def _time_slices(g: GBuffer, part: np.ndarray, slices: int, motion):
     buffers the pixel-centre stage built), with share 1; a sub-sample that
     stands for the whole shutter (``GBuffer.over_shutter``) is in every
     slice with share 1 / ``slices``."""
-    if g.time is None or slices <= 1:
+    if slices <= 1:
         return [(None, part, np.ones(len(part), np.float32))]
     k = np.minimum((g.time.reshape(-1)[part] * slices).astype(np.int64), slices - 1)
     spread = g.spread(part)
@@ -269,6 +273,17 @@ def _time_slices(g: GBuffer, part: np.ndarray, slices: int, motion):
         share = np.where(spread[sel], np.float32(1.0 / slices), np.float32(1.0)).astype(np.float32)
         out.append((None if abs(t - motion.frame_time) < 1e-12 else t, part[sel], share))
     return out
+
+
+def _retimed(g: GBuffer, motion, t: float) -> GBuffer:
+    """Packed G-buffer ``g`` with its receivers on moving objects moved from
+    their own time (``GBuffer.time``) to shutter time ``t`` (a time
+    slice's, whose occluders shade them: a surface does not shadow itself
+    for being taken at another time than its receiver)."""
+    pos = np.array(g.position.reshape(-1, 3), np.float64)
+    nrm = np.array(g.normal.reshape(-1, 3), np.float32)
+    retime_points(motion, pos, nrm, g.object_id.reshape(-1), g.time.reshape(-1), t)
+    return dataclasses.replace(g, position=pos.reshape(g.position.shape), normal=nrm.reshape(g.normal.shape))
 
 
 def _slice_bounds(bounds, swept: np.ndarray):

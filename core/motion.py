@@ -139,6 +139,24 @@ def move_points(motion: ShutterMotion, position: np.ndarray, normal: np.ndarray,
     return idx
 
 
+def retime_points(motion: ShutterMotion, position: np.ndarray, normal: np.ndarray, object_id: np.ndarray,
+                  time: np.ndarray, to: float) -> None:
+    """Move receivers found at their ``time`` (float[n]) to where their
+    objects put them at shutter time ``to``: for each entry on a moving
+    object, position <- D(to) D(time)^-1 position, the normal by that
+    matrix's inverse transpose, unit (D: the object's ``blend``ed delta).
+    In place (position float64[n,3], normal float[n,3])."""
+    slot = motion.slot_of(object_id)
+    idx = np.flatnonzero(slot >= 0)
+    if not len(idx):
+        return
+    M = blend(motion.delta[:, slot[idx]], np.full(len(idx), to)) @ np.linalg.inv(
+        blend(motion.delta[:, slot[idx]], time[idx]))
+    position[idx] = np.einsum("nij,nj->ni", M[:, :3, :3], position[idx]) + M[:, :3, 3]
+    N = np.einsum("nji,nj->ni", np.linalg.inv(M[:, :3, :3]), normal[idx].astype(np.float64))
+    normal[idx] = N / np.maximum(np.linalg.norm(N, axis=1), 1e-300)[:, None]
+
+
 def move_triangles(motion: ShutterMotion, triangles: np.ndarray, object_id: np.ndarray, t: float) -> np.ndarray:
     """float32[T, 3, 3]: ``triangles`` (at the frame's placement, their
     objects ``object_id``) with those of moving objects where they are at

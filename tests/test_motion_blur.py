@@ -10,6 +10,7 @@ import pytest
 
 from penumbra.core import camera_effects, camera_samples, raycast
 from penumbra.core.auto_choice import choose, scene_shape
+from penumbra.core.buffers import FrameBuffers
 from penumbra.core.filtered_frame import render_filtered
 from penumbra.core.frame import render_frame
 from penumbra.core.motion import ShutterMotion, blend, frame_offsets
@@ -117,6 +118,32 @@ def test_only_the_pixels_a_moving_object_can_change_are_refined():
         assert ((a > 0.05) & (a < 0.95)).sum() > 20              # the blurred shadow and silhouette are there
         assert np.sqrt(np.mean((a - e) ** 2)) < 0.005 and np.abs(a - e).max() < 0.08
     assert adaptive.record["pcf"]["time_s"]["time_slices"] > 0
+
+
+@pytest.mark.parametrize("slices", [1, 3])
+def test_a_moving_receiver_is_shaded_where_the_slices_occluders_are(slices):
+    # a box rising and sliding under a sun: its lit top, taken at each sub-sample's own time, is shaded with
+    # the occluders of its time slice (or the frame); it must not shadow itself for being taken
+    # at another time than they are
+    tris = quad(-4, 4, -4, 4, 0.0) + box(-0.8, 0.8, -0.8, 0.8, 0.3, 0.7)
+    sun = sun_light(0.02)
+    sun.world_from_light = light_matrix((0, 0, 10.0), forward=(0.3, 0.0, -1.0))
+    scene = make_scene(tris, [0, 0] + [1] * 12, [sun], res=48, camera=top_ortho_camera(2.0, height=2.0))
+    rising = _sliding(0.6)
+    rising[:, 2, 3] = rising[:, 1, 3] / 2                   # up 0.3 while it slides: its top moves off itself
+    scene.motion = ShutterMotion([1], rising[:, None])
+    methods = ["pcf", "single_sample", "penumbra_casting", "irregular"]
+    res = render_filtered(scene, methods, pixel_filter=FLT, time_slices=slices).lights[0]
+    g = FrameBuffers(scene, 48, 48).gbuffer
+    top = (g.object_id == 1) & (np.abs(g.position[..., 2] - 0.7) < 1e-4)   # the box's top at the frame
+    inner = top.copy()                    # ... and under every sub-sample of the pixel all shutter long
+    for d in range(1, 7):
+        inner &= np.roll(top, d, 0) & np.roll(top, -d, 0)
+    for d in (1, 2):
+        inner &= np.roll(top, d, 1) & np.roll(top, -d, 1)
+    assert inner.sum() > 20
+    for m in methods:
+        assert res.passes[m][inner].min() > 0.95, m
 
 
 def test_a_moving_camera_blurs_a_still_shadow_edge():
