@@ -19,7 +19,7 @@ from penumbra.core.methods import producer_of
 from penumbra.core.methods.depth_raytrace import DepthRaytraceParams, resolve_map_size
 from penumbra.core.methods.depth_raytrace.benchmark import benchmark_table, format_table
 from penumbra.core.methods.depth_raytrace.coherence import inv_concentric, project_to_light
-from penumbra.core.methods.depth_raytrace.maps import FP_FOOT, fit_points, reference_eyes
+from penumbra.core.methods.depth_raytrace.maps import FP_FOOT, build_reference_maps, fit_points, reference_eyes
 from penumbra.core.methods.depth_raytrace.window import cone_envelope
 from penumbra.core.metrics import errors, reach_mask
 from penumbra.core.sampling import concentric_disk, light_sample, pack_light
@@ -617,7 +617,11 @@ def test_a_sun_window_of_one_depth_still_blocks():
     assert (y < -0.17).all()                                # every receiver lies under the occluder
     m = producer_of("depth_raytrace")
     view = b.supersampled(sub_scene, 256, 256, g, 0.0).view(m.needs)
-    params = m.make_params({})
-    assert resolve_map_size(params, 256, 256, scene.lights[0]) == 1024
-    V = m.run(view, scene.lights[0], params).passes["depth_raytrace"]
+    p = m.make_params({})
+    maps = build_reference_maps(view, scene.lights[0], 1024, p.ref_points, p.shadow_bias, p.bias_texels,
+                                p.slope_bias, p.gap_bias, p.gap_texels)
+    depth = maps.raw_depth[0][np.isfinite(maps.raw_depth[0])]
+    assert depth.size and depth.min() == depth.max()         # the window holds the occluder's one depth
+    V = m.run(view, scene.lights[0], p, maps=maps).passes["depth_raytrace"]
     assert np.array_equal(V.reshape(-1), np.zeros(9, np.float32))
+
