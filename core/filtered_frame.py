@@ -56,7 +56,7 @@ from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footpr
 from .scene import GBuffer, Scene
 from .compile_ahead import frame_keys, prefetch
 from .data_passes import raster
-from .motion import TIME_SLICES, retime_points, swept_boxes
+from .motion import TIME_SLICES, box_corners, retime_points, swept_boxes
 from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 16      # stratified light samples per sub-pixel receiver for its unshadowed irradiance (E0)
@@ -230,9 +230,10 @@ def _slice_centres(scene: Scene, buffers: FrameBuffers, lr, m, pixels: np.ndarra
     if not len(idx) or not own:
         return 0.0
     g = buffers.gbuffer
-    centres = GBuffer(position=g.position.reshape(1, -1, 3)[:, idx], normal=g.normal.reshape(1, -1, 3)[:, idx],
-                      depth=g.depth.reshape(1, -1)[:, idx], object_id=g.object_id.reshape(1, -1)[:, idx],
-                      triangle_id=g.triangle_id.reshape(1, -1)[:, idx], hit=g.hit.reshape(1, -1)[:, idx], pixel=idx)
+    centres = _take(GBuffer(position=g.position.reshape(1, -1, 3), normal=g.normal.reshape(1, -1, 3),
+                            depth=g.depth.reshape(1, -1), object_id=g.object_id.reshape(1, -1),
+                            triangle_id=g.triangle_id.reshape(1, -1), hit=g.hit.reshape(1, -1),
+                            pixel=np.arange(H * W, dtype=np.int64)), idx)
     gb = centres if m.packed else raycast.unpack_gbuffer(centres, W, H)
     rows, cols = idx // W, idx % W
     total = {q: np.zeros(len(idx), np.float64) for q in own}
@@ -350,8 +351,7 @@ def _moving_images(scene: Scene, buffers: FrameBuffers, swept: np.ndarray, reach
     cam, motion = scene.camera, scene.motion
     if not len(swept):
         return np.zeros((H, W), bool)
-    corners = np.array([[[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-                        for lo, hi in swept]).reshape(-1, 3)
+    corners = box_corners(swept).reshape(-1, 3)
     local = (corners - cam.position) @ np.asarray(cam.world_from_camera, np.float64)[:3, :3]
     if cam.kind != "ORTHO" and (local[:, 2] > -max(cam.clip_start, 1e-9)).any():
         return np.ones((H, W), bool)
@@ -362,11 +362,11 @@ def _moving_images(scene: Scene, buffers: FrameBuffers, swept: np.ndarray, reach
         in_boxes[max(r0, 0):max(min(r1, H), 0), max(c0, 0):max(min(c1, W), 0)] = True
     boxes, _ = _moving_boxes(scene)
     ok = np.isfinite(boxes).all(axis=(1, 2))
-    box_corners = np.stack([np.stack([boxes[ok, (b >> a) & 1, a] for a in range(3)], 1) for b in range(8)], 1)
+    corners_now = box_corners(boxes[ok])
     shift = 0.0                           # the farthest a box corner's image moves between two steps
     prev = None
     for D in motion.delta[:, ok]:         # [m, 4, 4] each step
-        moved = np.einsum("mij,mcj->mci", D[:, :3, :3], box_corners) + D[:, None, :3, 3]
+        moved = np.einsum("mij,mcj->mci", D[:, :3, :3], corners_now) + D[:, None, :3, 3]
         xy = raster(cam, cam.world_from_camera, moved.reshape(-1, 3), W, H)
         if prev is not None:
             shift = max(shift, float(np.max(np.linalg.norm(xy - prev, axis=1))))

@@ -174,15 +174,20 @@ def move_triangles(motion: ShutterMotion, triangles: np.ndarray, object_id: np.n
     return out
 
 
+def box_corners(boxes: np.ndarray) -> np.ndarray:
+    """float64[m, 8, 3]: the corners of the boxes (lo, hi) ``boxes``
+    (float[m, 2, 3]); corner b takes hi on axis a where bit a of b is set."""
+    boxes = np.asarray(boxes, np.float64)
+    return np.stack([np.stack([boxes[:, (b >> a) & 1, a] for a in range(3)], 1) for b in range(8)], 1)
+
+
 def swept_boxes(motion: ShutterMotion, boxes: np.ndarray) -> np.ndarray:
     """float64[m, 2, 3]: the world boxes (lo, hi) that hold each moving
     object over the whole shutter, from its box at the frame (``boxes``,
     float64[m, 2, 3] in ``motion.objects``' order): the box's corners moved
     by every step's delta (a linear blend of two steps stays in the hull of
     their placements)."""
-    lo, hi = boxes[:, 0], boxes[:, 1]
-    corners = np.stack([np.stack([np.where(b & 1, hi[:, 0], lo[:, 0]), np.where(b & 2, hi[:, 1], lo[:, 1]),
-                                  np.where(b & 4, hi[:, 2], lo[:, 2])], 1) for b in range(8)], 1)
+    corners = box_corners(boxes)
     moved = np.einsum("kmij,mcj->kmci", motion.delta[:, :, :3, :3], corners) + motion.delta[:, :, None, :3, 3]
     moved = moved.transpose(1, 0, 2, 3).reshape(len(boxes), -1, 3)
     return np.stack([moved.min(1), moved.max(1)], 1)
