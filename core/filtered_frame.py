@@ -56,7 +56,7 @@ from .pixel_filter import (DEPTH_JUMP, NORMAL_COS, PixelFilter, coverage, footpr
 from .scene import GBuffer, Scene
 from .compile_ahead import frame_keys, prefetch
 from .data_passes import raster
-from .motion import TIME_SLICES, box_corners, retime_points, swept_boxes
+from .motion import TIME_SLICES, box_corners, retime_points, step_corners
 from .warmup import ensure_filter_compiled
 
 E0_SAMPLES = 16      # stratified light samples per sub-pixel receiver for its unshadowed irradiance (E0)
@@ -90,10 +90,11 @@ def render_filtered(scene: Scene, passes: Sequence[str], light_names: Optional[S
     # every footprint sees through the lens, or the camera moves: all pixels; moving objects: theirs
     everywhere = scene.camera.has_depth_of_field or (moves and scene.motion.camera is not None)
     objects_move = moves and len(scene.motion.objects) > 0
-    swept, casts = _swept_boxes(scene) if objects_move else (np.zeros((0, 2, 3)), np.zeros(0, bool))
+    swept, casts, corners = (_swept_boxes(scene) if objects_move
+                             else (np.zeros((0, 2, 3)), np.zeros(0, bool), np.zeros((0, 0, 8, 3))))
     seen = None                           # the pixels a moving object's image can reach
     if objects_move and not everywhere and taps.size > 0:
-        seen = _moving_images(scene, buffers, swept, flt.reach)
+        seen = _moving_images(scene, buffers, swept, corners, flt.reach)
         buffers.stand_for_shutter()       # elsewhere a pixel centre's receiver holds still over the shutter
     base = render_frame(scene, passes, light_names, buffers=buffers, **options)
     base.compile_s += compile_s           # the filter's kernels: compiled before anything was timed
@@ -336,14 +337,16 @@ def _refined(flt: PixelFilter, g: GBuffer, values, any_taps: bool, everywhere: b
     return refine, full
 
 
-def _moving_images(scene: Scene, buffers: FrameBuffers, swept: np.ndarray, reach: int) -> np.ndarray:
+def _moving_images(scene: Scene, buffers: FrameBuffers, swept: np.ndarray, corners: np.ndarray,
+                   reach: int) -> np.ndarray:
     """bool[H, W]: the pixels a moving object's image can reach over the
     shutter, and so what it hides or shows, within ``reach``: those in the
     image of a box in ``swept`` (each moving object's over the shutter) and
     near one whose centre sees a moving object at one of the motion's steps
     (the pixel-centre G-buffer at the step's time), as near as the image of
-    a moving object's box moves between two steps (every pixel when a swept
-    box reaches behind the camera's plane). With ``_moving_shadows``: the
+    a moving object's box (its ``corners`` at each step, ``_swept_boxes``)
+    moves between two steps (every pixel when a swept box reaches behind the
+    camera's plane). With ``_moving_shadows``: the
     pixels whose footprint something moving can change (the camera still); a
     pixel left out keeps its pixel-centre value, which motion cannot change."""
     g = buffers.gbuffer
@@ -351,22 +354,18 @@ def _moving_images(scene: Scene, buffers: FrameBuffers, swept: np.ndarray, reach
     cam, motion = scene.camera, scene.motion
     if not len(swept):
         return np.zeros((H, W), bool)
-    corners = box_corners(swept).reshape(-1, 3)
-    local = (corners - cam.position) @ np.asarray(cam.world_from_camera, np.float64)[:3, :3]
+    swept_corners = box_corners(swept).reshape(-1, 3)
+    local = (swept_corners - cam.position) @ np.asarray(cam.world_from_camera, np.float64)[:3, :3]
     if cam.kind != "ORTHO" and (local[:, 2] > -max(cam.clip_start, 1e-9)).any():
         return np.ones((H, W), bool)
     in_boxes = np.zeros((H, W), bool)
-    for xy in raster(cam, cam.world_from_camera, corners, W, H).reshape(-1, 8, 2):
+    for xy in raster(cam, cam.world_from_camera, swept_corners, W, H).reshape(-1, 8, 2):
         c0, c1 = int(np.floor(xy[:, 0].min())) - reach, int(np.ceil(xy[:, 0].max())) + reach
         r0, r1 = int(np.floor(H - xy[:, 1].max())) - reach, int(np.ceil(H - xy[:, 1].min())) + reach
         in_boxes[max(r0, 0):max(min(r1, H), 0), max(c0, 0):max(min(c1, W), 0)] = True
-    boxes, _ = _moving_boxes(scene)
-    ok = np.isfinite(boxes).all(axis=(1, 2))
-    corners_now = box_corners(boxes[ok])
     shift = 0.0                           # the farthest a box corner's image moves between two steps
     prev = None
-    for D in motion.delta[:, ok]:         # [m, 4, 4] each step
-        moved = np.einsum("mij,mcj->mci", D[:, :3, :3], corners_now) + D[:, None, :3, 3]
+    for moved in corners:                 # [m, 8, 3] each step
         xy = raster(cam, cam.world_from_camera, moved.reshape(-1, 3), W, H)
         if prev is not None:
             shift = max(shift, float(np.max(np.linalg.norm(xy - prev, axis=1))))
@@ -425,16 +424,18 @@ def _moving_shadows(buffers: FrameBuffers, light, casters: np.ndarray, reach: in
     shadow = np.zeros(H * W, bool)
     shadow[idx[near]] = True
     shadow = shadow.reshape(H, W)
-    return hit_edges(shadow, reach) | shadow
+    return _dilate(shadow, reach)
 
 
 def _swept_boxes(scene: Scene):
     """(float64[m, 2, 3] the boxes holding each moving object with geometry
-    over the shutter, bool[m] whether it casts shadows)."""
+    over the shutter, bool[m] whether it casts shadows, float64[K, m, 8, 3]
+    the corners of its box at each step)."""
     boxes, casts = _moving_boxes(scene)
-    swept = swept_boxes(scene.motion, boxes)
+    corners = step_corners(scene.motion.delta, boxes)
+    swept = np.stack([corners.min(axis=(0, 2)), corners.max(axis=(0, 2))], 1)
     ok = np.isfinite(swept).all(axis=(1, 2))
-    return swept[ok], casts[ok]
+    return swept[ok], casts[ok], corners[:, ok]
 
 
 def _moving_boxes(scene: Scene):

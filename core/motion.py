@@ -181,14 +181,7 @@ def box_corners(boxes: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([boxes[:, (b >> a) & 1, a] for a in range(3)], 1) for b in range(8)], 1)
 
 
-def swept_boxes(motion: ShutterMotion, boxes: np.ndarray) -> np.ndarray:
-    """float64[m, 2, 3]: the world boxes (lo, hi) that hold each moving
-    object over the whole shutter, from its box at the frame (``boxes``,
-    float64[m, 2, 3] in ``motion.objects``' order): the box's corners moved
-    by every step's delta (a linear blend of two steps stays in the hull of
-    their placements)."""
-    corners = box_corners(boxes)
-    moved = np.einsum("kmij,mcj->kmci", motion.delta[:, :, :3, :3], corners) + motion.delta[:, :, None, :3, 3]
-    moved = moved.transpose(1, 0, 2, 3).reshape(len(boxes), -1, 3)
-    return np.stack([moved.min(1), moved.max(1)], 1)
-
+def step_corners(delta: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """float64[K, m, 8, 3]: the corners of the boxes ``boxes`` (float[m, 2, 3],
+    at the frame) placed by each step's ``delta`` (float64[K, m, 4, 4])."""
+    return np.einsum("kmij,mcj->kmci", delta[:, :, :3, :3], box_corners(boxes)) + delta[:, :, None, :3, 3]
